@@ -1,0 +1,23 @@
+"""aobake: a ray-traced ambient-occlusion reference baker (Embree through embreex).
+
+Python API::
+
+    import aobake
+    result = aobake.bake("mesh.obj", quantities=("ao", "obscurance"), rays=256)
+    result.ao, result.ao_stderr, result.report
+
+    values = aobake.bake_points("mesh.obj", points, normals, rays=1024)
+"""
+
+import logging
+
+from aobake.bake import BakeResult, bake, bake_points
+from aobake.config import BakeConfig
+from aobake.errors import AobakeError, InputError, OutputError
+from aobake.scene import Scene, load_scene
+
+__all__ = ["AobakeError", "BakeConfig", "BakeResult", "InputError", "OutputError", "Scene",
+           "bake", "bake_points", "load_scene"]
+__version__ = "0.1.0"
+
+logging.getLogger(__name__).addHandler(logging.NullHandler())

@@ -1,0 +1,169 @@
+"""Command line: a thin layer over :func:`aobake.bake`.  Only this module talks to the terminal.
+
+Exit codes: 0 success, 1 a problem with the input or output (one-line message,
+no traceback), 2 invalid usage (click's own errors).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import sys
+from pathlib import Path
+
+import click
+
+from aobake.config import AXES, BACKFACES, NORMALS, QUANTITIES, BakeConfig, parse_distance
+from aobake.errors import AobakeError, OutputError
+from aobake.samplers import SAMPLERS
+from aobake.warp import WEIGHTINGS
+
+VERTEX_OUTPUTS = (".npz", ".ply", ".glb")
+
+EPILOG = """\b
+Conventions (also written into every output's metadata):
+  AO is cosine-weighted visibility (1/pi) int V cos dw: 1 = fully open, 0 = fully occluded.
+  A hit beyond --max-distance is a miss.  Obscurance uses rho(L) = 1 - exp(-tau L)
+  and counts a miss as rho = 1.  The bent normal is the normalised mean of the
+  unoccluded sample directions (the surface normal when no ray escapes).
+  Every value comes with its standard error (*_stderr).
+"""
+
+
+class DistanceType(click.ParamType):
+    """A number in scene units, 'inf', or 'P%' of the bounding-box diagonal."""
+
+    name = "distance"
+
+    def convert(self, value, param, ctx):
+        try:
+            return parse_distance(value)
+        except ValueError as exc:
+            self.fail(str(exc), param, ctx)
+
+
+class TauType(click.ParamType):
+    name = "tau"
+
+    def convert(self, value, param, ctx):
+        try:
+            tau = float(value)
+        except ValueError:
+            self.fail(f"{value!r} is not a number", param, ctx)
+        if math.isnan(tau) or tau < 0:
+            self.fail(f"tau must be >= 0 (or inf), got {value}", param, ctx)
+        return tau
+
+
+def _progress_bar(quiet: bool):
+    """(callback, finish) drawing a progress bar on stderr when it is a terminal."""
+    if quiet or not sys.stderr.isatty():
+        return None, lambda: None
+    state = {}
+
+    def callback(done, total):
+        if "bar" not in state:
+            state["bar"] = click.progressbar(length=total, label="baking", file=sys.stderr)
+            state["bar"].__enter__()
+            state["last"] = 0
+        state["bar"].update(done - state["last"])
+        state["last"] = done
+
+    def finish():
+        if "bar" in state:
+            state["bar"].__exit__(None, None, None)
+
+    return callback, finish
+
+
+@click.command(epilog=EPILOG, context_settings={"help_option_names": ["-h", "--help"]})
+@click.argument("mesh", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--out", "-o", "out", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help=f"Output file; the extension picks the format: {', '.join(VERTEX_OUTPUTS)}.")
+@click.option("--quantity", "-q", "quantities", multiple=True, type=click.Choice(QUANTITIES),
+              help="What to bake (repeatable). Default: ao.")
+@click.option("--rays", default=256, show_default=True, type=click.IntRange(min=1),
+              help="Rays per point (the QMC samplers round up to a multiple of 8).")
+@click.option("--max-distance", default="inf", show_default=True, type=DistanceType(),
+              help="Occluder search distance: scene units, 'inf', or 'P%' of the bounding-box "
+                   "diagonal. Default inf: AO as defined, with no cut-off.")
+@click.option("--tau", type=TauType(), default=None,
+              help="Obscurance decay per scene unit in rho(L) = 1 - exp(-tau L). "
+                   "Default: 10 / bounding-box diagonal.")
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(0, 2**63 - 1))
+@click.option("--sampler", default="sobol", show_default=True, type=click.Choice(sorted(SAMPLERS)),
+              help="random: i.i.d.; stratified: jittered grid; sobol: Sobol net. "
+                   "All randomised, all unbiased.")
+@click.option("--weighting", default="cosine", show_default=True,
+              type=click.Choice(sorted(WEIGHTINGS)),
+              help="Hemisphere sampling: cosine (importance-sampled) or uniform "
+                   "(libigl/xNormal convention); both estimate the same AO.")
+@click.option("--normals", default="file", show_default=True, type=click.Choice(NORMALS),
+              help="Vertex normals: the file's (angle-weighted where it has none), or computed.")
+@click.option("--ground-plane", is_flag=True,
+              help="Add an infinite solid ground plane at the scene's lowest point along --up-axis.")
+@click.option("--up-axis", default="y", show_default=True, type=click.Choice(AXES))
+@click.option("--backfaces", default="occlude", show_default=True, type=click.Choice(BACKFACES),
+              help="ignore: rays pass through back faces (costs closest-hit queries).")
+@click.option("--ray-offset", default=1e-5, show_default=True, type=click.FloatRange(0, 0.1, min_open=True, max_open=True),
+              help="Ray origin offset along the normal, as a fraction of the diagonal.")
+@click.option("--threads", default=None, type=click.IntRange(min=1),
+              help="Worker threads. Default: all cores.")
+@click.option("--report", "report_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="Write the JSON report (configuration, parameters, statistics) here.")
+@click.option("--quiet", is_flag=True, help="No progress bar or warnings.")
+@click.version_option(package_name="aobake")
+def main(mesh, out, quantities, rays, max_distance, tau, seed, sampler, weighting, normals,
+         ground_plane, up_axis, backfaces, ray_offset, threads, report_path, quiet):
+    """Bake ambient occlusion of MESH (OBJ, PLY, STL, OFF, GLB/glTF) per vertex into --out."""
+    logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING,
+                        format="aobake: warning: %(message)s", stream=sys.stderr)
+    try:
+        _run(mesh, out, quantities, rays, max_distance, tau, seed, sampler, weighting, normals,
+             ground_plane, up_axis, backfaces, ray_offset, threads, report_path, quiet)
+    except (AobakeError, ValueError) as exc:
+        click.echo(f"aobake: error: {exc}", err=True)
+        sys.exit(1)
+
+
+def _check_outputs(mesh: Path, out: Path, report_path: Path | None):
+    suffix = out.suffix.lower()
+    if suffix not in VERTEX_OUTPUTS:
+        raise OutputError(f"{out}: unsupported output format {suffix or '(none)'!r}; "
+                          f"use one of {', '.join(VERTEX_OUTPUTS)}")
+    for path in (out, report_path):
+        if path is None:
+            continue
+        if mesh.exists() and path.exists() and path.resolve() == mesh.resolve():
+            raise OutputError(f"{path}: refusing to overwrite the input mesh")
+        if not path.parent.resolve().is_dir():
+            raise OutputError(f"{path}: directory {path.parent} does not exist")
+
+
+def _run(mesh, out, quantities, rays, max_distance, tau, seed, sampler, weighting, normals,
+         ground_plane, up_axis, backfaces, ray_offset, threads, report_path, quiet):
+    from aobake.bake import CONVENTIONS, bake
+    from aobake.outputs import write_vertices
+    from aobake.outputs.report import write_report
+
+    _check_outputs(mesh, out, report_path)
+    config = BakeConfig(quantities=quantities or ("ao",), rays=rays, max_distance=max_distance,
+                        tau=tau, seed=seed, sampler=sampler, weighting=weighting, normals=normals,
+                        ground_plane=ground_plane, up_axis=up_axis, backfaces=backfaces,
+                        ray_offset=ray_offset)
+    progress, finish = _progress_bar(quiet)
+    try:
+        result = bake(mesh, config, threads=threads, progress=progress)
+    finally:
+        finish()
+    metadata = {"conventions": CONVENTIONS, "config": result.report["config"],
+                "parameters": result.report["parameters"], "versions": result.report["versions"]}
+    write_vertices(out, result.positions, result.faces, result.fields(), metadata)
+    if report_path is not None:
+        result.report["output"] = str(out)
+        write_report(report_path, result.report)
+    if not quiet:
+        rep = result.report
+        click.echo(f"aobake: {rep['points']} vertices x {rep['parameters']['rays_per_point']} rays "
+                   f"in {rep['wall_time_s']:.2f} s ({rep['rays_per_second'] / 1e6:.2f} Mrays/s) "
+                   f"-> {out}", err=True)

@@ -1,0 +1,450 @@
+"""Bake results as binary glTF 2.0 (``.glb``), written by hand, and a small reader.
+
+Two writers:
+
+- ``write``: a vertex bake.  One mesh, one triangle primitive with
+  ``POSITION`` (float32, with the min/max the spec requires), ``NORMAL`` (unit
+  float32) if normals were given, ``COLOR_0`` = (ao, ao, ao, 1) as linear
+  float32 (obscurance when AO is absent, clipped to [0, 1], NaN -> 0), and the
+  application-specific attributes ``_AO``, ``_AO_STDERR``, ``_OBSCURANCE``,
+  ``_OBSCURANCE_STDERR`` (SCALAR), ``_BENT_NORMAL`` (VEC3) and ``_RAYS`` (SCALAR)
+  for the fields present.  All are float32: glTF attributes must be float or
+  normalised integers, so ``_RAYS`` is a float32 count (exact below 2**24).
+  The material is white (``baseColorFactor`` 1, metallic 0, roughness 1) so
+  the vertex colours show as they are.
+- ``write_textured``: a lightmap bake.  The AO atlas is an embedded PNG used as
+  the material's ``occlusionTexture`` (glTF reads occlusion from the R channel,
+  1 = unoccluded).
+
+Conventions:
+
+- UVs are taken in the OBJ convention (v = 0 at the *bottom* of the image) and
+  written as (u, 1 - v), since glTF's UV origin is the top-left corner.
+- Bake metadata goes in ``asset.extras``; ``asset.generator`` is "aobake".
+  (trimesh does not load ``asset.extras``; read it with ``read_glb``.)
+- Indices are uint32 (componentType 5125); every bufferView starts on a 4-byte
+  boundary and both chunks are padded to 4 bytes, as the GLB container requires.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import struct
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from aobake.errors import InputError
+from aobake.outputs.atomic import atomic_path
+from aobake.outputs.npz import check_vertex_data
+from aobake.outputs.report import check_metadata, to_jsonable
+
+log = logging.getLogger(__name__)
+
+GENERATOR = "aobake"
+
+#: bake field -> glTF application-specific vertex attribute (names must start with "_")
+CUSTOM_ATTRIBUTES = {
+    "ao": "_AO",
+    "ao_stderr": "_AO_STDERR",
+    "obscurance": "_OBSCURANCE",
+    "obscurance_stderr": "_OBSCURANCE_STDERR",
+    "bent_normal": "_BENT_NORMAL",
+    "rays": "_RAYS",
+}
+
+# GLB container
+_MAGIC = b"glTF"
+_VERSION = 2
+_CHUNK_JSON = 0x4E4F534A  # "JSON"
+_CHUNK_BIN = 0x004E4942  # "BIN\0"
+
+# glTF enums
+_MODE_TRIANGLES = 4
+_FLOAT = 5126
+_UNSIGNED_INT = 5125
+_ARRAY_BUFFER = 34962
+_ELEMENT_ARRAY_BUFFER = 34963
+_LINEAR = 9729
+_CLAMP_TO_EDGE = 33071
+_REPEAT = 10497
+
+_COMPONENT_DTYPES = {
+    5120: np.dtype("i1"),
+    5121: np.dtype("u1"),
+    5122: np.dtype("<i2"),
+    5123: np.dtype("<u2"),
+    5125: np.dtype("<u4"),
+    5126: np.dtype("<f4"),
+}
+_TYPE_WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def write(
+    path: str | os.PathLike,
+    positions: np.ndarray,
+    faces: np.ndarray,
+    fields: Mapping[str, np.ndarray],
+    metadata: Mapping | None,
+) -> None:
+    """Write a vertex bake to ``path`` as a GLB file, atomically.
+
+    Parameters
+    ----------
+    path : output file
+    positions : (n, 3) float, stored as float32, n >= 1
+    faces : (f, 3) int, stored as uint32, f >= 1
+    fields : dict of per-vertex arrays (``aobake.outputs.npz.VERTEX_FIELDS``);
+      see the module docstring for the attributes they become
+    metadata : JSON-serialisable dict, stored in ``asset.extras``
+    """
+    positions, faces, fields = check_vertex_data(positions, faces, fields)
+    _check_not_empty(positions, faces)
+    gltf = _new_gltf(metadata)
+    blob = bytearray()
+
+    attributes = _add_geometry(gltf, blob, positions, fields.get("normals"))
+    shade = fields.get("ao", fields.get("obscurance"))
+    if shade is not None:
+        # linear grey; clipped because COLOR_0 is a [0, 1] multiplier
+        grey = np.nan_to_num(np.clip(shade.astype(np.float64), 0.0, 1.0), nan=0.0)
+        rgba = np.column_stack([grey, grey, grey, np.ones_like(grey)])
+        attributes["COLOR_0"] = _add_accessor(gltf, blob, rgba, _ARRAY_BUFFER)
+    for name, attribute in CUSTOM_ATTRIBUTES.items():
+        if name in fields:
+            attributes[attribute] = _add_accessor(gltf, blob, fields[name], _ARRAY_BUFFER)
+
+    material = {"name": GENERATOR, "pbrMetallicRoughness": _white_pbr()}
+    _add_mesh(gltf, blob, attributes, faces, material)
+    _write_glb(path, gltf, blob)
+    log.debug("wrote %s: %d vertices, %d faces, %s", path, len(positions), len(faces), list(fields))
+
+
+def write_textured(
+    path: str | os.PathLike,
+    positions: np.ndarray,
+    faces: np.ndarray,
+    normals: np.ndarray | None,
+    atlas_uv: np.ndarray,
+    occlusion_png: bytes,
+    metadata: Mapping | None,
+    base_uv: np.ndarray | None = None,
+    base_color_png: bytes | None = None,
+    base_color_factor: Sequence[float] | None = None,
+) -> None:
+    """Write a mesh whose material carries the baked AO atlas as its occlusion texture.
+
+    Parameters
+    ----------
+    path : output file
+    positions : (n, 3) float, stored as float32
+    faces : (f, 3) int, stored as uint32
+    normals : (n, 3) float or None; stored normalised
+    atlas_uv : (n, 2) float, AO atlas coordinates, OBJ convention (v = 0 at the
+      bottom); written as (u, 1 - v)
+    occlusion_png : bytes of a PNG whose R channel is AO (linear, 1 = unoccluded)
+    metadata : JSON-serialisable dict, stored in ``asset.extras``
+    base_uv : (n, 2) float or None, the mesh's own UVs (OBJ convention).  When
+      given it is TEXCOORD_0 and the atlas is TEXCOORD_1 (occlusionTexture.texCoord
+      = 1); otherwise the atlas is TEXCOORD_0 (texCoord = 0).
+    base_color_png : bytes of a PNG or None; the baseColorTexture, on TEXCOORD_0,
+      so it needs ``base_uv``
+    base_color_factor : 4 floats in [0, 1] or None (white)
+
+    The occlusion texture samples with linear filtering and no mipmaps (mips
+    would average texels of unrelated charts) and clamps to the edge; the base
+    colour texture repeats, as the mesh's own UVs may tile.
+    """
+    fields = {} if normals is None else {"normals": normals}
+    positions, faces, fields = check_vertex_data(positions, faces, fields)
+    _check_not_empty(positions, faces)
+    n = len(positions)
+    atlas_uv = _check_uv("atlas_uv", atlas_uv, n)
+    occlusion_png = _check_png("occlusion_png", occlusion_png)
+    if base_uv is not None:
+        base_uv = _check_uv("base_uv", base_uv, n)
+    if base_color_png is not None:
+        if base_uv is None:
+            raise ValueError("base_color_png needs base_uv (the UVs it is mapped with)")
+        base_color_png = _check_png("base_color_png", base_color_png)
+    factor = [1.0, 1.0, 1.0, 1.0]
+    if base_color_factor is not None:
+        factor = [float(c) for c in np.asarray(base_color_factor, dtype=np.float64).reshape(-1)]
+        if len(factor) != 4 or not all(0.0 <= c <= 1.0 for c in factor):
+            raise ValueError(
+                f"base_color_factor must be 4 floats in [0, 1], got {base_color_factor}"
+            )
+
+    gltf = _new_gltf(metadata)
+    blob = bytearray()
+    attributes = _add_geometry(gltf, blob, positions, fields.get("normals"))
+    uv_sets = [atlas_uv] if base_uv is None else [base_uv, atlas_uv]
+    for i, uv in enumerate(uv_sets):
+        attributes[f"TEXCOORD_{i}"] = _add_accessor(gltf, blob, _flip_v(uv), _ARRAY_BUFFER)
+
+    pbr = _white_pbr()
+    pbr["baseColorFactor"] = factor
+    material = {
+        "name": GENERATOR,
+        "occlusionTexture": {
+            "index": _add_texture(gltf, blob, occlusion_png, _CLAMP_TO_EDGE, "occlusion"),
+            "texCoord": len(uv_sets) - 1,
+        },
+        "pbrMetallicRoughness": pbr,
+    }
+    if base_color_png is not None:
+        index = _add_texture(gltf, blob, base_color_png, _REPEAT, "base_color")
+        pbr["baseColorTexture"] = {"index": index, "texCoord": 0}
+    _add_mesh(gltf, blob, attributes, faces, material)
+    _write_glb(path, gltf, blob)
+    log.debug("wrote %s: %d vertices, %d faces, textured", path, n, len(faces))
+
+
+def read_glb(path: str | os.PathLike) -> tuple[dict, bytes]:
+    """Read a GLB file.
+
+    Returns
+    -------
+    gltf : the JSON chunk, parsed
+    bin : bytes of the BIN chunk (including its padding), b"" if there is none
+
+    Raises ``InputError`` if the container is malformed.
+    """
+    data = Path(path).read_bytes()
+    if len(data) < 20:
+        raise InputError(f"{path}: too short to be a GLB file")
+    magic, version, length = struct.unpack_from("<4sII", data, 0)
+    if magic != _MAGIC or version != _VERSION:
+        raise InputError(f"{path}: not a glTF 2.0 binary file")
+    if length != len(data):
+        raise InputError(f"{path}: header says {length} bytes, file has {len(data)}")
+    chunks = []
+    offset = 12
+    while offset < length:
+        if offset + 8 > length:
+            raise InputError(f"{path}: truncated chunk header at byte {offset}")
+        size, kind = struct.unpack_from("<II", data, offset)
+        if offset + 8 + size > length:
+            raise InputError(f"{path}: chunk at byte {offset} runs past the end of the file")
+        chunks.append((kind, data[offset + 8 : offset + 8 + size]))
+        offset += 8 + size
+    if not chunks or chunks[0][0] != _CHUNK_JSON:
+        raise InputError(f"{path}: the first chunk is not JSON")
+    gltf = json.loads(chunks[0][1].decode("utf-8"))
+    binary = chunks[1][1] if len(chunks) > 1 and chunks[1][0] == _CHUNK_BIN else b""
+    return gltf, binary
+
+
+def read_view(gltf: dict, binary: bytes, index: int) -> bytes:
+    """Bytes of bufferView ``index`` (e.g. an embedded image) of a GLB's BIN chunk."""
+    view = gltf["bufferViews"][index]
+    if view.get("buffer", 0) != 0:
+        raise ValueError("only the GLB's own buffer (0) can be read")
+    start = view.get("byteOffset", 0)
+    end = start + view["byteLength"]
+    if end > len(binary):
+        raise ValueError(f"bufferView {index} ends at byte {end}, past the buffer ({len(binary)})")
+    return binary[start:end]
+
+
+def read_accessor(gltf: dict, binary: bytes, index: int) -> np.ndarray:
+    """Values of accessor ``index``, as stored (normalised integers are not rescaled).
+
+    Supports SCALAR and VEC2..VEC4 accessors, interleaved or not; not sparse ones.
+
+    Returns
+    -------
+    values : (count,) for SCALAR, else (count, k), with the accessor's component
+      dtype (float32, uint32 ...); a copy, safe to modify
+    """
+    accessor = gltf["accessors"][index]
+    if "sparse" in accessor:
+        raise ValueError(f"accessor {index}: sparse accessors are not supported")
+    if accessor["type"] not in _TYPE_WIDTHS:
+        raise ValueError(f"accessor {index}: type {accessor['type']} is not supported")
+    dtype = _COMPONENT_DTYPES[accessor["componentType"]]
+    width = _TYPE_WIDTHS[accessor["type"]]
+    count = accessor["count"]
+    shape = (count,) if width == 1 else (count, width)
+    if "bufferView" not in accessor:
+        # the spec: an accessor without a bufferView is all zeros
+        return np.zeros(shape, dtype=dtype)
+    view_index = accessor["bufferView"]
+    view = read_view(gltf, binary, view_index)
+    start = accessor.get("byteOffset", 0)
+    element = dtype.itemsize * width
+    stride = gltf["bufferViews"][view_index].get("byteStride", element)
+    if count and start + stride * (count - 1) + element > len(view):
+        raise ValueError(f"accessor {index} runs past the end of bufferView {view_index}")
+    values = np.ndarray(
+        (count, width), dtype=dtype, buffer=view, offset=start, strides=(stride, dtype.itemsize)
+    )
+    return values.reshape(shape).copy()
+
+
+def _new_gltf(metadata: Mapping | None) -> dict:
+    asset = {"version": "2.0", "generator": GENERATOR}
+    extras = to_jsonable(check_metadata(metadata))
+    if extras:
+        asset["extras"] = extras
+    return {"asset": asset}
+
+
+def _white_pbr() -> dict:
+    # metallic 0 / roughness 1: a plain diffuse surface, so the stored colours
+    # show as they are rather than as a black mirror (metallicFactor defaults to 1)
+    return {
+        "baseColorFactor": [1.0, 1.0, 1.0, 1.0],
+        "metallicFactor": 0.0,
+        "roughnessFactor": 1.0,
+    }
+
+
+def _check_not_empty(positions: np.ndarray, faces: np.ndarray) -> None:
+    # glTF accessors must have count >= 1
+    if len(positions) == 0 or len(faces) == 0:
+        raise ValueError(
+            "a GLB mesh needs at least one vertex and one face, "
+            f"got {len(positions)} and {len(faces)}"
+        )
+
+
+def _check_uv(name: str, uv, n: int) -> np.ndarray:
+    uv = np.asarray(uv)
+    if uv.shape != (n, 2):
+        raise ValueError(f"{name} must be (n, 2) = {(n, 2)}, got {uv.shape}")
+    if uv.dtype.kind not in "iuf" or not np.isfinite(uv).all():
+        raise ValueError(f"{name} must be finite floats")
+    return uv.astype(np.float64, copy=False)
+
+
+def _check_png(name: str, data) -> bytes:
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise ValueError(f"{name} must be PNG file bytes, got {type(data).__name__}")
+    data = bytes(data)
+    if not data.startswith(_PNG_SIGNATURE):
+        raise ValueError(f"{name} is not a PNG file (wrong signature)")
+    return data
+
+
+def _flip_v(uv: np.ndarray) -> np.ndarray:
+    # OBJ (v = 0 at the bottom) -> glTF (v = 0 at the top)
+    return np.column_stack([uv[:, 0], 1.0 - uv[:, 1]])
+
+
+def _unit(normals: np.ndarray) -> np.ndarray:
+    """(n, 3) float -> (n, 3) float64 unit vectors; zero vectors become +Z (logged)."""
+    normals = normals.astype(np.float64)
+    length = np.linalg.norm(normals, axis=1)
+    # glTF requires unit NORMALs; a zero normal (e.g. an unreferenced vertex)
+    # has no direction to keep, so give it one rather than fail at the end of a bake
+    zero = ~(length > 1e-30)
+    if zero.any():
+        log.warning("%d zero-length normals written as +Z", int(zero.sum()))
+        normals[zero] = (0.0, 0.0, 1.0)
+        length[zero] = 1.0
+    return normals / length[:, None]
+
+
+def _add_geometry(
+    gltf: dict, blob: bytearray, positions: np.ndarray, normals: np.ndarray | None
+) -> dict[str, int]:
+    """POSITION (with the min/max the spec requires) and, if given, unit NORMAL accessors."""
+    attributes = {"POSITION": _add_accessor(gltf, blob, positions, _ARRAY_BUFFER, bounds=True)}
+    if normals is not None:
+        attributes["NORMAL"] = _add_accessor(gltf, blob, _unit(normals), _ARRAY_BUFFER)
+    return attributes
+
+
+def _add_view(gltf: dict, blob: bytearray, data: bytes, target: int | None) -> int:
+    """Append ``data`` to the buffer on a 4-byte boundary; return the bufferView index."""
+    # float32/uint32 components must be aligned to their size; 4 covers all used here
+    blob.extend(b"\0" * (-len(blob) % 4))
+    view = {"buffer": 0, "byteOffset": len(blob), "byteLength": len(data)}
+    if target is not None:
+        view["target"] = target
+    blob.extend(data)
+    views = gltf.setdefault("bufferViews", [])
+    views.append(view)
+    return len(views) - 1
+
+
+def _add_accessor(
+    gltf: dict,
+    blob: bytearray,
+    values: np.ndarray,
+    target: int,
+    component: int = _FLOAT,
+    bounds: bool = False,
+) -> int:
+    """Append (count,) or (count, k) values as a tightly packed accessor; return its index.
+
+    ``component`` is _FLOAT (values cast to float32) or _UNSIGNED_INT (uint32).
+    ``bounds`` adds min/max, computed on the stored values so they match
+    exactly what a validator reads back.
+    """
+    stored = np.ascontiguousarray(values, dtype=_COMPONENT_DTYPES[component])
+    width = 1 if stored.ndim == 1 else stored.shape[1]
+    accessor = {
+        "bufferView": _add_view(gltf, blob, stored.tobytes(), target),
+        "componentType": component,
+        "count": len(stored),
+        "type": "SCALAR" if width == 1 else f"VEC{width}",
+    }
+    if bounds:
+        table = stored.reshape(len(stored), width)
+        accessor["min"] = [float(v) for v in table.min(axis=0)]
+        accessor["max"] = [float(v) for v in table.max(axis=0)]
+    accessors = gltf.setdefault("accessors", [])
+    accessors.append(accessor)
+    return len(accessors) - 1
+
+
+def _add_texture(gltf: dict, blob: bytearray, png: bytes, wrap: int, name: str) -> int:
+    """Embed a PNG with its own sampler; return the texture index."""
+    images = gltf.setdefault("images", [])
+    view = _add_view(gltf, blob, png, None)
+    images.append({"name": name, "bufferView": view, "mimeType": "image/png"})
+    samplers = gltf.setdefault("samplers", [])
+    samplers.append({"magFilter": _LINEAR, "minFilter": _LINEAR, "wrapS": wrap, "wrapT": wrap})
+    textures = gltf.setdefault("textures", [])
+    textures.append({"name": name, "sampler": len(samplers) - 1, "source": len(images) - 1})
+    return len(textures) - 1
+
+
+def _add_mesh(
+    gltf: dict, blob: bytearray, attributes: dict, faces: np.ndarray, material: dict
+) -> None:
+    """Add the indices, the material, the one mesh, its node and the scene."""
+    indices = _add_accessor(gltf, blob, faces.reshape(-1), _ELEMENT_ARRAY_BUFFER, _UNSIGNED_INT)
+    gltf["materials"] = [material]
+    primitive = {
+        "attributes": attributes,
+        "indices": indices,
+        "material": 0,
+        "mode": _MODE_TRIANGLES,
+    }
+    gltf["meshes"] = [{"name": GENERATOR, "primitives": [primitive]}]
+    gltf["nodes"] = [{"name": GENERATOR, "mesh": 0}]
+    gltf["scenes"] = [{"nodes": [0]}]
+    gltf["scene"] = 0
+
+
+def _write_glb(path: str | os.PathLike, gltf: dict, blob: bytearray) -> None:
+    """Pack the JSON and BIN chunks into a GLB container and write it atomically."""
+    blob.extend(b"\0" * (-len(blob) % 4))  # BIN chunk padding is zeros
+    gltf["buffers"] = [{"byteLength": len(blob)}]
+    text = json.dumps(gltf, allow_nan=False, separators=(",", ":")).encode("utf-8")
+    text += b" " * (-len(text) % 4)  # JSON chunk padding is spaces
+    total = 12 + 8 + len(text) + 8 + len(blob)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as handle:
+            handle.write(struct.pack("<4sII", _MAGIC, _VERSION, total))
+            handle.write(struct.pack("<II", len(text), _CHUNK_JSON))
+            handle.write(text)
+            handle.write(struct.pack("<II", len(blob), _CHUNK_BIN))
+            handle.write(bytes(blob))

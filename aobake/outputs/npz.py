@@ -1,0 +1,150 @@
+"""Per-vertex results as a compressed NumPy archive (``.npz``).
+
+The archive is the complete, lossless-where-it-matters record of a vertex bake,
+one array per name:
+
+==================== ============ ========= =====================================
+name                 shape        dtype     meaning
+==================== ============ ========= =====================================
+``positions``        (n, 3)       float64   vertex positions, as given
+``faces``            (f, 3)       int64     triangle vertex indices
+``normals``          (n, 3)       float64   normals the hemispheres were built on
+``ao``               (n,)         float32   ambient occlusion: 1 = fully open, 0 = fully occluded
+``ao_stderr``        (n,)         float32   standard error of ``ao``
+``obscurance``       (n,)         float32   distance-weighted openness: 1 = open, 0 = occluded
+``obscurance_stderr`` (n,)        float32   standard error of ``obscurance``
+``bent_normal``      (n, 3)       float32   mean unoccluded direction
+``rays``             (n,)         int32     rays cast for each vertex
+``metadata``         ()           str       JSON text: conventions and configuration
+==================== ============ ========= =====================================
+
+Only the fields that were computed are present.  Geometry stays float64; the
+estimates are float32, which is far finer than their standard errors.
+
+This module also holds the table of per-vertex fields (``VERTEX_FIELDS``) and
+their validation (``check_vertex_data``) that the PLY and GLB writers share.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Mapping
+
+import numpy as np
+
+from aobake.outputs.atomic import atomic_path
+from aobake.outputs.report import metadata_json
+
+log = logging.getLogger(__name__)
+
+#: field name -> (per-vertex shape, dtype stored in the NPZ archive)
+VERTEX_FIELDS: dict[str, tuple[tuple[int, ...], type]] = {
+    "normals": ((3,), np.float64),
+    "ao": ((), np.float32),
+    "ao_stderr": ((), np.float32),
+    "obscurance": ((), np.float32),
+    "obscurance_stderr": ((), np.float32),
+    "bent_normal": ((3,), np.float32),
+    "rays": ((), np.int32),
+}
+
+
+def check_vertex_data(
+    positions, faces, fields: Mapping
+) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """Validate per-vertex output data; raise ``ValueError`` naming the problem.
+
+    Parameters
+    ----------
+    positions : (n, 3) float, finite
+    faces : (f, 3) int, each in [0, n)
+    fields : dict of name -> (n,) or (n, 3) array, names from ``VERTEX_FIELDS``
+
+    Returns
+    -------
+    positions : (n, 3) float64
+    faces : (f, 3) int64
+    fields : dict of name -> array, same keys in ``VERTEX_FIELDS`` order, dtypes as given
+    """
+    positions = np.asarray(positions)
+    if positions.ndim != 2 or positions.shape[1] != 3:
+        raise ValueError(f"positions must be (n, 3), got {positions.shape}")
+    if positions.dtype.kind not in "iuf":
+        raise ValueError(f"positions must be float, got {positions.dtype}")
+    positions = positions.astype(np.float64, copy=False)
+    if not np.isfinite(positions).all():
+        raise ValueError("positions must be finite")
+    n = len(positions)
+
+    faces = np.asarray(faces)
+    if faces.ndim == 1 and faces.size == 0:
+        # an empty list of faces: a point set
+        faces = faces.reshape(0, 3)
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise ValueError(f"faces must be (f, 3) triangles, got {faces.shape}")
+    if faces.size and faces.dtype.kind not in "iu":
+        raise ValueError(f"faces must be integer, got {faces.dtype}")
+    faces = faces.astype(np.int64, copy=False)
+    if faces.size and (faces.min() < 0 or faces.max() >= n):
+        raise ValueError(
+            f"faces index vertices {faces.min()}..{faces.max()}, but there are {n} positions"
+        )
+
+    if not isinstance(fields, Mapping):
+        raise ValueError(f"fields must be a dict, got {type(fields).__name__}")
+    unknown = sorted(set(fields) - set(VERTEX_FIELDS))
+    if unknown:
+        raise ValueError(f"unknown fields {unknown}; expected any of {list(VERTEX_FIELDS)}")
+    checked = {}
+    for name, (tail, dtype) in VERTEX_FIELDS.items():
+        if name not in fields:
+            continue
+        value = np.asarray(fields[name])
+        want = (n, *tail)
+        if value.shape != want:
+            shape = "(n,)" if not tail else f"(n, {tail[0]})"
+            raise ValueError(f"{name} must be {shape} = {want}, got {value.shape}")
+        if np.issubdtype(dtype, np.integer):
+            if value.dtype.kind not in "iu":
+                raise ValueError(f"{name} must be integer, got {value.dtype}")
+            if n and (value.min() < 0 or value.max() > np.iinfo(np.int32).max):
+                raise ValueError(f"{name} must be in [0, 2**31), got {value.min()}..{value.max()}")
+        elif value.dtype.kind not in "iuf":
+            raise ValueError(f"{name} must be float, got {value.dtype}")
+        checked[name] = value
+    if "normals" in checked and not np.isfinite(checked["normals"]).all():
+        raise ValueError("normals must be finite")
+    return positions, faces, checked
+
+
+def write(
+    path: str | os.PathLike,
+    positions: np.ndarray,
+    faces: np.ndarray,
+    fields: Mapping[str, np.ndarray],
+    metadata: Mapping | None,
+) -> None:
+    """Write a vertex bake to ``path`` as a compressed ``.npz`` archive, atomically.
+
+    Parameters
+    ----------
+    path : output file; written as given (no ``.npz`` is appended)
+    positions : (n, 3) float
+    faces : (f, 3) int
+    fields : dict of per-vertex arrays, any of ``VERTEX_FIELDS`` (see the module docstring)
+    metadata : JSON-serialisable dict, stored as the 0-d string array ``metadata``
+
+    Dtypes in the archive are listed in the module docstring.
+    """
+    positions, faces, fields = check_vertex_data(positions, faces, fields)
+    arrays = {"positions": positions, "faces": faces}
+    for name, value in fields.items():
+        arrays[name] = value.astype(VERTEX_FIELDS[name][1])
+    # a 0-d unicode array loads without pickling (np.load(allow_pickle=False))
+    arrays["metadata"] = np.array(metadata_json(metadata))
+    with atomic_path(path) as tmp:
+        # an open handle, not a name: np.savez appends ".npz" to names without it
+        with open(tmp, "wb") as handle:
+            np.savez_compressed(handle, **arrays)
+    log.debug("wrote %s: %d vertices, %d faces, %s", path, len(positions), len(faces), list(fields))

@@ -1,0 +1,293 @@
+"""Load a mesh file into one bakeable triangle scene, validate it, and give it normals.
+
+Data flow: file -> :class:`Scene` (float64 positions, int64 triangles, unit
+vertex normals, optional per-corner UVs).  Every object of a multi-object file
+or glTF scene is flattened into one scene with its node transform applied, so
+every object occludes every other.
+
+Vertex normal policy (``--normals``):
+
+* ``file``: the file's own normals where it has them (OBJ ``vn`` averaged over the
+  corners of each ``v``; glTF/PLY vertex normals), otherwise ``angle``.
+* ``angle``: angle-weighted mean of the adjacent face normals (Thürmer & Wüthrich).
+* ``area``: area-weighted mean of the adjacent face normals.
+
+A vertex on a sharp crease gets one averaged normal; the hemisphere around it may
+dip below an adjacent face.  Rays in those directions hit that face and count as
+occluded: at a concave crease that is what the geometry says (the corner is
+darker); at a convex crease no hemisphere direction enters the solid, so nothing
+is lost.  A vertex whose normal is undefined (unreferenced, or touching only
+zero-area faces) is not sampled: it gets 0 rays and the no-information estimate
+(see ``estimators``), and the report counts it.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from aobake.errors import InputError
+
+log = logging.getLogger(__name__)
+
+#: file extensions read by :func:`load_scene`; OBJ by aobake's own reader, the rest by trimesh.
+MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
+
+
+@dataclass(frozen=True)
+class Scene:
+    """One triangle scene in float64, as baked.
+
+    vertices : (v, 3) float64        positions in scene units
+    faces : (f, 3) int64             triangles (degenerate ones kept; they never occlude)
+    vertex_normals : (v, 3) float64  unit, or zero where undefined
+    face_normals : (f, 3) float64    unit (winding order, counter-clockwise = front), zero if degenerate
+    uv : (t, 2) float64 | None       texture coordinates (OBJ convention, v = 0 at image bottom)
+    faces_uv : (f, 3) int64 | None   per-corner index into ``uv``
+    source : str                     file name or "<memory>"
+    normals_source : str             "file" | "angle" | "area": what vertex normals came from
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    vertex_normals: np.ndarray
+    face_normals: np.ndarray
+    uv: np.ndarray | None = None
+    faces_uv: np.ndarray | None = None
+    source: str = "<memory>"
+    normals_source: str = "angle"
+    warnings: list = field(default_factory=list)
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """(2, 3) float64 min and max corner over vertices used by faces."""
+        used = self.vertices[np.unique(self.faces)]
+        return np.stack([used.min(axis=0), used.max(axis=0)])
+
+    @property
+    def diagonal(self) -> float:
+        """Length of the bounding-box diagonal: the scene's scale for relative settings."""
+        lo, hi = self.bounds
+        return float(np.linalg.norm(hi - lo))
+
+    def stats(self) -> dict:
+        """Scene statistics for the report."""
+        lo, hi = self.bounds
+        areas = _face_areas(self.vertices, self.faces)
+        return {
+            "source": self.source,
+            "vertices": int(len(self.vertices)),
+            "triangles": int(len(self.faces)),
+            "degenerate_triangles": int(np.count_nonzero(areas <= 0)),
+            "unreferenced_vertices": int(len(self.vertices) - len(np.unique(self.faces))),
+            "surface_area": float(areas.sum()),
+            "bounds_min": lo.tolist(),
+            "bounds_max": hi.tolist(),
+            "diagonal": self.diagonal,
+            "normals_source": self.normals_source,
+            "has_uv": self.faces_uv is not None,
+        }
+
+
+def _face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(f,) float64 triangle areas."""
+    tri = vertices[faces]
+    return 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+
+
+def _normalize(vectors: np.ndarray) -> np.ndarray:
+    """Unit rows; rows of zero (or non-finite) length become zero rather than NaN."""
+    length = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    ok = np.isfinite(length) & (length > 0)
+    return np.where(ok, vectors / np.where(ok, length, 1.0), 0.0)
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(f, 3) float64 unit face normals from the winding; zero for degenerate faces."""
+    tri = vertices[faces]
+    return _normalize(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]))
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray, weighting: str = "angle") -> np.ndarray:
+    """(v, 3) float64 unit vertex normals, weighted by corner angle or face area; zero where undefined."""
+    tri = vertices[faces]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    if weighting == "area":
+        # |cross| = 2 * area, so the raw cross product is already area-weighted.
+        weights = np.repeat(cross[:, None, :], 3, axis=1)
+    elif weighting == "angle":
+        unit = _normalize(cross)
+        angles = np.empty((len(faces), 3))
+        for corner in range(3):
+            a = _normalize(tri[:, (corner + 1) % 3] - tri[:, corner])
+            b = _normalize(tri[:, (corner + 2) % 3] - tri[:, corner])
+            angles[:, corner] = np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0))
+        weights = unit[:, None, :] * angles[:, :, None]
+    else:
+        raise ValueError(f"unknown normal weighting {weighting!r}")
+    accum = np.zeros_like(vertices)
+    for corner in range(3):
+        np.add.at(accum, faces[:, corner], weights[:, corner])
+    return _normalize(accum)
+
+
+def make_scene(
+    vertices,
+    faces,
+    normals=None,
+    normals_mode: str = "file",
+    uv=None,
+    faces_uv=None,
+    source: str = "<memory>",
+    warnings=None,
+) -> Scene:
+    """Validate arrays and build a :class:`Scene`.
+
+    vertices : (v, 3) float, faces : (f, 3) int, normals : (v, 3) float or None
+    (used only when ``normals_mode == "file"``).  Raises InputError naming
+    ``source`` on empty, non-finite or out-of-range input.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise InputError(f"{source}: vertices must be (n, 3), got {vertices.shape}")
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise InputError(f"{source}: mesh has no faces" if faces.size == 0
+                         else f"{source}: faces must be (n, 3) triangles, got {faces.shape}")
+    if not np.issubdtype(faces.dtype, np.integer):
+        raise InputError(f"{source}: face indices must be integers, got {faces.dtype}")
+    faces = faces.astype(np.int64)
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise InputError(f"{source}: face index out of range (have {len(vertices)} vertices)")
+    bad = ~np.isfinite(vertices[np.unique(faces)]).all(axis=1)
+    if bad.any():
+        raise InputError(f"{source}: {int(bad.sum())} vertices have NaN or infinite coordinates")
+    warnings = list(warnings or [])
+    fnormals = face_normals(vertices, faces)
+    n_degenerate = int(np.count_nonzero(~fnormals.any(axis=1)))
+    if n_degenerate == len(faces):
+        raise InputError(f"{source}: every face has zero area")
+    if n_degenerate:
+        warnings.append(f"{source}: {n_degenerate} zero-area triangles (they never occlude)")
+
+    mode = normals_mode
+    if normals_mode == "file":
+        if normals is not None:
+            normals = _normalize(np.asarray(normals, dtype=np.float64))
+            if normals.shape != vertices.shape:
+                raise InputError(f"{source}: normals must be {vertices.shape}, got {normals.shape}")
+            vnormals = normals
+        else:
+            mode = "angle"
+    if mode != "file":
+        vnormals = vertex_normals(vertices, faces, mode)
+    elif not vnormals[np.unique(faces)].any(axis=1).all():
+        # Fill the file's missing (zero) normals rather than leaving holes.
+        computed = vertex_normals(vertices, faces, "angle")
+        vnormals = np.where(vnormals.any(axis=1, keepdims=True), vnormals, computed)
+    if uv is not None:
+        uv = np.asarray(uv, dtype=np.float64)
+        faces_uv = np.asarray(faces_uv if faces_uv is not None else faces, dtype=np.int64)
+        if faces_uv.shape != faces.shape or faces_uv.min() < 0 or faces_uv.max() >= len(uv):
+            raise InputError(f"{source}: UV indices do not match the faces")
+        if not np.isfinite(uv[faces_uv]).all():
+            raise InputError(f"{source}: UV coordinates contain NaN or infinity")
+    for message in warnings:
+        log.warning(message)
+    return Scene(vertices, faces, vnormals, fnormals, uv, faces_uv if uv is not None else None,
+                 source, mode, warnings)
+
+
+def _obj_normals(data) -> np.ndarray | None:
+    """Per-``v`` normals from an OBJ: the mean of the ``vn`` its corners use (None if absent)."""
+    if data.faces_normal is None:
+        return None
+    accum = np.zeros_like(data.vertices)
+    np.add.at(accum, data.faces.ravel(), data.normals[data.faces_normal.ravel()])
+    return accum
+
+
+def _load_with_trimesh(path: Path):
+    """(vertices, faces, normals | None, uv | None) for non-OBJ formats via trimesh."""
+    import trimesh
+
+    try:
+        loaded = trimesh.load(str(path), process=False)
+    except Exception as exc:  # trimesh raises many types for corrupt files
+        raise InputError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from None
+    if isinstance(loaded, trimesh.Scene):
+        meshes = []
+        # dump() applies every node's transform; one entry per node instance.
+        for geom in loaded.dump():
+            if isinstance(geom, trimesh.Trimesh) and len(geom.faces):
+                meshes.append(geom)
+        if not meshes:
+            raise InputError(f"{path}: mesh has no faces")
+    elif isinstance(loaded, trimesh.Trimesh):
+        meshes = [loaded]
+    else:
+        raise InputError(f"{path}: holds no triangle mesh (got {type(loaded).__name__})")
+    vertices, faces, normals, uvs, offset = [], [], [], [], 0
+    have_normals = all("vertex_normals" in m._cache for m in meshes)
+    have_uv = all(getattr(m.visual, "uv", None) is not None and len(m.visual.uv) == len(m.vertices)
+                  for m in meshes)
+    for mesh in meshes:
+        vertices.append(np.asarray(mesh.vertices, dtype=np.float64))
+        faces.append(np.asarray(mesh.faces, dtype=np.int64) + offset)
+        if have_normals:
+            normals.append(np.asarray(mesh.vertex_normals, dtype=np.float64))
+        if have_uv:
+            uvs.append(np.asarray(mesh.visual.uv, dtype=np.float64))
+        offset += len(mesh.vertices)
+    vertices, faces = np.concatenate(vertices), np.concatenate(faces)
+    if path.suffix.lower() == ".stl":
+        # STL is a triangle soup: weld identical positions so vertices are shared.
+        vertices, inverse = np.unique(vertices, axis=0, return_inverse=True)
+        faces = inverse.reshape(-1)[faces]
+        normals = []
+    return (vertices, faces, np.concatenate(normals) if normals else None,
+            np.concatenate(uvs) if uvs else None)
+
+
+def load_scene(source, normals_mode: str = "file") -> Scene:
+    """Load a path or an in-memory mesh into a :class:`Scene`.
+
+    source : str | PathLike | trimesh.Trimesh | trimesh.Scene | Scene
+    Raises InputError (naming the file and the problem) for a missing file, an
+    unsupported extension, a corrupt or empty file or invalid geometry.
+    """
+    if isinstance(source, Scene):
+        return source
+    if not isinstance(source, (str, os.PathLike)):
+        import trimesh
+
+        if isinstance(source, trimesh.Scene):
+            source = source.to_mesh()
+        if not isinstance(source, trimesh.Trimesh):
+            raise InputError(f"cannot bake a {type(source).__name__}; pass a path or a trimesh mesh")
+        normals = source.vertex_normals if "vertex_normals" in source._cache else None
+        uv = getattr(source.visual, "uv", None)
+        return make_scene(source.vertices, source.faces, normals, normals_mode,
+                          uv=uv if uv is not None and len(uv) == len(source.vertices) else None)
+    path = Path(source)
+    suffix = path.suffix.lower()
+    if suffix not in MESH_EXTENSIONS:
+        raise InputError(f"{path}: unsupported mesh format {suffix or '(no extension)'!r}; "
+                         f"use one of {', '.join(MESH_EXTENSIONS)}")
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    if path.stat().st_size == 0:
+        raise InputError(f"{path}: file is empty")
+    if suffix == ".obj":
+        from aobake.obj import read_obj
+
+        data = read_obj(path)
+        return make_scene(data.vertices, data.faces, _obj_normals(data), normals_mode,
+                          uv=data.uv if data.faces_uv is not None else None,
+                          faces_uv=data.faces_uv, source=str(path), warnings=data.warnings)
+    vertices, faces, normals, uv = _load_with_trimesh(path)
+    return make_scene(vertices, faces, normals, normals_mode, uv=uv, source=str(path))

@@ -1,0 +1,423 @@
+"""Generate the OBJ scenes bundled in assets/ (the README demo and the lightmap demo).
+
+Run from the repository root; it overwrites the committed files:
+
+    python assets/make_assets.py            # writes into assets/
+    python assets/make_assets.py OUT_DIR    # writes elsewhere (the tests do this)
+
+Everything is built from closed-form parametrisations and trimesh.creation primitives, with no
+randomness, and coordinates are rounded to 6 decimals before writing, so the output is
+byte-identical from run to run; tests/test_assets.py checks the committed files against it.
+
+The OBJ writer here is deliberately small and writes what the aobake loader has to cope with:
+`o` objects split into `g` groups, quads as well as triangles, `vn` for some objects and not
+others, and `vt` indexed separately from `v` (so a UV seam shares positions but not UVs).
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+HERE = Path(__file__).resolve().parent
+
+# Decimals written for every coordinate: 1e-6 units is far below the smallest feature
+# (the 2e-3 plate gap) and rounding hides last-ulp differences between platforms' sin/cos.
+DECIMALS = 6
+
+# Target quad edge for the box slabs and plates (scene units). Vertex-AO targets need
+# vertices inside the box cavity and the plate gap, not just at slab corners.
+SLAB_EDGE = 0.025
+
+# The two parallel plates are separated by 1e-3 of the ~2 unit scene: the thin-gap case
+# that needs a scale-aware ray offset.
+PLATE_GAP = 0.002
+
+
+@dataclass(frozen=True)
+class Group:
+    """One `g` group of an OBJ object: its own vertices and polygons.
+
+    vertices : (k, 3) float64 positions.
+    faces : tuple of (m, c) int arrays, c in {3, 4}, 0-based into `vertices`; polygons
+      are counter-clockwise seen from outside (right-hand rule gives the outward normal).
+    uv : (kt, 2) float64 texture coordinates in [0, 1], or None.
+    uv_faces : tuple like `faces`, 0-based into `uv`, or None.
+    normals : (kn, 3) float64 unit vertex normals, or None.
+    normal_faces : tuple like `faces`, 0-based into `normals`, or None.
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: tuple
+    uv: np.ndarray | None = None
+    uv_faces: tuple | None = None
+    normals: np.ndarray | None = None
+    normal_faces: tuple | None = None
+
+    @property
+    def n_triangles(self) -> int:
+        """Triangles after fan triangulation: a c-gon counts c - 2."""
+        return sum(len(f) * (f.shape[1] - 2) for f in self.faces)
+
+
+@dataclass(frozen=True)
+class Object:
+    """One `o` object: a name and its groups."""
+
+    name: str
+    groups: tuple
+
+    @property
+    def n_triangles(self) -> int:
+        """Triangles over all groups, quads counted as two."""
+        return sum(g.n_triangles for g in self.groups)
+
+
+# ---------------------------------------------------------------------------------------
+# OBJ writing
+# ---------------------------------------------------------------------------------------
+
+
+def _format_rows(tag: str, values: np.ndarray) -> list[str]:
+    """Lines like 'v 0.100000 -0.250000 1.000000' for a (k, d) float array.
+
+    Adding 0.0 after rounding turns -0.0 into 0.0, so tiny negative noise never prints as
+    '-0.000000' and equal values always print identically.
+    """
+    rounded = np.round(np.asarray(values, dtype=np.float64), DECIMALS) + 0.0
+    fmt = " ".join([f"%.{DECIMALS}f"] * rounded.shape[1])
+    return [f"{tag} " + fmt % tuple(row) for row in rounded]
+
+
+def _format_faces(faces, uv_faces, normal_faces, v_base, vt_base, vn_base) -> list[str]:
+    """'f' lines with 1-based global indices: 'f v', 'f v/vt', 'f v//vn' or 'f v/vt/vn'."""
+    lines = []
+    for i, block in enumerate(faces):
+        v_idx = block + v_base + 1
+        vt_idx = None if uv_faces is None else uv_faces[i] + vt_base + 1
+        vn_idx = None if normal_faces is None else normal_faces[i] + vn_base + 1
+        for row in range(len(block)):
+            corners = []
+            for col in range(block.shape[1]):
+                corner = str(v_idx[row, col])
+                if vt_idx is not None and vn_idx is not None:
+                    corner += f"/{vt_idx[row, col]}/{vn_idx[row, col]}"
+                elif vt_idx is not None:
+                    corner += f"/{vt_idx[row, col]}"
+                elif vn_idx is not None:
+                    corner += f"//{vn_idx[row, col]}"
+                corners.append(corner)
+            lines.append("f " + " ".join(corners))
+    return lines
+
+
+def write_obj(path: Path, objects, comment: str) -> None:
+    """Write objects to an OBJ file (text, '\\n' line ends, no material library).
+
+    Each group's v / vt / vn come right before its f lines; indices are global and 1-based.
+    """
+    lines = [f"# {line}" if line else "#" for line in comment.splitlines()]
+    lines.append("# generated by assets/make_assets.py; edit that script, not this file")
+    v_base = vt_base = vn_base = 0
+    for obj in objects:
+        lines.append(f"o {obj.name}")
+        for group in obj.groups:
+            lines.append(f"g {group.name}")
+            lines += _format_rows("v", group.vertices)
+            if group.uv is not None:
+                lines += _format_rows("vt", group.uv)
+            if group.normals is not None:
+                lines += _format_rows("vn", group.normals)
+            lines += _format_faces(
+                group.faces, group.uv_faces, group.normal_faces, v_base, vt_base, vn_base
+            )
+            v_base += len(group.vertices)
+            vt_base += 0 if group.uv is None else len(group.uv)
+            vn_base += 0 if group.normals is None else len(group.normals)
+    # newline='\n' so that Windows writes the same bytes.
+    with open(path, "w", encoding="ascii", newline="\n") as f:
+        f.write("\n".join(lines) + "\n")
+
+
+# ---------------------------------------------------------------------------------------
+# Shapes
+# ---------------------------------------------------------------------------------------
+
+
+def grid_quads(n_u: int, n_v: int, wrap_u: bool = False, wrap_v: bool = False) -> np.ndarray:
+    """Quads of an (n_u x n_v)-cell grid whose vertex (i, j) has index i * rows + j.
+
+    rows = n_v if wrap_v else n_v + 1 (likewise for u): a wrapped direction reuses its first
+    row of vertices instead of a duplicate last one.
+
+    Returns (n_u * n_v, 4) int64, each quad (i, j), (i+1, j), (i+1, j+1), (i, j+1): with
+    u x v pointing outward, this is counter-clockwise seen from outside.
+    """
+    cols = n_u if wrap_u else n_u + 1
+    rows = n_v if wrap_v else n_v + 1
+    i, j = np.meshgrid(np.arange(n_u), np.arange(n_v), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+    i1 = (i + 1) % cols
+    j1 = (j + 1) % rows
+    return np.stack([i * rows + j, i1 * rows + j, i1 * rows + j1, i * rows + j1], axis=1)
+
+
+def grid_patch(origin, axis_u, axis_v, n_u: int, n_v: int):
+    """A flat parallelogram patch origin + s * axis_u + t * axis_v, s, t in [0, 1].
+
+    Returns vertices ((n_u + 1) * (n_v + 1), 3) float64 and quads (n_u * n_v, 4) int64
+    facing axis_u x axis_v.
+    """
+    s = np.linspace(0.0, 1.0, n_u + 1)
+    t = np.linspace(0.0, 1.0, n_v + 1)
+    ss, tt = np.meshgrid(s, t, indexing="ij")
+    vertices = (
+        np.asarray(origin, dtype=np.float64)
+        + ss.reshape(-1, 1) * np.asarray(axis_u, dtype=np.float64)
+        + tt.reshape(-1, 1) * np.asarray(axis_v, dtype=np.float64)
+    )
+    return vertices, grid_quads(n_u, n_v)
+
+
+def slab(name: str, lo, hi, edge: float = SLAB_EDGE) -> Group:
+    """An axis-aligned box [lo, hi] as six quad-grid patches with quads about `edge` wide.
+
+    The patches do not share vertices along the box's edges, so a loader that computes
+    vertex normals from faces gets flat normals per side (hard edges) instead of corner
+    normals averaged across a 90 degree edge.
+    """
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    size = hi - lo
+    n = np.maximum(1, np.ceil(size / edge - 1e-9).astype(int))
+    x, y, z = np.eye(3) * size
+    # (origin, axis_u, axis_v, cells along u, cells along v), axis_u x axis_v outward.
+    sides = [
+        ([hi[0], lo[1], lo[2]], y, z, n[1], n[2]),  # +x
+        ([lo[0], lo[1], lo[2]], z, y, n[2], n[1]),  # -x
+        ([lo[0], hi[1], lo[2]], z, x, n[2], n[0]),  # +y
+        ([lo[0], lo[1], lo[2]], x, z, n[0], n[2]),  # -y
+        ([lo[0], lo[1], hi[2]], x, y, n[0], n[1]),  # +z
+        ([lo[0], lo[1], lo[2]], y, x, n[1], n[0]),  # -z
+    ]
+    vertices, quads, base = [], [], 0
+    for origin, u, v, n_u, n_v in sides:
+        patch_v, patch_q = grid_patch(origin, u, v, n_u, n_v)
+        vertices.append(patch_v)
+        quads.append(patch_q + base)
+        base += len(patch_v)
+    return Group(name, np.concatenate(vertices), (np.concatenate(quads),))
+
+
+def z_up_to_y_up(points: np.ndarray) -> np.ndarray:
+    """Rotate -90 degrees about x, (x, y, z) -> (x, z, -y): a proper rotation (det +1, so
+    windings keep their orientation) that is exact in floating point (a permutation)."""
+    return np.stack([points[:, 0], points[:, 2], -points[:, 1]], axis=1)
+
+
+def floor(half_size: float = 1.0, cells: int = 20) -> Object:
+    """The ground: a (cells x cells) quad grid on y = 0 over [-half_size, half_size]^2, facing +y.
+    Quads, no vn."""
+    extent = 2.0 * half_size
+    vertices, quads = grid_patch(
+        [-half_size, 0.0, -half_size], [0.0, 0.0, extent], [extent, 0.0, 0.0], cells, cells
+    )
+    return Object("floor", (Group("floor", vertices, (quads,)),))
+
+
+def sphere(center_xz, radius: float = 0.28, count=(40, 64)) -> Object:
+    """A UV sphere (trimesh.creation.uv_sphere, triangles) resting on y = 0 at its pole.
+    With vn."""
+    mesh = trimesh.creation.uv_sphere(radius=radius, count=list(count))
+    unit = z_up_to_y_up(np.asarray(mesh.vertices)) / radius
+    # Exact analytic normals: the direction from the centre.
+    normals = unit / np.linalg.norm(unit, axis=1, keepdims=True)
+    vertices = unit * radius
+    # The pole at -radius (cos(pi) == -1 exactly) lands on y = 0 exactly.
+    vertices[:, 1] -= vertices[:, 1].min()
+    vertices[:, [0, 2]] += np.asarray(center_xz, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    return Object(
+        "sphere", (Group("sphere", vertices, (faces,), normals=normals, normal_faces=(faces,)),)
+    )
+
+
+def open_box(center_xz, width: float = 0.6, depth: float = 0.6, height: float = 0.4,
+             wall: float = 0.04) -> Object:
+    """An open-top box: a bottom slab and four wall slabs with real thickness, so there is a
+    cavity; quads, no vn. The bottom slab stands on y = 0, the walls on the bottom slab."""
+    cx, cz = center_xz
+    x0, x1 = cx - width / 2, cx + width / 2
+    z0, z1 = cz - depth / 2, cz + depth / 2
+    groups = (
+        slab("open_box_bottom", [x0, 0.0, z0], [x1, wall, z1]),
+        # Front and back walls span the full width; the side walls fit between them.
+        slab("open_box_wall_front", [x0, wall, z1 - wall], [x1, height, z1]),
+        slab("open_box_wall_back", [x0, wall, z0], [x1, height, z0 + wall]),
+        slab("open_box_wall_left", [x0, wall, z0 + wall], [x0 + wall, height, z1 - wall]),
+        slab("open_box_wall_right", [x1 - wall, wall, z0 + wall], [x1, height, z1 - wall]),
+    )
+    return Object("open_box", groups)
+
+
+def torus_knot(center_xz, size: float = 0.8, p: int = 2, q: int = 3, tube: float = 0.4,
+               n_along: int = 360, n_around: int = 20) -> Object:
+    """A tube of radius `tube` swept along a (p, q) torus knot lying flat on y = 0, with vn.
+
+    The centre line, before scaling, lies on the torus of radii R = 2, r = 1:
+        phi = p t, theta = q t,
+        c(t) = ((R + r cos theta) cos phi, (R + r cos theta) sin phi, r sin theta), z up.
+    The torus' surface normal N(t) = (cos theta cos phi, cos theta sin phi, sin theta) is
+    perpendicular to c'(t) because the curve lies on that surface, so (N, T x N) is a
+    smooth frame around the curve that is periodic in t (no Frenet flips, no parallel
+    transport twist to close). The tube point at angle a is c + tube (cos a N + sin a B), and
+    its exact normal is cos a N + sin a B (a canal surface of constant radius).
+    Strands stay >= 1.66 apart (measured) for (2, 3), so tube = 0.4 does not self-intersect.
+
+    `size` is the footprint diameter after scaling.
+    """
+    R, r = 2.0, 1.0
+    t = np.arange(n_along) * (2.0 * np.pi / n_along)
+    phi, theta = p * t, q * t
+    ring = R + r * np.cos(theta)
+    centre = np.stack([ring * np.cos(phi), ring * np.sin(phi), r * np.sin(theta)], axis=1)
+    tangent = np.stack(
+        [
+            -r * q * np.sin(theta) * np.cos(phi) - ring * p * np.sin(phi),
+            -r * q * np.sin(theta) * np.sin(phi) + ring * p * np.cos(phi),
+            r * q * np.cos(theta),
+        ],
+        axis=1,
+    )
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    normal = np.stack(
+        [np.cos(theta) * np.cos(phi), np.cos(theta) * np.sin(phi), np.sin(theta)], axis=1
+    )
+    binormal = np.cross(tangent, normal)
+
+    a = np.arange(n_around) * (2.0 * np.pi / n_around)
+    # (n_along, n_around, 3): vertex (i, j) has index i * n_around + j, as grid_quads expects.
+    normals = (
+        np.cos(a)[None, :, None] * normal[:, None, :]
+        + np.sin(a)[None, :, None] * binormal[:, None, :]
+    )
+    vertices = (centre[:, None, :] + tube * normals).reshape(-1, 3)
+    normals = normals.reshape(-1, 3)
+    # With u along the curve and v around it, u x v ~ T x (-sin a N + cos a B)
+    # = -sin a B - cos a N (as T x N = B, T x B = -N): inward. Reverse the quads to face out.
+    quads = grid_quads(n_along, n_around, wrap_u=True, wrap_v=True)[:, ::-1]
+
+    scale = size / (2.0 * (R + r + tube))
+    vertices = z_up_to_y_up(vertices) * scale
+    normals = z_up_to_y_up(normals)
+    vertices[:, 1] -= vertices[:, 1].min()
+    vertices[:, [0, 2]] += np.asarray(center_xz, dtype=np.float64)
+    return Object(
+        "torus_knot",
+        (Group("torus_knot", vertices, (quads,), normals=normals, normal_faces=(quads,)),),
+    )
+
+
+def parallel_plates(center_xz, width: float = 0.5, height: float = 0.4,
+                    thickness: float = 0.02, gap: float = PLATE_GAP) -> Object:
+    """Two upright slabs facing each other across a `gap` wide slot, standing on y = 0.
+    Quads, no vn."""
+    cx, cz = center_xz
+    x0, x1 = cx - width / 2, cx + width / 2
+    near_z0 = cz + gap / 2
+    far_z1 = cz - gap / 2
+    groups = (
+        slab("plate_near", [x0, 0.0, near_z0], [x1, height, near_z0 + thickness]),
+        slab("plate_far", [x0, 0.0, far_z1 - thickness], [x1, height, far_z1]),
+    )
+    return Object("parallel_plates", groups)
+
+
+def still_life() -> list[Object]:
+    """The README demo scene: y up, a 2 x 2 floor, four objects resting on it at y = 0."""
+    return [
+        floor(half_size=1.0, cells=20),
+        sphere(center_xz=(-0.5, -0.45)),
+        open_box(center_xz=(0.5, -0.45)),
+        torus_knot(center_xz=(-0.45, 0.5)),
+        parallel_plates(center_xz=(0.5, 0.5)),
+    ]
+
+
+def torus_uv(major: float = 1.0, minor: float = 0.35, n_major: int = 48,
+             n_minor: int = 24) -> Object:
+    """A torus around the y axis with UVs from its parametrisation, vn, quads.
+
+    u = i / n_major goes around the y axis, v = j / n_minor around the tube; both in [0, 1].
+    Positions and normals are shared across the seams (n_major * n_minor of each), but the
+    UV grid has (n_major + 1) * (n_minor + 1) entries: the seam corners at u = 1 (v = 1)
+    are separate vt entries from those at u = 0 (v = 0), as a lightmap atlas needs.
+    """
+    i = np.arange(n_major)
+    j = np.arange(n_minor)
+    phi = i * (2.0 * np.pi / n_major)
+    theta = j * (2.0 * np.pi / n_minor)
+    pp, tt = np.meshgrid(phi, theta, indexing="ij")
+    # Built z-up (axis z), then rotated to y-up like the still life.
+    normals = np.stack([np.cos(tt) * np.cos(pp), np.cos(tt) * np.sin(pp), np.sin(tt)], axis=-1)
+    centres = np.stack([np.cos(pp), np.sin(pp), np.zeros_like(pp)], axis=-1) * major
+    vertices = (centres + minor * normals).reshape(-1, 3)
+    normals = normals.reshape(-1, 3)
+    # u x v = d/dphi x d/dtheta points outward on this parametrisation.
+    quads = grid_quads(n_major, n_minor, wrap_u=True, wrap_v=True)
+
+    uu, vv = np.meshgrid(np.arange(n_major + 1) / n_major, np.arange(n_minor + 1) / n_minor,
+                         indexing="ij")
+    uv = np.stack([uu.ravel(), vv.ravel()], axis=1)
+    uv_quads = grid_quads(n_major, n_minor)  # not wrapped: the last column/row are the seam copies
+
+    group = Group(
+        "torus",
+        z_up_to_y_up(vertices),
+        (quads,),
+        uv=uv,
+        uv_faces=(uv_quads,),
+        normals=z_up_to_y_up(normals),
+        normal_faces=(quads,),
+    )
+    return Object("torus", (group,))
+
+
+def scenes() -> dict[str, list[Object]]:
+    """File name -> objects, for every bundled OBJ."""
+    return {"still_life.obj": still_life(), "torus_uv.obj": [torus_uv()]}
+
+
+COMMENTS = {
+    "still_life.obj": "aobake demo scene: y up, units ~ metres, floor 2 x 2 at y = 0.\n"
+                      "Objects: floor, sphere, open_box, torus_knot, parallel_plates (gap 0.002).",
+    "torus_uv.obj": "aobake lightmap demo: torus R = 1, r = 0.35 about the y axis,\n"
+                    "UVs from its (u, v) parametrisation in [0, 1], seams duplicated in vt.",
+}
+
+
+def main(out_dir=None) -> dict[str, int]:
+    """Write every bundled OBJ into out_dir (default: this script's folder).
+
+    Returns {file name: triangle count}.
+    """
+    out_dir = HERE if out_dir is None else Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    counts = {}
+    for name, objects in scenes().items():
+        write_obj(out_dir / name, objects, COMMENTS[name])
+        counts[name] = sum(obj.n_triangles for obj in objects)
+    return counts
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("out_dir", nargs="?", default=None, help="default: the assets/ folder")
+    args = parser.parse_args()
+    for file_name, n_triangles in main(args.out_dir).items():
+        print(f"{file_name}: {n_triangles} triangles")

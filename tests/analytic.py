@@ -1,0 +1,81 @@
+"""Analytic scenes and closed forms for the numerical tests.
+
+Every scene is built here, in memory, from a few triangles, so the test suite
+needs no external assets.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+from scipy import special, stats
+
+
+def quad(center, half_u, half_v, axis_u=0, axis_v=1, flip=False) -> trimesh.Trimesh:
+    """Axis-aligned rectangle: center (3,), half extents along axis_u and axis_v."""
+    center = np.asarray(center, dtype=float)
+    eu, ev = np.eye(3)[axis_u] * half_u, np.eye(3)[axis_v] * half_v
+    vertices = np.array([center - eu - ev, center + eu - ev, center + eu + ev, center - eu + ev])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    if flip:
+        faces = faces[:, ::-1]
+    return trimesh.Trimesh(vertices, faces, process=False)
+
+
+def polygon(center, radius, sides, axis=2) -> trimesh.Trimesh:
+    """Regular polygon (a tessellated disc) in the plane normal to ``axis``, fan-triangulated."""
+    angle = 2 * np.pi * np.arange(sides) / sides
+    ring = np.zeros((sides, 3))
+    others = [a for a in range(3) if a != axis]
+    ring[:, others[0]] = radius * np.cos(angle)
+    ring[:, others[1]] = radius * np.sin(angle)
+    vertices = np.vstack([np.zeros(3), ring]) + np.asarray(center, dtype=float)
+    faces = np.array([[0, 1 + i, 1 + (i + 1) % sides] for i in range(sides)])
+    return trimesh.Trimesh(vertices, faces, process=False)
+
+
+def combine(*meshes) -> trimesh.Trimesh:
+    return trimesh.util.concatenate(meshes)
+
+
+def polygon_form_factor(point, normal, corners) -> float:
+    """Lambert's point-to-polygon form factor (cosine-weighted solid angle / pi).
+
+    corners : (k, 3) polygon vertices in order, wholly above the point's tangent
+    plane.  F = 1/(2 pi) sum_i angle(r_i, r_i+1) * n . unit(r_i x r_i+1).
+    """
+    r = np.asarray(corners, float) - np.asarray(point, float)
+    total = 0.0
+    for i in range(len(r)):
+        a, b = r[i], r[(i + 1) % len(r)]
+        cross = np.cross(a, b)
+        angle = np.arctan2(np.linalg.norm(cross), np.dot(a, b))
+        total += angle * np.dot(normal, cross / np.linalg.norm(cross))
+    return abs(total) / (2 * np.pi)
+
+
+def ceiling_obscurance(h, d, tau) -> float:
+    """Obscurance of a floor point under an infinite ceiling at height h, max distance d > h.
+
+    W = 1 - 2 E3(tau h) + 2 (h/d)^2 E3(tau d)  (E3: exponential integral of order 3).
+    """
+    return 1 - 2 * special.expn(3, tau * h) + 2 * (h / d) ** 2 * special.expn(3, tau * d)
+
+
+def z_bound(n_tests: int, dof: float | None, alpha: float = 1e-4) -> float:
+    """k such that P(any |estimate - exact| > k * stderr) <= alpha over n_tests points.
+
+    The statistic is Student-t with ``dof`` degrees of freedom when the standard
+    error comes from that many replicates (None: normal).  Bonferroni over points.
+    """
+    q = 1 - alpha / (2 * n_tests)
+    return float(stats.norm.ppf(q) if dof is None else stats.t.ppf(q, dof))
+
+
+def dof_for(sampler: str, rays: int) -> float | None:
+    """Degrees of freedom of the stderr estimate (see aobake.samplers)."""
+    from aobake.samplers import REPLICATES
+
+    if sampler == "random":
+        return None if rays > 100 else rays - 1
+    return min(REPLICATES, rays) - 1

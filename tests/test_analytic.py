@@ -1,0 +1,152 @@
+"""Closed-form scenes: estimates within k standard errors of the exact value.
+
+k comes from the distribution of (estimate - exact) / stderr (Student-t with the
+stderr's degrees of freedom, Bonferroni over the points tested, family-wise
+false-failure rate 1e-4): see ``analytic.z_bound``.
+
+For the i.i.d. ``random`` sampler every point is tested on its own.  For the
+randomised-QMC samplers the per-point stderr comes from 8 replicates and is
+exactly 0 when all replicates resolve a visibility step the same way (their
+means are quantised at 1/m), so a per-point t-test is not valid there; they are
+tested on the mean over independent points, whose stderr sqrt(sum se^2) / N is
+unbiased (the calibration tests check the per-point stderr over seeds).
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+import aobake
+from analytic import (ceiling_obscurance, combine, dof_for, polygon, polygon_form_factor, quad,
+                      z_bound)
+
+SAMPLERS = ["random", "stratified", "sobol"]
+
+
+def floor_points(n, spread, height=0.0):
+    rng = np.random.default_rng(1)
+    pts = np.zeros((n, 3))
+    pts[:, :2] = rng.uniform(-spread, spread, size=(n, 2))
+    pts[:, 2] = height
+    return pts, np.tile([0.0, 0.0, 1.0], (n, 1))
+
+
+def check(estimate, stderr, exact, sampler, rays):
+    """Per-point test for i.i.d. sampling, mean-over-points test for the QMC samplers."""
+    estimate, stderr = np.asarray(estimate), np.asarray(stderr)
+    if sampler == "random":
+        assert_within(estimate, stderr, exact, z_bound(len(estimate), dof_for(sampler, rays)))
+    else:
+        error = np.mean(estimate - exact)
+        stderr_mean = math.sqrt(np.sum(stderr**2)) / len(estimate)
+        k = z_bound(1, dof_for(sampler, rays))  # conservative: dof of a single point's stderr
+        assert abs(error) <= k * stderr_mean, (error, stderr_mean, k)
+
+
+def assert_within(estimate, stderr, exact, k):
+    estimate, stderr = np.asarray(estimate), np.asarray(stderr)
+    bad = np.abs(estimate - exact) > k * stderr
+    assert not bad.any(), (
+        f"{bad.sum()} points off by more than {k:.2f} stderr: "
+        f"estimates {estimate[bad][:5]}, stderr {stderr[bad][:5]}, exact {exact}")
+
+
+@pytest.mark.parametrize("sampler", SAMPLERS)
+def test_open_plane_is_fully_open(sampler):
+    mesh = quad([0, 0, 0], 5, 5)
+    pts, nrm = floor_points(16, 4.0)
+    res = aobake.bake_points(mesh, pts, nrm, rays=64, sampler=sampler,
+                             quantities=("ao", "obscurance", "bent-normal"))
+    assert np.all(res.ao == 1.0) and np.all(res.ao_stderr == 0.0)
+    assert np.all(res.obscurance == 1.0)
+    np.testing.assert_allclose(np.linalg.norm(res.bent_normal, axis=1), 1.0, atol=1e-12)
+    # Bent normal of an open hemisphere is the normal itself (up to the sampling noise).
+    assert np.all(res.bent_normal[:, 2] > 0.9)
+
+
+@pytest.mark.parametrize("sampler", SAMPLERS)
+def test_inside_closed_box_is_fully_occluded(sampler):
+    import trimesh
+
+    box = trimesh.creation.box(extents=[2, 2, 2])
+    rng = np.random.default_rng(2)
+    pts = rng.uniform(-0.8, 0.8, size=(20, 3))
+    nrm = rng.normal(size=(20, 3))
+    res = aobake.bake_points(box, pts, nrm, rays=128, sampler=sampler,
+                             quantities=("ao", "obscurance", "bent-normal"))
+    assert np.all(res.ao == 0.0) and np.all(res.ao_stderr == 0.0)
+    # No escaping ray: the bent normal falls back to the normal.
+    np.testing.assert_allclose(res.bent_normal, nrm / np.linalg.norm(nrm, axis=1)[:, None])
+    # Obscurance inside: every rho(L) < 1, so strictly below 1 and above 0.
+    assert np.all((res.obscurance > 0) & (res.obscurance < 1))
+
+
+@pytest.mark.parametrize("sampler", SAMPLERS)
+@pytest.mark.parametrize("weighting", ["cosine", "uniform"])
+def test_floor_under_ceiling_with_max_distance(sampler, weighting):
+    # h/d is not a multiple of a power of 1/2: the Sobol net would integrate the
+    # indicator exactly (zero spread) and the test could not see the stderr.
+    h, d = 1.0, 2.3
+    exact = (h / d) ** 2
+    # The ceiling covers every direction with L <= d from the sampled floor region.
+    reach = math.sqrt(d * d - h * h) + 1.0
+    mesh = combine(quad([0, 0, 0], reach + 1, reach + 1), quad([0, 0, h], reach + 1, reach + 1))
+    pts, nrm = floor_points(32, 0.5)
+    rays = 256
+    res = aobake.bake_points(mesh, pts, nrm, rays=rays, max_distance=d, sampler=sampler,
+                             weighting=weighting)
+    check(res.ao, res.ao_stderr, exact, sampler, rays)
+    assert np.any(res.ao_stderr > 0)
+
+
+@pytest.mark.parametrize("sampler", SAMPLERS)
+def test_floor_under_tessellated_disc(sampler):
+    h, radius, sides = 0.7, 1.3, 24
+    disc = polygon([0, 0, h], radius, sides)
+    corners = disc.vertices[1:]
+    rng = np.random.default_rng(3)
+    pts = np.zeros((24, 3))
+    pts[:, :2] = rng.uniform(-2.0, 2.0, size=(24, 2))
+    pts[0] = 0.0
+    nrm = np.tile([0, 0, 1.0], (len(pts), 1))
+    res = aobake.bake_points(disc, pts, nrm, rays=512, sampler=sampler)
+    exact = np.array([1 - polygon_form_factor(p, [0, 0, 1], corners) for p in pts])
+    check(res.ao - exact, res.ao_stderr, 0.0, sampler, 512)
+    # Sanity of the oracle: the coaxial point matches the disc's h^2 / (h^2 + R^2)
+    # up to the tessellation (the polygon is inside the disc, so it occludes less).
+    assert exact[0] >= h**2 / (h**2 + radius**2)
+
+
+@pytest.mark.parametrize("tau", [0.5, 3.0])
+def test_obscurance_under_ceiling_exponential_integrals(tau):
+    h, d = 0.5, 1.5
+    reach = math.sqrt(d * d - h * h) + 1.0
+    mesh = combine(quad([0, 0, 0], reach + 1, reach + 1), quad([0, 0, h], reach + 1, reach + 1))
+    pts, nrm = floor_points(32, 0.5)
+    res = aobake.bake_points(mesh, pts, nrm, rays=256, max_distance=d, tau=tau,
+                             quantities=("obscurance",), sampler="random")
+    assert res.ao is None and res.bent_normal is None  # only what was asked
+    exact = ceiling_obscurance(h, d, tau)
+    assert_within(res.obscurance, res.obscurance_stderr, exact, z_bound(len(pts), None))
+
+
+def test_bent_normal_beside_wall_tilts_by_atan_2_over_pi():
+    # A wall (plane x = 0) far larger than the distance to it: the unoccluded set
+    # is the half-hemisphere x > 0.
+    wall = quad([0, 0, 50], 1e3, 50, axis_u=1, axis_v=2)
+    n = 64
+    pts = np.zeros((n, 3))
+    pts[:, 0] = 1e-3
+    pts[:, 1] = np.linspace(-1, 1, n)
+    nrm = np.tile([0, 0, 1.0], (n, 1))
+    res = aobake.bake_points(wall, pts, nrm, rays=1024, sampler="random",
+                             quantities=("ao", "bent-normal"))
+    assert_within(res.ao, res.ao_stderr, 0.5, z_bound(n, None))
+    angle = np.arctan2(res.bent_normal[:, 0], res.bent_normal[:, 2])
+    assert np.all(res.bent_normal[:, 0] > 0)  # tilts away from the wall
+    # Points are independent (different ids): the error of the mean angle follows from their spread.
+    stderr_mean = angle.std(ddof=1) / math.sqrt(n)
+    k = z_bound(1, n - 1)
+    assert abs(angle.mean() - math.atan(2 / math.pi)) <= k * stderr_mean
+    assert abs(np.mean(res.bent_normal[:, 1])) <= k * res.bent_normal[:, 1].std(ddof=1) / math.sqrt(n)
