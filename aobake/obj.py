@@ -33,7 +33,7 @@ class ObjData:
     uv : (t, 2) float64 | None  the ``vt`` lines (OBJ convention: v = 0 at the image bottom)
     faces_uv : (f, 3) int64 | None   per-corner index into ``uv``; None unless every face has one
     normals : (k, 3) float64 | None  the ``vn`` lines
-    faces_normal : (f, 3) int64 | None  per-corner index into ``normals``; None unless every face has one
+    faces_normal : (f, 3) int64 | None  per-corner index into ``normals``, -1 where a corner has none
     groups : list of (name, first_face, n_faces) for ``o``/``g`` statements
     polygons : int  polygon count in the file (before triangulation)
     """
@@ -101,7 +101,7 @@ def read_obj(path: str | os.PathLike) -> ObjData:
     verts, uvs, norms = [], [], []
     tri_v, tri_t, tri_n = [], [], []
     groups, skipped, polygons = [], 0, 0
-    all_have_t = all_have_n = True
+    all_have_t = True
     for number, line in _logical_lines(text):
         parts = line.split()
         if not parts:
@@ -128,7 +128,6 @@ def read_obj(path: str | os.PathLike) -> ObjData:
                     cn.append(-1 if n is None else _resolve(n, len(norms), path, number, "normal"))
                 polygons += 1
                 all_have_t &= min(ct) >= 0
-                all_have_n &= min(cn) >= 0
                 # Fan triangulation from the first corner (what Blender's importer and
                 # most archives' writers assume for convex polygons).
                 for k in range(1, len(corners) - 1):
@@ -140,6 +139,8 @@ def read_obj(path: str | os.PathLike) -> ObjData:
                 groups.append((name, len(tri_v)))
             elif key in ("l", "p"):
                 skipped += 1
+        except InputError:
+            raise
         except (IndexError, ValueError):
             raise InputError(f"{path}: line {number}: malformed {key!r} statement") from None
 
@@ -161,7 +162,7 @@ def read_obj(path: str | os.PathLike) -> ObjData:
         uv=np.asarray(uvs, dtype=np.float64) if uvs else None,
         faces_uv=np.asarray(tri_t, dtype=np.int64) if uvs and all_have_t else None,
         normals=np.asarray(norms, dtype=np.float64) if norms else None,
-        faces_normal=np.asarray(tri_n, dtype=np.int64) if norms and all_have_n else None,
+        faces_normal=np.asarray(tri_n, dtype=np.int64) if norms else None,
         groups=spans,
         polygons=polygons,
         warnings=warnings,

@@ -203,11 +203,17 @@ def make_scene(
 
 
 def _obj_normals(data) -> np.ndarray | None:
-    """Per-``v`` normals from an OBJ: the mean of the ``vn`` its corners use (None if absent)."""
+    """Per-``v`` normals from an OBJ: the mean of the ``vn`` its corners use (None if absent).
+
+    Vertices none of whose corners has a ``vn`` get zero here and are filled by
+    angle weighting in :func:`make_scene`.
+    """
     if data.faces_normal is None:
         return None
+    corners = data.faces_normal.ravel()
+    has = corners >= 0
     accum = np.zeros_like(data.vertices)
-    np.add.at(accum, data.faces.ravel(), data.normals[data.faces_normal.ravel()])
+    np.add.at(accum, data.faces.ravel()[has], data.normals[corners[has]])
     return accum
 
 

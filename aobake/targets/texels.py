@@ -1,0 +1,816 @@
+"""Texel targets: map between a UV atlas and sample points on the surface.
+
+Conventions (used by every function here and by ``aobake.outputs.image``):
+
+- UVs follow the OBJ convention: ``u`` runs left to right and ``v = 0`` is the
+  BOTTOM of the image, ``v = 1`` the top.
+- An image of ``W x H`` texels is an array ``(H, W, C)`` whose row 0 is the
+  TOP of the image (``v`` near 1).
+- Texel ``(row r, col c)`` has its centre at ``u = (c + 0.5) / W``,
+  ``v = 1 - (r + 0.5) / H``.  Its linear index is ``r * W + c``.
+- Internally the rasteriser works in texel space ``x = u * W``,
+  ``y = (1 - v) * H`` (``y`` grows downwards with the row number), where
+  texel ``(r, c)`` is the unit square ``[c, c + 1) x [r, r + 1)``.
+- UVs are not wrapped: parts of triangles outside ``[0, 1]^2`` are not
+  sampled, and ``check_uvs`` reports such faces.
+
+Coverage rule.  A sub-position is on a triangle when all three edge functions
+are positive, or zero on an edge that the triangle owns.  Ownership is a
+tie-break: a point exactly on an edge belongs to the side that contains the
+point nudged by an infinitesimal step in the fixed direction (-1, -delta) in
+texel space ("top-left" style rule).  Each edge function is evaluated from the
+edge's endpoints in a canonical order, so the two triangles sharing an edge
+compute bit-identical values of opposite sign; a point on a shared edge or a
+shared vertex therefore lands on exactly one triangle of a watertight chart.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from aobake.errors import InputError
+
+log = logging.getLogger(__name__)
+
+#: A UV triangle with |area| below this (in uv units, i.e. as a fraction of the
+#: whole atlas) counts as degenerate.  At 16k x 16k one texel is ~3.7e-9, so
+#: this is about a millionth of a texel at any practical resolution.
+DEGENERATE_UV_AREA = 1e-15
+
+#: Coverage given to a texel that received only a fallback sample (no
+#: sub-position landed on the surface): half of one sub-position's share,
+#: i.e. ``0.5 / K``.  It is > 0 (the texel does hold a surface sample) and
+#: smaller than the coverage of any texel where a sub-position landed.
+FALLBACK_COVERAGE_FRACTION = 0.5
+
+#: Default number of (triangle, texel) candidate pairs processed at once; it
+#: bounds the rasteriser's memory (roughly 200 bytes per pair) and does not
+#: change the result.
+CHUNK_PAIRS = 1 << 21
+
+# --- results ---------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class UVCheck:
+    """Result of checking a mesh's own UVs for baking.
+
+    valid : bool
+        True when no face has a corner outside [0, 1]^2 and no texel centre is
+        covered by more than one triangle.
+    out_of_range_faces : int
+        Faces with any corner outside [0, 1]^2 (or non-finite).
+    overlapping_texels : int
+        Texels whose centre is covered by two or more triangles (overlapping or
+        mirrored-and-stacked shells).  Triangles sharing an edge never both
+        cover one centre (see the module's coverage rule).
+    mirrored_faces : int
+        Non-degenerate faces whose signed UV area has the minority sign.
+    degenerate_faces : int
+        Faces with |UV area| < DEGENERATE_UV_AREA; they receive no texels.
+    message : str
+        One human-readable line summarising the above.
+    """
+
+    valid: bool
+    out_of_range_faces: int
+    overlapping_texels: int
+    mirrored_faces: int
+    degenerate_faces: int
+    message: str
+
+
+@dataclass(frozen=True)
+class TexelSamples:
+    """Sample points of a texel atlas, as triangle + barycentric coordinates.
+
+    Samples are sorted by (texel, sample, face), so the arrays do not depend on
+    how the rasteriser was chunked.
+
+    texel : (s,) int64
+        Linear texel index ``r * width + c`` of each sample.
+    face : (s,) int64
+        Triangle of each sample.
+    bary : (s, 3) float64
+        Barycentric coordinates in the face's corner order; each in [0, 1],
+        rows sum to 1.
+    sample : (s,) int64
+        Sub-position number within the texel, 0..K-1 (0 for fallback samples).
+        Where triangles overlap in UV, one sub-position can yield one sample per
+        covering triangle.
+    is_fallback : (s,) bool
+        True for the single fallback sample of a texel that the surface overlaps
+        but where none of the K sub-positions landed on it.
+    coverage : (height, width) float32
+        Fraction of the texel's K sub-positions that landed on the surface
+        (0 = empty, 1 = fully covered).  Texels with only a fallback sample get
+        ``FALLBACK_COVERAGE_FRACTION / K``.
+    shared : (height, width) int32
+        Number of triangles covering the texel centre: 0 outside the surface,
+        1 inside a valid atlas, >= 2 where shells overlap.
+    width, height : int
+        Image size in texels.
+    texel_samples : int
+        K, the number of sub-positions per texel.
+    """
+
+    texel: np.ndarray
+    face: np.ndarray
+    bary: np.ndarray
+    sample: np.ndarray
+    is_fallback: np.ndarray
+    coverage: np.ndarray
+    shared: np.ndarray
+    width: int
+    height: int
+    texel_samples: int
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.texel.shape[0])
+
+    def rows_cols(self) -> tuple[np.ndarray, np.ndarray]:
+        """Return (row, col) of each sample's texel, both (s,) int64."""
+        return np.divmod(self.texel, self.width)
+
+
+class Unwrapped(NamedTuple):
+    """A fresh atlas: new vertices referring back to the input ones.
+
+    vmapping : (m,) int64   index into the input vertices of each new vertex
+    faces : (f, 3) int64    triangles over the new vertices (same order as input)
+    uv : (m, 2) float64     UVs in [0, 1], OBJ convention (v = 0 at the bottom)
+    """
+
+    vmapping: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray
+
+
+# --- validation helpers ----------------------------------------------------
+
+
+def _check_uv_faces(uv, faces, width, height) -> tuple[np.ndarray, np.ndarray]:
+    uv = np.asarray(uv, dtype=np.float64)
+    faces = np.asarray(faces)
+    if uv.ndim != 2 or uv.shape[1] != 2:
+        raise ValueError(f"uv must be (n, 2), got {uv.shape}")
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise ValueError(f"faces must be (f, 3), got {faces.shape}")
+    if not np.issubdtype(faces.dtype, np.integer):
+        raise ValueError(f"faces must be integers, got {faces.dtype}")
+    faces = faces.astype(np.int64, copy=False)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(uv)):
+        raise ValueError(f"faces index vertices outside 0..{len(uv) - 1}")
+    if int(width) != width or int(height) != height or width < 1 or height < 1:
+        raise ValueError(f"width and height must be positive integers, got {width} x {height}")
+    return uv, faces
+
+
+def _signed_uv_area(uv: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(f,) float64 signed area in uv units; > 0 for counter-clockwise (v up)."""
+    t = uv[faces]
+    e1 = t[:, 1] - t[:, 0]
+    e2 = t[:, 2] - t[:, 0]
+    return 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+
+
+# --- UV checking -----------------------------------------------------------
+
+
+def check_uvs(uv, faces, width: int, height: int) -> UVCheck:
+    """Check whether a mesh's own UVs can be baked into a width x height image.
+
+    uv : (n, 2) float, OBJ convention; faces : (f, 3) int.
+    Overlap is measured by rasterising the texel centres (K = 1) with the
+    module's coverage rule, so it is exactly the overlap the bake would see.
+    """
+    uv, faces = _check_uv_faces(uv, faces, width, height)
+    corners = uv[faces]  # (f, 3, 2)
+    in_range = np.all(np.isfinite(corners) & (corners >= 0.0) & (corners <= 1.0), axis=(1, 2))
+    out_of_range = int(np.count_nonzero(~in_range))
+
+    area = _signed_uv_area(uv, faces)
+    finite = np.isfinite(area)
+    degenerate = ~finite | (np.abs(area) < DEGENERATE_UV_AREA)
+    n_pos = int(np.count_nonzero((area > 0) & ~degenerate))
+    n_neg = int(np.count_nonzero((area < 0) & ~degenerate))
+    # Which orientation is "mirrored" is only defined relative to the majority.
+    mirrored = min(n_pos, n_neg)
+
+    samples = rasterize(uv, faces, width, height, texel_samples=1)
+    overlapping = int(np.count_nonzero(samples.shared > 1))
+
+    valid = out_of_range == 0 and overlapping == 0
+    parts = []
+    if out_of_range:
+        parts.append(f"{out_of_range} faces have UVs outside [0, 1]")
+    if overlapping:
+        parts.append(f"{overlapping} texels are covered by more than one face")
+    if mirrored:
+        parts.append(f"{mirrored} faces are mirrored in UV")
+    if int(degenerate.sum()):
+        parts.append(f"{int(degenerate.sum())} faces have zero UV area")
+    head = "UVs usable for baking" if valid else "UVs not usable for baking"
+    message = head + (": " + "; ".join(parts) if parts else "")
+    return UVCheck(
+        valid=valid,
+        out_of_range_faces=out_of_range,
+        overlapping_texels=overlapping,
+        mirrored_faces=mirrored,
+        degenerate_faces=int(degenerate.sum()),
+        message=message,
+    )
+
+
+# --- unwrapping with xatlas ------------------------------------------------
+
+
+def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False):
+    """Run xatlas and return (vmapping, faces, uv_xatlas, image or None).
+
+    ``uv_xatlas`` is in xatlas's own orientation: ``v * resolution`` is the row
+    of xatlas's chart image counted from its FIRST row (the top, as stored),
+    i.e. xatlas's v runs downwards, opposite to OBJ.  ``unwrap`` flips it.
+
+    xatlas only hits an exact resolution when it is also given
+    ``texels_per_unit``, and then spills charts that do not fit into more
+    atlases.  So: (1) compute charts with an estimated scale, (2) repack the
+    resulting charts alone (fast: no chart computation) at a fixed
+    ``resolution x resolution`` while shrinking the scale until one atlas holds
+    them all.  The padding is then exactly ``padding`` texels of the final image.
+    """
+    import xatlas
+
+    positions = np.ascontiguousarray(positions, dtype=np.float32)
+    faces = np.ascontiguousarray(faces, dtype=np.uint32)
+
+    first = xatlas.Atlas()
+    first.add_mesh(positions, faces)
+    pack = xatlas.PackOptions()
+    pack.resolution = resolution
+    pack.padding = padding
+    pack.bilinear = True
+    first.generate(pack_options=pack)
+    vm_a, faces_a, uv_a = first[0]
+    w_a, h_a = first.width, first.height
+    uv_texels = (uv_a.astype(np.float64) * [w_a, h_a]).astype(np.float32)
+    log.debug("xatlas charts: %d charts, first pack %d x %d", first.chart_count, w_a, h_a)
+
+    scale = resolution / max(w_a, h_a)
+    for _ in range(60):
+        atlas = xatlas.Atlas()
+        atlas.add_uv_mesh(uv_texels, faces_a)
+        pack = xatlas.PackOptions()
+        pack.resolution = resolution
+        pack.padding = padding
+        pack.bilinear = True
+        pack.texels_per_unit = scale
+        pack.create_image = chart_image
+        atlas.generate(pack_options=pack)
+        if atlas.atlas_count == 1 and atlas.width == resolution and atlas.height == resolution:
+            break
+        scale *= 0.97  # small steps: each repack costs little, utilisation matters
+    else:
+        raise InputError(f"xatlas could not pack the charts into one {resolution}x{resolution} atlas")
+    vm_b, faces_b, uv_b = atlas[0]
+    log.debug("xatlas repack: scale %.4g, utilisation %.3f", scale, atlas.utilization)
+    image = atlas.get_chart_image(0) if chart_image else None
+    vmapping = vm_a.astype(np.int64)[vm_b.astype(np.int64)]
+    return vmapping, faces_b.astype(np.int64), uv_b.astype(np.float64), image
+
+
+def _unwrap_in_process(positions, faces, resolution, padding) -> Unwrapped:
+    vmapping, new_faces, uv, _ = _xatlas_atlas(positions, faces, resolution, padding)
+    # xatlas's v runs down the image (row 0 first); OBJ's v runs up.  Flipping
+    # keeps texel boundaries on texel boundaries because resolution is integral,
+    # so the texel grid xatlas packed for (and its padding) is preserved.
+    uv[:, 1] = 1.0 - uv[:, 1]
+    return Unwrapped(vmapping, new_faces, uv)
+
+
+def _unwrap_worker(argv: list[str]) -> None:
+    """Entry point of the isolated xatlas process: ``in.npz out.npz``."""
+    with np.load(argv[0]) as data:
+        result = _unwrap_in_process(
+            data["positions"], data["faces"], int(data["resolution"]), int(data["padding"])
+        )
+    np.savez(argv[1], vmapping=result.vmapping, faces=result.faces, uv=result.uv)
+
+
+# The child imports this module and runs the worker; kept as data so tests can
+# swap in a crashing stand-in.
+_WORKER_CODE = "import sys; from aobake.targets.texels import _unwrap_worker; _unwrap_worker(sys.argv[1:])"
+
+
+def _unwrap_isolated(positions, faces, resolution, padding) -> Unwrapped:
+    # xatlas segfaults on some inputs (for example finely subdivided
+    # icospheres, jpcy/xatlas#146); in a child process that becomes an error
+    # message instead of killing the caller.
+    package_root = str(Path(__file__).resolve().parents[2])
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
+    with tempfile.TemporaryDirectory(prefix="aobake-xatlas-") as tmp:
+        src, dst = Path(tmp, "in.npz"), Path(tmp, "out.npz")
+        np.savez(src, positions=positions, faces=faces, resolution=resolution, padding=padding)
+        proc = subprocess.run(
+            [sys.executable, "-c", _WORKER_CODE, str(src), str(dst)],
+            env=env,
+            capture_output=True,
+            text=True,
+        )
+        if proc.returncode != 0:
+            if proc.returncode < 0:
+                try:
+                    how = f"crashed with {signal.Signals(-proc.returncode).name}"
+                except ValueError:
+                    how = f"was killed by signal {-proc.returncode}"
+            else:
+                last = proc.stderr.strip().splitlines()[-1:] or ["no message"]
+                how = f"failed ({last[0]})"
+            raise InputError(
+                f"xatlas {how} while unwrapping a mesh of {len(faces)} triangles; "
+                "very regular meshes such as finely subdivided icospheres are known to crash it "
+                "(jpcy/xatlas#146): provide your own UVs or perturb the mesh"
+            )
+        with np.load(dst) as data:
+            return Unwrapped(data["vmapping"], data["faces"], data["uv"])
+
+
+def unwrap(positions, faces, resolution: int, padding: int, *, isolate: bool = True) -> Unwrapped:
+    """Make a fresh, non-overlapping UV atlas with xatlas.
+
+    positions : (n, 3) float; faces : (f, 3) int.
+    resolution : side of the square target image in texels.
+    padding : texels between charts in that image (xatlas ``padding``, with
+        ``bilinear=True`` so bilinear lookups stay inside a chart).
+    isolate : run xatlas in a child Python process so that an xatlas crash
+        raises InputError instead of killing this process (costs ~0.3 s).
+
+    Returns ``Unwrapped(vmapping (m,) int64, faces (f, 3) int64, uv (m, 2)
+    float64)``: new vertex ``i`` sits at ``positions[vmapping[i]]``; uv is in
+    [0, 1] in the OBJ convention (v = 0 at the bottom), charts aligned to the
+    ``resolution`` texel grid.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    faces = np.asarray(faces)
+    if positions.ndim != 2 or positions.shape[1] != 3:
+        raise ValueError(f"positions must be (n, 3), got {positions.shape}")
+    if faces.ndim != 2 or faces.shape[1] != 3 or not np.issubdtype(faces.dtype, np.integer):
+        raise ValueError(f"faces must be (f, 3) integers, got {faces.shape} {faces.dtype}")
+    if len(faces) == 0:
+        raise InputError("cannot unwrap a mesh without triangles")
+    if faces.min() < 0 or faces.max() >= len(positions):
+        raise ValueError(f"faces index vertices outside 0..{len(positions) - 1}")
+    if int(resolution) != resolution or resolution < 1:
+        raise ValueError(f"resolution must be a positive integer, got {resolution}")
+    if int(padding) != padding or padding < 0:
+        raise ValueError(f"padding must be a non-negative integer, got {padding}")
+    start = time.perf_counter()
+    run = _unwrap_isolated if isolate else _unwrap_in_process
+    result = run(positions, faces.astype(np.int64), int(resolution), int(padding))
+    log.info(
+        "unwrapped %d triangles into %dx%d texels in %.1f s (%d -> %d vertices)",
+        len(faces), resolution, resolution, time.perf_counter() - start,
+        len(positions), len(result.vmapping),
+    )
+    return result
+
+
+# --- counter-based jitter ----------------------------------------------------
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX2 = np.uint64(0x94D049BB133111EB)
+_SEED_SALT = np.uint64(0x243F6A8885A308D3)  # digits of pi: any fixed odd constant
+
+
+def _mix64(x: np.ndarray) -> np.ndarray:
+    """SplitMix64 finaliser: a bijective avalanche on uint64 arrays."""
+    x = x ^ (x >> np.uint64(30))
+    x = x * _MIX1
+    x = x ^ (x >> np.uint64(27))
+    x = x * _MIX2
+    return x ^ (x >> np.uint64(31))
+
+
+def _uniform(seed: int, texel: np.ndarray, k: int, dim: int) -> np.ndarray:
+    """(n,) float64 in [0, 1): a pure function of (seed, texel, k, dim)."""
+    with np.errstate(over="ignore"):
+        s = _mix64(np.array([seed & 0xFFFFFFFFFFFFFFFF], dtype=np.uint64) ^ _SEED_SALT)
+        key = texel.astype(np.uint64) * np.uint64(0x100000) + np.uint64(k * 4 + dim)
+        # key * odd constant is a bijection, so distinct keys stay distinct for
+        # one seed; the seed enters through an independent mix (never xor-ed
+        # against a value built the same way, which could cancel to zero).
+        h = _mix64(_mix64(key * _GOLDEN + s) + _GOLDEN)
+    return (h >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+
+
+def _lattice_generator(k: int) -> int:
+    """Generator g coprime with k near k / golden ratio (rank-1 lattice)."""
+    g = max(1, int(round(k / 1.618033988749895)))
+    while np.gcd(g, k) != 1:
+        g += 1
+    return g
+
+
+def subsample_offsets(texel: np.ndarray, k: int, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Position of sub-sample ``k`` of ``n`` inside each texel, in [0, 1)^2.
+
+    texel : (m,) int64 linear texel indices.  Returns (dx, dy), each (m,)
+    float64, measured from the texel's corner at (col, row) in texel space
+    (dy grows downwards, with the row).
+    n == 1: the centre (0.5, 0.5).  n a square q*q: one jittered point in each
+    cell of a q x q grid.  Otherwise: a jittered rank-1 lattice (every column
+    and every row of an n x n grid holds exactly one point).
+    """
+    if n == 1:
+        half = np.full(texel.shape, 0.5)
+        return half, half
+    ux = _uniform(seed, texel, k, 0)
+    uy = _uniform(seed, texel, k, 1)
+    q = int(round(np.sqrt(n)))
+    if q * q == n:
+        return (k % q + ux) / q, (k // q + uy) / q
+    g = _lattice_generator(n)
+    return (k + ux) / n, ((k * g) % n + uy) / n
+
+
+# --- the rasteriser ------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Edges:
+    """Oriented, canonically evaluated edge functions of f triangles.
+
+    For edge e of triangle t (oriented so the triangle's area is positive),
+    E(x, y) = dx[t, e] * (y - ay[t, e]) - dy[t, e] * (x - ax[t, e]).
+    (ax, ay) is the canonical first endpoint and (dx, dy) the canonical
+    direction times +-1, so the neighbour across the edge gets exactly -E.
+    Edge e runs from oriented vertex e to e + 1, so E is the barycentric weight
+    of the opposite vertex e + 2.
+    """
+
+    ax: np.ndarray  # (f, 3) float64
+    ay: np.ndarray
+    dx: np.ndarray
+    dy: np.ndarray
+    owner: np.ndarray  # (f, 3) bool: the triangle owns points exactly on the edge
+    verts: np.ndarray  # (f, 3, 2) float64 oriented vertices in texel space
+    corner: np.ndarray  # (f, 3) int64: face corner of each oriented vertex
+
+
+def _edges(xy: np.ndarray, faces: np.ndarray) -> tuple[_Edges, np.ndarray]:
+    """Build edge functions; also return (f,) bool of rasterisable triangles."""
+    tri = xy[faces]  # (f, 3, 2)
+    e1 = tri[:, 1] - tri[:, 0]
+    e2 = tri[:, 2] - tri[:, 0]
+    area2 = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    usable = np.isfinite(area2) & (area2 != 0.0)
+    corner = np.where((area2 < 0)[:, None], [0, 2, 1], [0, 1, 2]).astype(np.int64)
+    verts = np.take_along_axis(tri, corner[:, :, None], axis=1)
+    p = verts
+    q = np.roll(verts, -1, axis=1)  # edge e: p[e] -> q[e] = verts[e + 1]
+    swap = (p[..., 0] > q[..., 0]) | ((p[..., 0] == q[..., 0]) & (p[..., 1] > q[..., 1]))
+    start = np.where(swap[..., None], q, p)
+    end = np.where(swap[..., None], p, q)
+    sign = np.where(swap, -1.0, 1.0)
+    d = end - start
+    # Negation is exact in IEEE arithmetic, so folding the sign into the
+    # direction keeps E exactly antisymmetric between the two sides.
+    dx, dy = sign * d[..., 0], sign * d[..., 1]
+    # Owner rule = nudge the point by (-1, -delta): E(p + eps t) > 0 iff
+    # dy > 0 or (dy == 0 and dx < 0), with (dx, dy) the oriented direction.
+    owner = (dy > 0) | ((dy == 0) & (dx < 0))
+    return _Edges(start[..., 0], start[..., 1], dx, dy, owner, verts, corner), usable
+
+
+def _bbox(verts: np.ndarray, width: int, height: int):
+    """Inclusive texel ranges (c0, c1, r0, r1), each (f,) int64, clipped."""
+    lo = np.floor(verts.min(axis=1))
+    hi = np.floor(verts.max(axis=1))
+    c0 = np.clip(lo[:, 0], 0, width).astype(np.int64)
+    r0 = np.clip(lo[:, 1], 0, height).astype(np.int64)
+    c1 = np.clip(hi[:, 0], -1, width - 1).astype(np.int64)
+    r1 = np.clip(hi[:, 1], -1, height - 1).astype(np.int64)
+    return c0, c1, r0, r1
+
+
+def _bands(tri, c0, c1, r0, r1, budget):
+    """Split each triangle's texel box into row bands of at most ~budget pairs.
+
+    Returns per-band arrays (tri, c0, bw, r0, rows), all (b,) int64.
+    """
+    bw = c1 - c0 + 1
+    bh = r1 - r0 + 1
+    rows_per_band = np.maximum(1, budget // bw)
+    n_bands = -(-bh // rows_per_band)
+    band_tri = np.repeat(tri, n_bands)
+    first = np.repeat(np.cumsum(n_bands) - n_bands, n_bands)
+    j = np.arange(len(band_tri)) - first
+    rpb = np.repeat(rows_per_band, n_bands)
+    band_r0 = np.repeat(r0, n_bands) + j * rpb
+    rows = np.minimum(rpb, np.repeat(r1, n_bands) - band_r0 + 1)
+    return band_tri, np.repeat(c0, n_bands), np.repeat(bw, n_bands), band_r0, rows
+
+
+def _edge_values(ed: _Edges, t: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(m, 3) float64 oriented edge functions of triangles t at points (x, y)."""
+    return ed.dx[t] * (y[:, None] - ed.ay[t]) - ed.dy[t] * (x[:, None] - ed.ax[t])
+
+
+def _inside(ed: _Edges, t: np.ndarray, e: np.ndarray) -> np.ndarray:
+    return np.all((e > 0) | ((e == 0) & ed.owner[t]), axis=1)
+
+
+def _bary_from_edges(ed: _Edges, t: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """Barycentrics in face-corner order from (m, 3) edge values of inside points."""
+    # Edge e is opposite oriented vertex e + 2: weights (E1, E2, E0).
+    w = e[:, [1, 2, 0]]
+    w = w / w.sum(axis=1, keepdims=True)
+    out = np.empty_like(w)
+    np.put_along_axis(out, ed.corner[t], w, axis=1)
+    return out
+
+
+def _nearest_on_triangle(ed: _Edges, t: np.ndarray, px: np.ndarray, py: np.ndarray):
+    """Nearest point of triangles t to points (px, py), as barycentrics.
+
+    Returns (bary (m, 3) float64 in face-corner order, dist2 (m,) float64 in
+    texels^2).  Points inside the triangle are their own nearest point.
+    """
+    m = len(t)
+    v = ed.verts[t]  # (m, 3, 2)
+    p = np.stack([px, py], axis=1)
+    best_d2 = np.full(m, np.inf)
+    w = np.zeros((m, 3))
+    for i in range(3):
+        j = (i + 1) % 3
+        a = v[:, i]
+        d = v[:, j] - a
+        s = np.clip(np.einsum("ij,ij->i", p - a, d) / np.einsum("ij,ij->i", d, d), 0.0, 1.0)
+        d2 = np.sum((a + s[:, None] * d - p) ** 2, axis=1)
+        better = d2 < best_d2
+        best_d2 = np.where(better, d2, best_d2)
+        wi = np.zeros((m, 3))
+        wi[:, i] = 1.0 - s
+        wi[:, j] = s
+        w[better] = wi[better]
+    e = _edge_values(ed, t, px, py)
+    inside = np.all(e >= 0, axis=1)
+    if inside.any():
+        wi = e[inside][:, [1, 2, 0]]
+        w[inside] = wi / wi.sum(axis=1, keepdims=True)
+        best_d2[inside] = 0.0
+    out = np.empty_like(w)
+    np.put_along_axis(out, ed.corner[t], w, axis=1)
+    return out, best_d2
+
+
+def rasterize(
+    uv,
+    faces,
+    width: int,
+    height: int,
+    texel_samples: int = 1,
+    seed: int = 0,
+    *,
+    chunk_pairs: int = CHUNK_PAIRS,
+) -> TexelSamples:
+    """Find the surface sample points of every texel of a width x height atlas.
+
+    uv : (n, 2) float, OBJ convention; faces : (f, 3) int.
+    texel_samples : K sub-positions per texel (see ``subsample_offsets``); each
+        one that lands on a triangle (module coverage rule) becomes a sample.
+    seed : jitter seed; offsets are a pure function of (seed, texel, k).
+    chunk_pairs : memory knob (candidate pairs per batch); does not change the
+        result.
+
+    Texels that a triangle overlaps (open intersection with the texel square)
+    but where no sub-position landed on any triangle get one fallback sample:
+    the point of the overlapping triangle nearest to the texel centre (ties go
+    to the lower face index).  It lies on the triangle (clamped to its edges),
+    so edge texels are sampled on the surface, never extrapolated off it.
+    """
+    uv, faces = _check_uv_faces(uv, faces, width, height)
+    width, height, n_sub = int(width), int(height), int(texel_samples)
+    if n_sub < 1:
+        raise ValueError(f"texel_samples must be >= 1, got {texel_samples}")
+    start_time = time.perf_counter()
+
+    xy = np.stack([uv[:, 0] * width, (1.0 - uv[:, 1]) * height], axis=1)
+    ed, usable = _edges(xy, faces)
+    c0, c1, r0, r1 = _bbox(np.where(usable[:, None, None], ed.verts, 0.0), width, height)
+    keep = usable & (c1 >= c0) & (r1 >= r0)
+    tri_ids = np.flatnonzero(keep)
+    band_tri, band_c0, band_bw, band_r0, band_rows = _bands(
+        tri_ids, c0[keep], c1[keep], r0[keep], r1[keep], max(1, int(chunk_pairs))
+    )
+    counts = band_bw * band_rows
+    ends = np.cumsum(counts)
+
+    out_texel, out_face, out_bary, out_k = [], [], [], []
+    centre_texels = []
+    cand_texel, cand_face = [], []
+
+    lo = 0
+    while lo < len(counts):
+        base = ends[lo - 1] if lo else 0
+        hi = max(lo + 1, int(np.searchsorted(ends, base + chunk_pairs, side="right")))
+        cnt = counts[lo:hi]
+        t = np.repeat(band_tri[lo:hi], cnt)
+        local = np.arange(int(cnt.sum()), dtype=np.int64) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        bw = np.repeat(band_bw[lo:hi], cnt)
+        row = np.repeat(band_r0[lo:hi], cnt) + local // bw
+        col = np.repeat(band_c0[lo:hi], cnt) + local % bw
+        del local, bw
+        texel = row * width + col
+        fx, fy = col.astype(np.float64), row.astype(np.float64)
+
+        pair_hit = np.zeros(len(t), dtype=bool)
+        for k in range(n_sub):
+            dx, dy = subsample_offsets(texel, k, n_sub, seed)
+            e = _edge_values(ed, t, fx + dx, fy + dy)
+            ins = _inside(ed, t, e)
+            pair_hit |= ins
+            out_texel.append(texel[ins])
+            out_face.append(t[ins])
+            out_bary.append(_bary_from_edges(ed, t[ins], e[ins]))
+            out_k.append(np.full(int(ins.sum()), k, dtype=np.int64))
+            if n_sub == 1:
+                centre_texels.append(texel[ins])
+        if n_sub > 1:
+            e = _edge_values(ed, t, fx + 0.5, fy + 0.5)
+            centre_texels.append(texel[_inside(ed, t, e)])
+
+        # Fallback candidates: the triangle overlaps the open texel square
+        # (separating axes: bounding box, then each edge, where the largest
+        # value of a linear E over the square is E(centre) + (|dx| + |dy|) / 2)
+        # but put none of its own sub-positions in it.
+        rest = ~pair_hit
+        tr, cx, cy = t[rest], fx[rest] + 0.5, fy[rest] + 0.5
+        e = _edge_values(ed, tr, cx, cy)
+        reach = 0.5 * (np.abs(ed.dx[tr]) + np.abs(ed.dy[tr]))
+        v = ed.verts[tr]
+        overlaps = (
+            np.all(e + reach > 0, axis=1)
+            & (v[:, :, 0].min(axis=1) < cx + 0.5) & (v[:, :, 0].max(axis=1) > cx - 0.5)
+            & (v[:, :, 1].min(axis=1) < cy + 0.5) & (v[:, :, 1].max(axis=1) > cy - 0.5)
+        )
+        cand_texel.append(texel[rest][overlaps])
+        cand_face.append(tr[overlaps])
+        lo = hi
+
+    def cat(parts, dtype, shape=(0,)):
+        return np.concatenate(parts) if parts else np.zeros(shape, dtype=dtype)
+
+    texel = cat(out_texel, np.int64)
+    face = cat(out_face, np.int64)
+    bary = cat(out_bary, np.float64, (0, 3))
+    sub = cat(out_k, np.int64)
+    n_texels = width * height
+
+    # Coverage counts distinct sub-positions, so stacked (overlapping) shells
+    # do not push a texel above 1.
+    distinct = np.unique(texel * n_sub + sub)
+    landed = np.bincount(distinct // n_sub, minlength=n_texels)
+    coverage = landed.astype(np.float32) / np.float32(n_sub)
+
+    cand_texel = cat(cand_texel, np.int64)
+    cand_face = cat(cand_face, np.int64)
+    empty = landed[cand_texel] == 0
+    cand_texel, cand_face = cand_texel[empty], cand_face[empty]
+    if len(cand_texel):
+        r, c = np.divmod(cand_texel, width)
+        fb_bary, d2 = _nearest_on_triangle(ed, cand_face, c + 0.5, r + 0.5)
+        order = np.lexsort((cand_face, d2, cand_texel))  # nearest, then lowest face
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = cand_texel[order][1:] != cand_texel[order][:-1]
+        pick = order[first]
+        fb_texel, fb_face, fb_bary = cand_texel[pick], cand_face[pick], fb_bary[pick]
+        coverage[fb_texel] = FALLBACK_COVERAGE_FRACTION / n_sub
+    else:
+        fb_texel = fb_face = np.zeros(0, dtype=np.int64)
+        fb_bary = np.zeros((0, 3))
+
+    n_regular = len(texel)
+    texel = np.concatenate([texel, fb_texel])
+    face = np.concatenate([face, fb_face])
+    bary = np.concatenate([bary, fb_bary])
+    sub = np.concatenate([sub, np.zeros(len(fb_texel), dtype=np.int64)])
+    is_fallback = np.arange(len(texel)) >= n_regular
+    order = np.lexsort((face, sub, texel))
+
+    shared = np.bincount(cat(centre_texels, np.int64), minlength=n_texels).astype(np.int32)
+    result = TexelSamples(
+        texel=texel[order],
+        face=face[order],
+        bary=bary[order],
+        sample=sub[order],
+        is_fallback=is_fallback[order],
+        coverage=coverage.reshape(height, width),
+        shared=shared.reshape(height, width),
+        width=width,
+        height=height,
+        texel_samples=n_sub,
+    )
+    log.debug(
+        "rasterised %d triangles into %dx%d texels, K=%d: %d samples (%d fallback) in %.2f s",
+        len(faces), width, height, n_sub, len(texel), len(fb_texel), time.perf_counter() - start_time,
+    )
+    return result
+
+
+# --- from samples to the surface and back ------------------------------------
+
+
+def surface_points(positions, normals, faces, samples: TexelSamples):
+    """Interpolate positions and shading normals at the samples.
+
+    positions : (n, 3) float; normals : (n, 3) float vertex normals, or None
+    for flat shading; faces : (f, 3) int, the faces the samples refer to.
+
+    Returns (points (s, 3) float64, normals (s, 3) float64 unit, face_normals
+    (s, 3) float64 unit).  The shading normal is the normalised interpolated
+    vertex normal, replaced by the face normal where it is zero or points
+    against the face (dot <= 0), since a ray hemisphere around it would dip
+    into the surface.  A face with zero 3D area has a zero face normal; its
+    shading normal is then the interpolated one, or zero if that is zero too
+    (such samples have no surface and should be dropped by the caller).
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    if positions.ndim != 2 or positions.shape[1] != 3:
+        raise ValueError(f"positions must be (n, 3), got {positions.shape}")
+    corners = faces[samples.face]  # (s, 3)
+    b = samples.bary[:, :, None]
+    tri = positions[corners]  # (s, 3, 3)
+    points = np.sum(tri * b, axis=1)
+
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    fn_len = np.linalg.norm(fn, axis=1, keepdims=True)
+    face_normals = np.divide(fn, fn_len, out=np.zeros_like(fn), where=fn_len > 0)
+
+    if normals is None:
+        return points, face_normals.copy(), face_normals
+    normals = np.asarray(normals, dtype=np.float64)
+    if normals.shape != positions.shape:
+        raise ValueError(f"normals must be {positions.shape}, got {normals.shape}")
+    n = np.sum(normals[corners] * b, axis=1)
+    n_len = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.divide(n, n_len, out=np.zeros_like(n), where=n_len > 0)
+    has_face = fn_len[:, 0] > 0
+    bad = has_face & ((n_len[:, 0] == 0) | (np.sum(n * face_normals, axis=1) <= 0))
+    n[bad] = face_normals[bad]
+    if bad.any():
+        log.debug("%d samples use the face normal (vertex normal zero or flipped)", int(bad.sum()))
+    return points, n, face_normals
+
+
+def splat_count(samples: TexelSamples, width: int | None = None, height: int | None = None) -> np.ndarray:
+    """(height, width) int64 number of samples in each texel."""
+    width, height = _size(samples, width, height)
+    return np.bincount(samples.texel, minlength=width * height).reshape(height, width)
+
+
+def splat(samples: TexelSamples, values, width: int | None = None, height: int | None = None) -> np.ndarray:
+    """Average per-sample values into texels.
+
+    values : (s,) or (s, c) float.  Returns (height, width, c) float64, the mean
+    of the samples in each texel (c = 1 for 1-D values); texels without samples
+    are 0 (use ``splat_count`` or ``samples.coverage`` as the mask).
+    """
+    width, height = _size(samples, width, height)
+    values = np.asarray(values, dtype=np.float64)
+    if values.ndim == 1:
+        values = values[:, None]
+    if values.ndim != 2 or values.shape[0] != samples.n_samples:
+        raise ValueError(f"values must be ({samples.n_samples},) or ({samples.n_samples}, c), got {values.shape}")
+    n = width * height
+    count = np.bincount(samples.texel, minlength=n).astype(np.float64)
+    out = np.empty((n, values.shape[1]))
+    for ch in range(values.shape[1]):
+        out[:, ch] = np.bincount(samples.texel, weights=values[:, ch], minlength=n)
+    np.divide(out, count[:, None], out=out, where=count[:, None] > 0)
+    return out.reshape(height, width, values.shape[1])
+
+
+def _size(samples: TexelSamples, width, height) -> tuple[int, int]:
+    width = samples.width if width is None else int(width)
+    height = samples.height if height is None else int(height)
+    if (width, height) != (samples.width, samples.height):
+        raise ValueError(
+            f"size {width}x{height} does not match the samples' {samples.width}x{samples.height}"
+        )
+    return width, height

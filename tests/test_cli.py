@@ -1,0 +1,145 @@
+"""The CLI through click's CliRunner: help, bad options, end-to-end bakes, errors."""
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+from click.testing import CliRunner
+
+from aobake.cli import main
+from aobake.outputs.glb import read_glb
+
+
+@pytest.fixture
+def mesh_path(tmp_path):
+    mesh = trimesh.util.concatenate([trimesh.creation.icosphere(subdivisions=2),
+                                     trimesh.creation.box(extents=[4, 0.2, 4])])
+    path = tmp_path / "scene.obj"
+    mesh.export(path)
+    return path
+
+
+def run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def test_help_states_conventions():
+    res = run("--help")
+    assert res.exit_code == 0
+    assert "1 = fully open, 0 = fully occluded" in res.output
+    for flag in ("--quantity", "--max-distance", "--sampler", "--weighting", "--ground-plane"):
+        assert flag in res.output
+
+
+@pytest.mark.parametrize("args, text", [
+    (["--rays", "0"], "--rays"),
+    (["--max-distance", "-1"], "max distance"),
+    (["--max-distance", "abc"], "max-distance"),
+    (["--tau", "-2"], "tau"),
+    (["--sampler", "halton"], "sampler"),
+    (["-q", "gi"], "quantity"),
+])
+def test_bad_options_exit_2(mesh_path, tmp_path, args, text):
+    res = run(mesh_path, "--out", tmp_path / "o.npz", *args)
+    assert res.exit_code == 2
+    assert text in res.output
+    assert not (tmp_path / "o.npz").exists()
+
+
+def test_end_to_end_npz_and_report(mesh_path, tmp_path):
+    out, rep = tmp_path / "ao.npz", tmp_path / "report.json"
+    res = run(mesh_path, "--out", out, "-q", "ao", "-q", "obscurance", "-q", "bent-normal",
+              "--rays", 32, "--max-distance", "25%", "--report", rep, "--quiet")
+    assert res.exit_code == 0, res.output
+    data = np.load(out)
+    n = len(data["positions"])
+    for key, shape in (("ao", (n,)), ("ao_stderr", (n,)), ("obscurance", (n,)),
+                       ("bent_normal", (n, 3)), ("rays", (n,)), ("normals", (n, 3))):
+        assert data[key].shape == shape
+    report = json.loads(rep.read_text())
+    assert report["config"]["max_distance"] == "25%"
+    assert report["parameters"]["max_distance"] == pytest.approx(0.25 * report["scene"]["diagonal"])
+    assert report["parameters"]["query"] == "distance"  # obscurance needs hit distances
+    for key in ("rays_cast", "wall_time_s", "rays_per_second", "versions", "warnings", "error"):
+        assert key in report
+    assert report["error"]["ao"]["stderr_p95"] >= report["error"]["ao"]["stderr_mean"] * 0.5
+    assert {"aobake", "embreex", "trimesh", "numpy"} <= set(report["versions"])
+
+
+def test_ao_only_uses_occlusion_queries(mesh_path, tmp_path):
+    rep = tmp_path / "r.json"
+    assert run(mesh_path, "--out", tmp_path / "a.ply", "--rays", 8, "--report", rep).exit_code == 0
+    assert json.loads(rep.read_text())["parameters"]["query"] == "occluded"
+
+
+def test_ply_and_glb_outputs_line_up(mesh_path, tmp_path):
+    for ext in ("ply", "glb"):
+        out = tmp_path / f"ao.{ext}"
+        assert run(mesh_path, "--out", out, "--rays", 8, "--quiet").exit_code == 0
+    npz = tmp_path / "ao.npz"
+    run(mesh_path, "--out", npz, "--rays", 8, "--quiet")
+    ref = np.load(npz)
+    ply = trimesh.load(tmp_path / "ao.ply", process=False)
+    np.testing.assert_allclose(ply.vertices, ref["positions"])
+    raw = ply.metadata["_ply_raw"]["vertex"]["data"]
+    np.testing.assert_allclose(raw["ao"], ref["ao"], atol=1e-7)
+    gltf, _ = read_glb(tmp_path / "ao.glb")
+    assert "_AO" in gltf["meshes"][0]["primitives"][0]["attributes"]
+
+
+@pytest.mark.parametrize("name, content, message", [
+    ("missing.obj", None, "no such file"),
+    ("x.dae", b"x", "unsupported mesh format"),
+    ("e.obj", b"", "empty"),
+    ("n.obj", b"v 0 0 0\n", "no faces"),
+    ("c.ply", b"ply\x00\xff garbage", "cannot read"),
+    ("nan.obj", b"v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN"),
+])
+def test_bad_input_one_line_error_no_output(tmp_path, name, content, message):
+    path = tmp_path / name
+    if content is not None:
+        path.write_bytes(content)
+    out = tmp_path / "out.ply"
+    res = run(path, "--out", out)
+    assert res.exit_code == 1
+    lines = res.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("aobake: error:")
+    assert str(path) in lines[0] and message in lines[0]
+    assert "Traceback" not in res.output
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if ".tmp" in p.name]
+
+
+def test_refuses_to_overwrite_input(mesh_path):
+    before = mesh_path.read_bytes()
+    res = run(mesh_path, "--out", mesh_path.with_suffix(".OBJ") if False else mesh_path)
+    assert res.exit_code == 1
+    assert "unsupported output format" in res.output or "overwrite" in res.output
+    ply = mesh_path.with_suffix(".ply")
+    trimesh.creation.box().export(ply)
+    res = run(ply, "--out", ply)
+    assert res.exit_code == 1 and "refusing to overwrite the input" in res.output
+    assert mesh_path.read_bytes() == before
+
+
+def test_unsupported_output_and_missing_directory(mesh_path, tmp_path):
+    res = run(mesh_path, "--out", tmp_path / "ao.txt")
+    assert res.exit_code == 1 and "unsupported output format" in res.output
+    res = run(mesh_path, "--out", tmp_path / "nope" / "ao.ply")
+    assert res.exit_code == 1 and "does not exist" in res.output
+
+
+def test_python_m_and_shim(mesh_path, tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    for cmd in ([sys.executable, "-m", "aobake"], [sys.executable, str(root / "cli.py")]):
+        out = tmp_path / "m.npz"
+        proc = subprocess.run(cmd + [str(mesh_path), "--out", str(out), "--rays", "4", "--quiet"],
+                              capture_output=True, text=True, cwd=root)
+        assert proc.returncode == 0, proc.stderr
+        assert out.exists()
+        out.unlink()

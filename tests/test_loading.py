@@ -1,0 +1,104 @@
+"""Scene loading: OBJ forms real archives publish, multi-object files, bad input."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from aobake.errors import InputError
+from aobake.scene import load_scene
+
+OBJ = """\
+# quads, an n-gon, negative indices, groups, UVs on one object, normals on another
+mtllib nothing.mtl
+o A
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+vt 0 0
+vt 1 0
+vt 1 1
+vt 0 1
+usemtl x
+s 1
+f -4/-4 -3/-3 -2/-2 -1/-1
+g B
+v 0 0 1
+v 2 0 1
+v 2 2 1
+v 1 3 1
+v 0 2 1
+vn 0 0 1
+f 5//1 6//1 7//1 8//1 9//1
+l 1 2
+"""
+
+
+def test_obj_quads_ngons_negative_indices_groups(tmp_path):
+    path = tmp_path / "forms.obj"
+    path.write_text(OBJ)
+    scene = load_scene(path)
+    assert scene.vertices.shape == (9, 3)  # every v line, in file order
+    np.testing.assert_array_equal(scene.vertices[4], [0, 0, 1])
+    # 1 quad -> 2 triangles, 1 pentagon -> 3 triangles; indices point into the right object.
+    assert scene.faces.shape == (5, 3)
+    assert scene.faces[:2].max() == 3 and scene.faces[2:].min() == 4
+    # Area checks against the file: unit square + pentagon (2x2 square + triangle of area 1).
+    tri = scene.vertices[scene.faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    assert area == pytest.approx(1 + 4 + 1)
+    assert scene.normals_source == "file"
+    np.testing.assert_allclose(scene.vertex_normals[4:], np.tile([0, 0, 1.0], (5, 1)))
+    assert any("line/point" in w for w in scene.warnings)
+
+
+def test_obj_without_normals_uses_angle_weighting(tmp_path):
+    path = tmp_path / "plain.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    scene = load_scene(path)
+    assert scene.normals_source == "angle"
+    np.testing.assert_allclose(scene.vertex_normals, np.tile([0, 0, 1.0], (3, 1)))
+
+
+def test_multi_object_glb_applies_node_transforms(tmp_path):
+    a = trimesh.creation.box()
+    b = trimesh.creation.box()
+    sc = trimesh.Scene()
+    sc.add_geometry(a, node_name="a")
+    sc.add_geometry(b, node_name="b", transform=trimesh.transformations.translation_matrix([5, 0, 0]))
+    path = tmp_path / "two.glb"
+    sc.export(path)
+    scene = load_scene(path)
+    assert len(scene.faces) == 24
+    assert scene.bounds[1][0] == pytest.approx(5.5)
+
+
+@pytest.mark.parametrize("ext", [".ply", ".stl", ".off"])
+def test_other_formats(tmp_path, ext):
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    path = tmp_path / f"m{ext}"
+    mesh.export(path)
+    scene = load_scene(path)
+    assert len(scene.faces) == len(mesh.faces)
+    assert len(scene.vertices) == len(mesh.vertices)  # STL welded back to shared vertices
+
+
+@pytest.mark.parametrize("name, content, message", [
+    ("missing.obj", None, "no such file"),
+    ("mesh.xyz", "1 2 3", "unsupported mesh format"),
+    ("empty.obj", "", "file is empty"),
+    ("nofaces.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n", "no faces"),
+    ("nan.obj", "v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN or infinite"),
+    ("inf.obj", "v inf 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN or infinite"),
+    ("badindex.obj", "v 0 0 0\nv 1 0 0\nf 1 2 7\n", "out of range"),
+    ("garbage.obj", "v 0 zero 0\n", "malformed"),
+    ("corrupt.ply", "ply\nformat nonsense\n\x00\x01", "cannot read"),
+    ("corrupt.glb", "glTF garbage", "cannot read"),
+])
+def test_bad_input_names_file_and_problem(tmp_path, name, content, message):
+    path = tmp_path / name
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(InputError) as info:
+        load_scene(path)
+    assert str(path) in str(info.value) and message in str(info.value)
