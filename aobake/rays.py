@@ -29,7 +29,8 @@ class Rays:
     """The rays of k points, point-major.
 
     origins : (k, 3) float32   one origin per point (already offset and rebased)
-    directions : (k, R, m, 3) float32  unit directions in scene axes
+    directions : (k, R, m, 3) float32  unit directions in scene axes (a strided view:
+                 component-major in memory; ``reshape(-1, 3)`` keeps it a view)
     weight : (k, R, m) float32 | None  cos(theta) / (pi pdf); None means 1 for every ray
     """
 
@@ -66,11 +67,13 @@ class RayGenerator:
         np.clip(u0, 0.0, np.float32(1.0 - 2.0**-24), out=u0)  # keep cos(theta) > 0
         r, z, weight = self._elevation(u0)
         k, m = len(normals), len(self._b0)
-        directions = np.empty((k, groups, m, 3), dtype=np.float32)
+        # Component-major storage: each component is written contiguously (no
+        # interleaving pass); the (k, R, m, 3) view handed on is a transpose.
+        planes = np.empty((3, k, groups, m), dtype=np.float32)
         for axis in range(3):
-            comp = self._cb * t_rot[:, :, None, axis]
+            comp = planes[axis]
+            np.multiply(self._cb, t_rot[:, :, None, axis], out=comp)
             comp += self._sb * b_rot[:, :, None, axis]
             comp *= r
             comp += z * n32[:, None, None, axis]
-            directions[..., axis] = comp
-        return Rays(origins.astype(np.float32), directions, weight)
+        return Rays(origins.astype(np.float32), np.moveaxis(planes, 0, -1), weight)

@@ -1,0 +1,109 @@
+"""Throughput: aobake end to end vs a bare embreex loop on the same rays.
+
+    python benchmarks/bench_throughput.py [--mesh PATH] [--rays 256] [--threads 2] [--repeat 3]
+
+Uses ../shared/meshes/stanford-bunny.obj when present (a generated torus knot
+otherwise).  In one run it times
+
+* aobake.bake (AO, occlusion queries): scene build, ray generation, tracing,
+  estimation, everything except reading the file;
+* the bare loop: the same rays (generated beforehand, not timed), chunked the
+  same way, through ``EmbreeScene.run(query="OCCLUDED")`` on the same threads;
+
+and prints rays/s for both, their ratio and the peak resident memory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import aobake  # noqa: E402
+from aobake.bake import DEFAULT_CHUNK_RAYS, Tracer, morton_order  # noqa: E402
+from aobake.config import BakeConfig  # noqa: E402
+from aobake.scene import load_scene, make_scene  # noqa: E402
+
+DEFAULT_MESH = Path(__file__).resolve().parents[2] / "shared" / "meshes" / "stanford-bunny.obj"
+
+
+def fallback_scene():
+    import trimesh
+
+    knot = trimesh.creation.torus(major_radius=1.0, minor_radius=0.3, major_sections=256,
+                                  minor_sections=128)
+    return make_scene(knot.vertices, knot.faces, source="<generated torus>")
+
+
+def bare_loop(tracer, points, normals, ids, threads, chunk_rays):
+    """Pre-generate every chunk's rays, then time only embreex run() calls."""
+    per_chunk = max(1, chunk_rays // tracer.samples.rays)
+    order = morton_order(points)
+    chunks = []
+    for start in range(0, len(order), per_chunk):
+        sel = order[start:start + per_chunk]
+        origins = points[sel] + tracer.offset * normals[sel] - tracer.center
+        rays = tracer.generator.rays(origins, normals[sel], ids[sel])
+        n = rays.directions.shape[1] * rays.directions.shape[2]
+        chunks.append((np.repeat(rays.origins, n, axis=0), rays.directions.reshape(-1, 3).copy()))
+    scene = tracer.occluders[0]._scene
+    total = sum(len(o) for o, _ in chunks)
+    tmax = np.float32(1e37)
+
+    def run(chunk):
+        o, d = chunk
+        return scene.run(o, d, dists=np.full(len(o), tmax, np.float32), query="OCCLUDED")
+
+    start = time.perf_counter()
+    with ThreadPoolExecutor(threads) as pool:
+        list(pool.map(run, chunks))
+    return total, time.perf_counter() - start
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--mesh", type=Path, default=DEFAULT_MESH)
+    parser.add_argument("--rays", type=int, default=256)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--sampler", default="sobol")
+    args = parser.parse_args()
+
+    scene = load_scene(args.mesh) if args.mesh.is_file() else fallback_scene()
+    config = BakeConfig(rays=args.rays, sampler=args.sampler)
+    rows = []
+    for _ in range(args.repeat):
+        start = time.perf_counter()
+        result = aobake.bake(scene, config, threads=args.threads)
+        wall = time.perf_counter() - start
+        cast = int(result.rays.astype(np.int64).sum())
+        tracer = Tracer(scene, config)
+        keys = np.concatenate([scene.vertices, scene.vertex_normals], axis=1)
+        _, first = np.unique(keys, axis=0, return_index=True)
+        valid = first[np.linalg.norm(scene.vertex_normals[first], axis=1) > 0.5]
+        n_bare, t_bare = bare_loop(tracer, scene.vertices[valid], scene.vertex_normals[valid],
+                                   valid.astype(np.int64), args.threads, DEFAULT_CHUNK_RAYS)
+        rows.append((cast / wall, n_bare / t_bare, wall, t_bare))
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"mesh: {scene.source}  vertices: {len(scene.vertices)}  triangles: {len(scene.faces)}")
+    print(f"rays/point: {config.rays}  sampler: {args.sampler}  threads: {args.threads}  "
+          f"chunk: {DEFAULT_CHUNK_RAYS} rays  mean AO stderr: {result.report['error']['ao']['stderr_mean']:.4f}")
+    print()
+    print("| run | aobake Mrays/s | bare embreex Mrays/s | ratio | aobake s | bare s |")
+    print("|---|---|---|---|---|---|")
+    for i, (a, b, wa, wb) in enumerate(rows):
+        print(f"| {i + 1} | {a / 1e6:.2f} | {b / 1e6:.2f} | {a / b:.2f} | {wa:.2f} | {wb:.2f} |")
+    best_a, best_b = max(r[0] for r in rows), max(r[1] for r in rows)
+    print(f"| best | {best_a / 1e6:.2f} | {best_b / 1e6:.2f} | {best_a / best_b:.2f} | | |")
+    print(f"\npeak resident memory: {peak_mb:.0f} MiB")
+
+
+if __name__ == "__main__":
+    main()
