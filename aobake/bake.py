@@ -348,3 +348,303 @@ def bake_points(
 
 def _named(values: dict) -> dict:
     return {name: array for name, array in values.items()}
+
+
+# --------------------------------------------------------------------------- texels
+
+#: default lightmap settings (what the CLI offers as defaults too)
+DEFAULT_RESOLUTION = 1024
+DEFAULT_PADDING = 8
+DEFAULT_TEXEL_SAMPLES = 4
+#: largest image side accepted
+MAX_RESOLUTION = 16384
+#: rough bytes held per texel sample (sample record, point, normal, estimates): for the memory check
+_BYTES_PER_SAMPLE = 320
+
+
+@dataclass
+class Atlas:
+    """The mesh a lightmap belongs to, split so each vertex has one atlas UV.
+
+    positions : (m, 3) float64, normals : (m, 3) float64, faces : (f, 3) int64,
+    uv : (m, 2) float64 atlas UVs (OBJ convention), base_uv : (m, 2) float64 |
+    None the mesh's own UVs when a new atlas was made for a mesh that had them,
+    source_vertex : (m,) int64 index of each vertex in the input scene,
+    new : bool True when the atlas was made by xatlas (the mesh must be written out).
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray
+    base_uv: np.ndarray | None
+    source_vertex: np.ndarray
+    new: bool
+
+
+@dataclass
+class TexelResult:
+    """A baked lightmap.
+
+    channels : name -> (H, W) float32 images after gutter dilation ('ao', 'ao_stderr',
+    'obscurance', 'obscurance_stderr', 'bent_normal.X/.Y/.Z', 'rays', 'coverage'),
+    row 0 = top of the image (v near 1), texel centres at u = (c + 0.5) / W,
+    v = 1 - (r + 0.5) / H; covered : (H, W) bool texels with surface samples;
+    atlas : Atlas; report : dict.
+    """
+
+    channels: dict
+    covered: np.ndarray
+    atlas: Atlas
+    report: dict
+
+
+def parse_resolution(value) -> tuple[int, int]:
+    """'N' or 'WxH' (or an int / pair) -> (width, height); ValueError on nonsense."""
+    if isinstance(value, str):
+        parts = value.lower().split("x")
+        if len(parts) not in (1, 2) or not all(p.strip().isdigit() for p in parts):
+            raise ValueError(f"resolution must be N or WxH, got {value!r}")
+        dims = [int(p) for p in parts]
+    elif isinstance(value, (int, np.integer)):
+        dims = [int(value)]
+    else:
+        dims = [int(v) for v in value]
+    width, height = (dims[0], dims[0]) if len(dims) == 1 else dims
+    if width < 1 or height < 1:
+        raise ValueError(f"resolution must be at least 1x1, got {width}x{height}")
+    return width, height
+
+
+def check_texture_budget(width: int, height: int, texel_samples: int) -> int:
+    """Refuse absurd sizes with the memory they would need; returns the estimate in bytes."""
+    need = width * height * (texel_samples * _BYTES_PER_SAMPLE + 64)
+    if max(width, height) > MAX_RESOLUTION:
+        raise ValueError(f"resolution {width}x{height} is larger than {MAX_RESOLUTION} per side "
+                         f"(it would need about {need / 2**30:.1f} GiB)")
+    try:
+        import os
+
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover
+        total = None
+    if total and need > total // 2:
+        raise ValueError(f"resolution {width}x{height} with {texel_samples} samples per texel needs "
+                         f"about {need / 2**30:.1f} GiB, more than half of this machine's "
+                         f"{total / 2**30:.1f} GiB")
+    return need
+
+
+def _split_corners(*corner_indices):
+    """Unique combinations of per-corner indices.
+
+    corner_indices : k arrays (f, 3) int64.  Returns (keys (m, k) int64, faces (f, 3) int64).
+    """
+    stacked = np.stack([c.reshape(-1) for c in corner_indices], axis=1)
+    keys, inverse = np.unique(stacked, axis=0, return_inverse=True)
+    return keys, inverse.reshape(-1, 3)
+
+
+def _make_atlas(scene: Scene, unwrap: str, width: int, height: int, padding: int, warnings: list):
+    """Choose the UVs to bake into: the mesh's own when valid, else a fresh xatlas atlas.
+
+    Returns (atlas, bake_uv (t, 2), bake_faces_uv (f, 3), uv_check or None).
+    """
+    from aobake.errors import InputError
+    from aobake.targets.texels import check_uvs, unwrap as xatlas_unwrap
+
+    check = None
+    if scene.faces_uv is not None:
+        check = check_uvs(scene.uv, scene.faces_uv, width, height)
+    if unwrap == "never":
+        if scene.faces_uv is None:
+            raise InputError(f"{scene.source}: mesh has no UVs and --no-unwrap was given")
+        if not check.valid:
+            warnings.append(f"{scene.source}: baking into the mesh's own UVs although {check.message}")
+    use_own = scene.faces_uv is not None and unwrap != "always" and (check.valid or unwrap == "never")
+    if use_own:
+        keys, faces = _split_corners(scene.faces, scene.faces_uv)
+        atlas = Atlas(scene.vertices[keys[:, 0]], scene.vertex_normals[keys[:, 0]], faces,
+                      scene.uv[keys[:, 1]], None, keys[:, 0], new=False)
+        return atlas, scene.uv, scene.faces_uv, check
+    if scene.faces_uv is not None and unwrap == "auto":
+        warnings.append(f"{scene.source}: the mesh's UVs cannot be baked ({check.message}); "
+                        "made a new atlas with xatlas")
+    side = max(width, height)
+    unwrapped = xatlas_unwrap(scene.vertices, scene.faces, side, padding)
+    if not np.array_equal(unwrapped.vmapping[unwrapped.faces], scene.faces):
+        raise RuntimeError("xatlas changed the face order")  # the texel->face mapping relies on it
+    if scene.faces_uv is not None:
+        keys, faces = _split_corners(unwrapped.faces, scene.faces_uv)
+        base_uv = scene.uv[keys[:, 1]]
+    else:
+        keys, faces = _split_corners(unwrapped.faces)
+        base_uv = None
+    source = unwrapped.vmapping[keys[:, 0]]
+    atlas = Atlas(scene.vertices[source], scene.vertex_normals[source], faces,
+                  unwrapped.uv[keys[:, 0]], base_uv, source, new=True)
+    return atlas, unwrapped.uv, unwrapped.faces, check
+
+
+def bake_texels(
+    mesh,
+    config: BakeConfig | None = None,
+    *,
+    resolution=DEFAULT_RESOLUTION,
+    padding: int = DEFAULT_PADDING,
+    texel_samples: int = DEFAULT_TEXEL_SAMPLES,
+    unwrap: str = "auto",
+    bent_space: str = "object",
+    threads: int | None = None,
+    chunk_rays: int = DEFAULT_CHUNK_RAYS,
+    progress: Callable[[int, int], None] | None = None,
+    **options,
+) -> TexelResult:
+    """Bake a UV lightmap of ``mesh``.
+
+    resolution : N or (W, H) or 'WxH'; padding : texels of gutter dilation;
+    texel_samples : surface positions per texel (stratified-jittered over the
+    covered part of the texel); ``rays`` is per texel, split over its samples
+    (each casts ceil(rays / texel_samples)); unwrap : 'auto' (own UVs when valid, else
+    xatlas) | 'always' | 'never'; bent_space : 'object' | 'tangent'.
+    ``options`` are BakeConfig fields, as for :func:`bake`.
+    """
+    from aobake.post import dilate
+    from aobake.targets.texels import rasterize, splat, surface_points
+
+    config = _config(config, options)
+    width, height = parse_resolution(resolution)
+    if int(padding) != padding or padding < 0:
+        raise ValueError(f"padding must be a non-negative integer, got {padding}")
+    if int(texel_samples) != texel_samples or texel_samples < 1:
+        raise ValueError(f"texel samples must be a positive integer, got {texel_samples}")
+    if unwrap not in ("auto", "always", "never"):
+        raise ValueError(f"unwrap must be auto, always or never, got {unwrap!r}")
+    if bent_space not in ("object", "tangent"):
+        raise ValueError(f"bent space must be object or tangent, got {bent_space!r}")
+    check_texture_budget(width, height, texel_samples)
+    timings = {}
+    start = clock = time.perf_counter()
+    scene = load_scene(mesh, config.normals)
+    # --rays is per texel: each of its K surface samples casts ceil(rays / K).
+    from dataclasses import replace
+
+    tracer = Tracer(scene, replace(config, rays=-(-config.rays // int(texel_samples))))
+    timings["load_s"] = time.perf_counter() - clock
+
+    warnings: list = []
+    clock = time.perf_counter()
+    atlas, bake_uv, bake_faces_uv, check = _make_atlas(scene, unwrap, width, height, padding, warnings)
+    timings["unwrap_s"] = time.perf_counter() - clock if atlas.new else 0.0
+
+    clock = time.perf_counter()
+    samples = rasterize(bake_uv, bake_faces_uv, width, height, texel_samples, config.seed)
+    points, normals, _ = surface_points(scene.vertices, scene.vertex_normals, scene.faces, samples)
+    timings["rasterize_s"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    # Point ids: position in the (texel, sample, face)-sorted sample list, a pure
+    # function of the inputs, so texels are reproducible for any threads/chunks.
+    ids = np.arange(len(points), dtype=np.int64)
+    values, rays = tracer.estimate(points, normals, ids, threads or default_threads(),
+                                   chunk_rays, progress)
+    timings["trace_s"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    traced = rays > 0  # samples on zero-area faces have no normal: left out of the texel means
+    sub = _subset(samples, traced)
+    count = np.bincount(sub.texel, minlength=width * height).reshape(height, width)
+    covered = count > 0
+    channels = {}
+    for name in ("ao", "obscurance"):
+        if name in values:
+            channels[name] = splat(sub, values[name][traced])[..., 0]
+            # Texel value = mean of its s sample estimates: stderr sqrt(sum se^2) / s.
+            var = splat(sub, values[name + "_stderr"][traced] ** 2)[..., 0]
+            channels[name + "_stderr"] = np.sqrt(var / np.maximum(count, 1))
+    if "bent_normal" in values:
+        bent = values["bent_normal"][traced]
+        if bent_space == "tangent":
+            bent = _to_tangent(scene, bake_uv, bake_faces_uv, sub, normals[traced], bent)
+        mean = splat(sub, bent)
+        length = np.linalg.norm(mean, axis=-1, keepdims=True)
+        mean = np.where(length > 0, mean / np.where(length > 0, length, 1), 0.0)
+        for axis, label in enumerate("XYZ"):
+            channels[f"bent_normal.{label}"] = mean[..., axis]
+    rays_img = np.bincount(sub.texel, weights=rays[traced].astype(np.float64),
+                           minlength=width * height).reshape(height, width)
+    names = list(channels)
+    if names:
+        stack = np.stack([channels[n] for n in names], axis=-1)
+        stack, filled = dilate(stack, covered, padding)
+        for i, name in enumerate(names):
+            channels[name] = stack[..., i]
+    else:  # pragma: no cover - config always asks for something
+        filled = covered
+    channels["rays"] = rays_img
+    channels["coverage"] = samples.coverage.astype(np.float64) * covered
+    channels = {name: np.asarray(image, dtype=np.float32) for name, image in channels.items()}
+    timings["splat_dilate_s"] = time.perf_counter() - clock
+
+    wall = time.perf_counter() - start
+    shared = int(np.count_nonzero(samples.shared >= 2))
+    if shared:
+        warnings.append(f"{scene.source}: {shared} texels are shared by overlapping or mirrored "
+                        "UV shells; their values average the surfaces that share them")
+    report = _report("texels", scene, tracer, config, len(points), rays, values, wall,
+                     threads or default_threads(), chunk_rays, warnings)
+    report["parameters"]["rays_per_texel_sample"] = report["parameters"].pop("rays_per_point")
+    report["texture"] = _texture_stats(channels, covered, filled, shared, width, height,
+                                       padding, texel_samples, atlas, check, bent_space)
+    report["timings"] = timings
+    for message in warnings:
+        log.warning(message)
+    return TexelResult(channels, covered, atlas, report)
+
+
+def _subset(samples, keep: np.ndarray):
+    from dataclasses import replace
+
+    return replace(samples, texel=samples.texel[keep], face=samples.face[keep],
+                   bary=samples.bary[keep], sample=samples.sample[keep],
+                   is_fallback=samples.is_fallback[keep])
+
+
+def _to_tangent(scene, uv, faces_uv, samples, normals, bent):
+    """Bent normals (s, 3) -> tangent space of the bake UVs (MikkTSpace-style frames)."""
+    from aobake.tangents import to_tangent_space, vertex_tangents
+
+    keys, faces = _split_corners(scene.faces, faces_uv)
+    tangents = vertex_tangents(scene.vertices[keys[:, 0]], scene.vertex_normals[keys[:, 0]],
+                               uv[keys[:, 1]], faces)
+    corner = tangents[faces[samples.face]]  # (s, 3, 4)
+    t = np.einsum("sc,scd->sd", samples.bary, corner[..., :3])
+    w = np.where(np.einsum("sc,sc->s", samples.bary, corner[..., 3]) < 0, -1.0, 1.0)
+    return to_tangent_space(bent, normals, np.concatenate([t, w[:, None]], axis=1))
+
+
+def _texture_stats(channels, covered, filled, shared, width, height, padding, k, atlas, check,
+                   bent_space):
+    stats = {
+        "width": width,
+        "height": height,
+        "padding": padding,
+        "texel_samples": k,
+        "texels_covered": int(covered.sum()),
+        "texels_padded": int(np.count_nonzero(filled & ~covered)),
+        "texels_shared": shared,
+        "atlas": "xatlas" if atlas.new else "mesh UVs",
+        "uv_check": None if check is None else {
+            "valid": check.valid, "out_of_range_faces": check.out_of_range_faces,
+            "overlapping_texels": check.overlapping_texels, "mirrored_faces": check.mirrored_faces,
+            "message": check.message},
+        "bent_space": bent_space,
+        "convention": "row 0 is the top of the image (v = 1); texel (r, c) centre at "
+                      "u = (c + 0.5) / W, v = 1 - (r + 0.5) / H",
+    }
+    for name in ("ao", "obscurance"):
+        if name in channels and covered.any():
+            se = channels[name + "_stderr"][covered]
+            stats[name + "_stderr"] = {"mean": float(se.mean()), "p50": float(np.median(se)),
+                                       "p95": float(np.percentile(se, 95)), "max": float(se.max())}
+    return stats

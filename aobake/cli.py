@@ -19,6 +19,7 @@ from aobake.samplers import SAMPLERS
 from aobake.warp import WEIGHTINGS
 
 VERTEX_OUTPUTS = (".npz", ".ply", ".glb")
+TEXTURE_OUTPUTS = (".exr", ".png", ".tif", ".tiff", ".glb")
 
 EPILOG = """\b
 Conventions (also written into every output's metadata):
@@ -79,7 +80,12 @@ def _progress_bar(quiet: bool):
 @click.command(epilog=EPILOG, context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("mesh", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--out", "-o", "out", required=True, type=click.Path(dir_okay=False, path_type=Path),
-              help=f"Output file; the extension picks the format: {', '.join(VERTEX_OUTPUTS)}.")
+              help="Output file; the extension picks the format. Per vertex: .npz, .ply, .glb "
+                   "(COLOR_0). Lightmap: .exr (all channels), .png, .tif/.tiff, or .glb with "
+                   "--target texels (occlusionTexture).")
+@click.option("--target", type=click.Choice(["vertices", "texels"]), default=None,
+              help="Bake per vertex or per lightmap texel. Default: texels for .exr/.png/.tif, "
+                   "vertices otherwise.")
 @click.option("--quantity", "-q", "quantities", multiple=True, type=click.Choice(QUANTITIES),
               help="What to bake (repeatable). Default: ao.")
 @click.option("--rays", default=256, show_default=True, type=click.IntRange(min=1),
@@ -109,29 +115,63 @@ def _progress_bar(quiet: bool):
               help="Ray origin offset along the normal, as a fraction of the diagonal.")
 @click.option("--threads", default=None, type=click.IntRange(min=1),
               help="Worker threads. Default: all cores.")
+@click.option("--resolution", default="1024", show_default=True,
+              help="Lightmap size: N (square) or WxH.")
+@click.option("--padding", default=8, show_default=True, type=click.IntRange(min=0),
+              help="Texels of dilation into the gutters (seamless bilinear/mip lookups).")
+@click.option("--texel-samples", default=4, show_default=True, type=click.IntRange(min=1),
+              help="Surface positions per texel, jittered over the covered part (antialiased "
+                   "edges). --rays is per texel, split over these.")
+@click.option("--unwrap/--no-unwrap", default=None,
+              help="Always make a new xatlas atlas / never (fail without usable UVs). "
+                   "Default: the mesh's own UVs when valid for baking, else a new atlas.")
+@click.option("--mesh-out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Where to write the mesh with its new atlas (.obj or .glb). Default: "
+                   "<out>.obj beside --out whenever a new atlas was made.")
+@click.option("--half", is_flag=True, help="EXR: 16-bit half floats instead of 32-bit.")
+@click.option("--bit-depth", default=8, show_default=True, type=click.Choice(["8", "16"]),
+              help="PNG/TIFF integer depth: value = round(clip(x, 0, 1) * (2^bits - 1)).")
+@click.option("--r-only", is_flag=True,
+              help="PNG/TIFF: AO in R only (glTF occlusion convention) instead of R, G and B.")
+@click.option("--bent-space", default="object", show_default=True,
+              type=click.Choice(["object", "tangent"]),
+              help="Lightmap bent normals in object space or tangent space (MikkTSpace-style "
+                   "frames of the atlas UVs).")
 @click.option("--report", "report_path", type=click.Path(dir_okay=False, path_type=Path),
               help="Write the JSON report (configuration, parameters, statistics) here.")
 @click.option("--quiet", is_flag=True, help="No progress bar or warnings.")
 @click.version_option(package_name="aobake")
-def main(mesh, out, quantities, rays, max_distance, tau, seed, sampler, weighting, normals,
-         ground_plane, up_axis, backfaces, ray_offset, threads, report_path, quiet):
-    """Bake ambient occlusion of MESH (OBJ, PLY, STL, OFF, GLB/glTF) per vertex into --out."""
+def main(mesh, out, target, quantities, rays, max_distance, tau, seed, sampler, weighting,
+         normals, ground_plane, up_axis, backfaces, ray_offset, threads, resolution, padding,
+         texel_samples, unwrap, mesh_out, half, bit_depth, r_only, bent_space, report_path, quiet):
+    """Bake ambient occlusion of MESH (OBJ, PLY, STL, OFF, GLB/glTF) per vertex or into a
+    UV lightmap, written to --out."""
     logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING,
                         format="aobake: warning: %(message)s", stream=sys.stderr)
     try:
-        _run(mesh, out, quantities, rays, max_distance, tau, seed, sampler, weighting, normals,
-             ground_plane, up_axis, backfaces, ray_offset, threads, report_path, quiet)
+        config = BakeConfig(quantities=quantities or ("ao",), rays=rays,
+                            max_distance=max_distance, tau=tau, seed=seed, sampler=sampler,
+                            weighting=weighting, normals=normals, ground_plane=ground_plane,
+                            up_axis=up_axis, backfaces=backfaces, ray_offset=ray_offset)
+        if target is None:
+            target = "vertices" if out.suffix.lower() in VERTEX_OUTPUTS else "texels"
+        texture = dict(resolution=resolution, padding=padding, texel_samples=texel_samples,
+                       unwrap={None: "auto", True: "always", False: "never"}[unwrap],
+                       bent_space=bent_space)
+        files = dict(mesh_out=mesh_out, half=half, bit_depth=int(bit_depth), r_only=r_only)
+        _run(mesh, out, target, config, texture, files, threads, report_path, quiet)
     except (AobakeError, ValueError) as exc:
         click.echo(f"aobake: error: {exc}", err=True)
         sys.exit(1)
 
 
-def _check_outputs(mesh: Path, out: Path, report_path: Path | None):
+def _check_outputs(mesh: Path, out: Path, target: str, *extra: Path | None):
     suffix = out.suffix.lower()
-    if suffix not in VERTEX_OUTPUTS:
-        raise OutputError(f"{out}: unsupported output format {suffix or '(none)'!r}; "
-                          f"use one of {', '.join(VERTEX_OUTPUTS)}")
-    for path in (out, report_path):
+    allowed = VERTEX_OUTPUTS if target == "vertices" else TEXTURE_OUTPUTS
+    if suffix not in allowed:
+        raise OutputError(f"{out}: unsupported output format {suffix or '(none)'!r} for "
+                          f"--target {target}; use one of {', '.join(allowed)}")
+    for path in (out, *extra):
         if path is None:
             continue
         if mesh.exists() and path.exists() and path.resolve() == mesh.resolve():
@@ -140,30 +180,50 @@ def _check_outputs(mesh: Path, out: Path, report_path: Path | None):
             raise OutputError(f"{path}: directory {path.parent} does not exist")
 
 
-def _run(mesh, out, quantities, rays, max_distance, tau, seed, sampler, weighting, normals,
-         ground_plane, up_axis, backfaces, ray_offset, threads, report_path, quiet):
-    from aobake.bake import CONVENTIONS, bake
-    from aobake.outputs import write_vertices
+def _run(mesh, out, target, config, texture, files, threads, report_path, quiet):
+    from aobake.bake import CONVENTIONS, bake, bake_texels, parse_resolution
     from aobake.outputs.report import write_report
 
-    _check_outputs(mesh, out, report_path)
-    config = BakeConfig(quantities=quantities or ("ao",), rays=rays, max_distance=max_distance,
-                        tau=tau, seed=seed, sampler=sampler, weighting=weighting, normals=normals,
-                        ground_plane=ground_plane, up_axis=up_axis, backfaces=backfaces,
-                        ray_offset=ray_offset)
+    mesh_out = files["mesh_out"]
+    if target == "texels":
+        from aobake.outputs.texture import MESH_OUTPUTS, default_mesh_out
+
+        parse_resolution(texture["resolution"])  # fail before loading anything
+        if mesh_out is not None and mesh_out.suffix.lower() not in MESH_OUTPUTS:
+            raise OutputError(f"{mesh_out}: unsupported --mesh-out format; use .obj or .glb")
+        if mesh_out is None and out.suffix.lower() != ".glb":
+            mesh_out = default_mesh_out(out)
+    _check_outputs(mesh, out, target, report_path, mesh_out)
     progress, finish = _progress_bar(quiet)
     try:
-        result = bake(mesh, config, threads=threads, progress=progress)
+        if target == "vertices":
+            result = bake(mesh, config, threads=threads, progress=progress)
+        else:
+            result = bake_texels(mesh, config, threads=threads, progress=progress, **texture)
     finally:
         finish()
-    metadata = {"conventions": CONVENTIONS, "config": result.report["config"],
-                "parameters": result.report["parameters"], "versions": result.report["versions"]}
-    write_vertices(out, result.positions, result.faces, result.fields(), metadata)
+    report = result.report
+    metadata = {"conventions": CONVENTIONS, "config": report["config"],
+                "parameters": report["parameters"], "versions": report["versions"]}
+    written = [out]
+    if target == "vertices":
+        from aobake.outputs import write_vertices
+
+        write_vertices(out, result.positions, result.faces, result.fields(), metadata)
+    else:
+        from aobake.outputs.texture import write_atlas_mesh, write_texture
+
+        metadata["texture"] = report["texture"]
+        write_texture(out, result, metadata, half=files["half"], bit_depth=files["bit_depth"],
+                      r_only=files["r_only"])
+        if mesh_out is not None and (result.atlas.new or files["mesh_out"] is not None):
+            write_atlas_mesh(mesh_out, result, metadata)
+            written.append(mesh_out)
     if report_path is not None:
-        result.report["output"] = str(out)
-        write_report(report_path, result.report)
+        report["outputs"] = [str(p) for p in written]
+        write_report(report_path, report)
     if not quiet:
-        rep = result.report
-        click.echo(f"aobake: {rep['points']} vertices x {rep['parameters']['rays_per_point']} rays "
-                   f"in {rep['wall_time_s']:.2f} s ({rep['rays_per_second'] / 1e6:.2f} Mrays/s) "
-                   f"-> {out}", err=True)
+        what = "vertices" if target == "vertices" else "texel samples"
+        click.echo(f"aobake: {report['points']} {what}, {report['rays_cast']} rays "
+                   f"in {report['wall_time_s']:.2f} s ({report['rays_per_second'] / 1e6:.2f} Mrays/s) "
+                   f"-> {', '.join(map(str, written))}", err=True)

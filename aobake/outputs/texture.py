@@ -1,0 +1,89 @@
+"""Write a baked lightmap: EXR (all channels), PNG/TIFF (one map), or GLB (mesh + occlusion texture),
+plus the unwrapped mesh when the atlas is new.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from aobake.errors import OutputError
+from aobake.outputs.atomic import atomic_path
+
+log = logging.getLogger(__name__)
+
+#: lightmap output formats (by extension)
+TEXTURE_OUTPUTS = (".exr", ".png", ".tif", ".tiff", ".glb")
+#: formats the unwrapped mesh can be written in
+MESH_OUTPUTS = (".obj", ".glb")
+
+
+def _map(result):
+    """(value, name): the map an 8/16-bit image or a glTF occlusion texture carries."""
+    for name in ("ao", "obscurance"):
+        if name in result.channels:
+            return result.channels[name], name
+    raise OutputError("an image output needs ao or obscurance; add -q ao")
+
+
+def write_obj(path, positions, faces, uv, normals=None, header: str = "") -> None:
+    """Write an OBJ with one ``vt`` per vertex (positions (m, 3), faces (f, 3), uv (m, 2)), atomically."""
+    lines = [f"# {line}" for line in header.splitlines()]
+    lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in positions]
+    lines += [f"vt {u:.9g} {v:.9g}" for u, v in uv]
+    if normals is not None:
+        lines += [f"vn {x:.7g} {y:.7g} {z:.7g}" for x, y, z in normals]
+        lines += [f"f {a}/{a}/{a} {b}/{b}/{b} {c}/{c}/{c}" for a, b, c in faces + 1]
+    else:
+        lines += [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in faces + 1]
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text("\n".join(lines) + "\n")
+
+
+def write_texture(path, result, metadata: dict, *, half=False, bit_depth=8, r_only=False) -> None:
+    """Write ``result`` (a TexelResult) to ``path`` chosen by extension."""
+    from aobake.outputs import glb, image
+
+    suffix = Path(path).suffix.lower()
+    if suffix == ".exr":
+        image.write_exr(path, result.channels, metadata, half=half)
+    elif suffix in image.LDR_SUFFIXES:
+        value, name = _map(result)
+        image.write_ldr(path, value, result.channels["coverage"], bit_depth=bit_depth,
+                        r_only=r_only, metadata=dict(metadata, map=name))
+    elif suffix == ".glb":
+        value, _ = _map(result)
+        # glTF reads occlusion from R; the gutters are already dilated, so alpha
+        # (coverage) is not needed by viewers and is left opaque.
+        png = image.png_bytes(value, np.ones_like(value), bit_depth=8, r_only=True)
+        atlas = result.atlas
+        glb.write_textured(path, atlas.positions, atlas.faces, atlas.normals, atlas.uv, png,
+                           metadata, base_uv=atlas.base_uv)
+    else:
+        raise OutputError(f"{path}: unsupported lightmap format {suffix!r}; "
+                          f"use one of {', '.join(TEXTURE_OUTPUTS)}")
+
+
+def default_mesh_out(out: Path) -> Path:
+    """Where the unwrapped mesh goes by default: beside ``out``, as ``<stem>.obj``."""
+    return out.with_suffix(".obj")
+
+
+def write_atlas_mesh(path, result, metadata: dict) -> None:
+    """Write the atlas mesh (OBJ with the atlas UVs, or GLB with the occlusion texture)."""
+    from aobake.outputs import glb, image
+
+    atlas = result.atlas
+    suffix = Path(path).suffix.lower()
+    if suffix == ".obj":
+        write_obj(path, atlas.positions, atlas.faces, atlas.uv, atlas.normals,
+                  header="aobake lightmap atlas: vt are the lightmap UVs (OBJ convention)")
+    elif suffix == ".glb":
+        value, _ = _map(result)
+        png = image.png_bytes(value, np.ones_like(value), bit_depth=8, r_only=True)
+        glb.write_textured(path, atlas.positions, atlas.faces, atlas.normals, atlas.uv, png,
+                           metadata, base_uv=atlas.base_uv)
+    else:
+        raise OutputError(f"{path}: unsupported mesh format for --mesh-out; use .obj or .glb")
