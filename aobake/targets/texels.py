@@ -55,9 +55,9 @@ DEGENERATE_UV_AREA = 1e-15
 FALLBACK_COVERAGE_FRACTION = 0.5
 
 #: Default number of (triangle, texel) candidate pairs processed at once; it
-#: bounds the rasteriser's memory (roughly 200 bytes per pair) and does not
+#: bounds the rasteriser's memory (roughly 500 bytes per pair) and does not
 #: change the result.
-CHUNK_PAIRS = 1 << 21
+CHUNK_PAIRS = 1 << 19
 
 # --- results ---------------------------------------------------------------
 
@@ -238,7 +238,7 @@ def check_uvs(uv, faces, width: int, height: int) -> UVCheck:
 
 
 def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False):
-    """Run xatlas and return (vmapping, faces, uv_xatlas, image or None).
+    """Run xatlas and return (vmapping, faces, uv_xatlas, image or None, info).
 
     ``uv_xatlas`` is in xatlas's own orientation: ``v * resolution`` is the row
     of xatlas's chart image counted from its FIRST row (the top, as stored),
@@ -250,6 +250,7 @@ def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False):
     resulting charts alone (fast: no chart computation) at a fixed
     ``resolution x resolution`` while shrinking the scale until one atlas holds
     them all.  The padding is then exactly ``padding`` texels of the final image.
+    ``info`` holds the chart count and the fraction of texels charts cover.
     """
     import xatlas
 
@@ -268,45 +269,62 @@ def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False):
     uv_texels = (uv_a.astype(np.float64) * [w_a, h_a]).astype(np.float32)
     log.debug("xatlas charts: %d charts, first pack %d x %d", first.chart_count, w_a, h_a)
 
-    scale = resolution / max(w_a, h_a)
-    for _ in range(60):
+    def pack_at(texels_per_unit):
         atlas = xatlas.Atlas()
         atlas.add_uv_mesh(uv_texels, faces_a)
         pack = xatlas.PackOptions()
         pack.resolution = resolution
         pack.padding = padding
         pack.bilinear = True
-        pack.texels_per_unit = scale
+        pack.texels_per_unit = texels_per_unit
         pack.create_image = chart_image
         atlas.generate(pack_options=pack)
-        if atlas.atlas_count == 1 and atlas.width == resolution and atlas.height == resolution:
-            break
-        scale *= 0.97  # small steps: each repack costs little, utilisation matters
-    else:
+        fits = atlas.atlas_count == 1 and atlas.width == resolution and atlas.height == resolution
+        return atlas if fits else None
+
+    # Shrink until everything fits in one atlas, then grow while it still fits
+    # (the first estimate assumes 75% utilisation).  A repack costs a fraction
+    # of a second even with hundreds of charts, against seconds for charting.
+    scale = resolution / max(w_a, h_a)
+    atlas = pack_at(scale)
+    repacks = 1
+    while atlas is None and repacks < 60:
+        scale *= 0.97
+        atlas = pack_at(scale)
+        repacks += 1
+    if atlas is None:
         raise InputError(f"xatlas could not pack the charts into one {resolution}x{resolution} atlas")
+    for _ in range(8):
+        bigger = pack_at(scale * 1.03)
+        repacks += 1
+        if bigger is None:
+            break
+        scale, atlas = scale * 1.03, bigger
     vm_b, faces_b, uv_b = atlas[0]
-    log.debug("xatlas repack: scale %.4g, utilisation %.3f", scale, atlas.utilization)
     image = atlas.get_chart_image(0) if chart_image else None
     vmapping = vm_a.astype(np.int64)[vm_b.astype(np.int64)]
-    return vmapping, faces_b.astype(np.int64), uv_b.astype(np.float64), image
+    log.debug("xatlas: %d repacks, final scale %.4g, utilisation %.3f", repacks, scale, atlas.utilization)
+    info = {"charts": int(atlas.chart_count), "utilization": float(atlas.utilization)}
+    return vmapping, faces_b.astype(np.int64), uv_b.astype(np.float64), image, info
 
 
-def _unwrap_in_process(positions, faces, resolution, padding) -> Unwrapped:
-    vmapping, new_faces, uv, _ = _xatlas_atlas(positions, faces, resolution, padding)
+def _unwrap_in_process(positions, faces, resolution, padding) -> tuple[Unwrapped, dict]:
+    vmapping, new_faces, uv, _, info = _xatlas_atlas(positions, faces, resolution, padding)
     # xatlas's v runs down the image (row 0 first); OBJ's v runs up.  Flipping
     # keeps texel boundaries on texel boundaries because resolution is integral,
     # so the texel grid xatlas packed for (and its padding) is preserved.
     uv[:, 1] = 1.0 - uv[:, 1]
-    return Unwrapped(vmapping, new_faces, uv)
+    return Unwrapped(vmapping, new_faces, uv), info
 
 
 def _unwrap_worker(argv: list[str]) -> None:
     """Entry point of the isolated xatlas process: ``in.npz out.npz``."""
     with np.load(argv[0]) as data:
-        result = _unwrap_in_process(
+        result, info = _unwrap_in_process(
             data["positions"], data["faces"], int(data["resolution"]), int(data["padding"])
         )
-    np.savez(argv[1], vmapping=result.vmapping, faces=result.faces, uv=result.uv)
+    np.savez(argv[1], vmapping=result.vmapping, faces=result.faces, uv=result.uv,
+             charts=info["charts"], utilization=info["utilization"])
 
 
 # The child imports this module and runs the worker; kept as data so tests can
@@ -314,7 +332,7 @@ def _unwrap_worker(argv: list[str]) -> None:
 _WORKER_CODE = "import sys; from aobake.targets.texels import _unwrap_worker; _unwrap_worker(sys.argv[1:])"
 
 
-def _unwrap_isolated(positions, faces, resolution, padding) -> Unwrapped:
+def _unwrap_isolated(positions, faces, resolution, padding) -> tuple[Unwrapped, dict]:
     # xatlas segfaults on some inputs (for example finely subdivided
     # icospheres, jpcy/xatlas#146); in a child process that becomes an error
     # message instead of killing the caller.
@@ -330,22 +348,22 @@ def _unwrap_isolated(positions, faces, resolution, padding) -> Unwrapped:
             capture_output=True,
             text=True,
         )
-        if proc.returncode != 0:
-            if proc.returncode < 0:
-                try:
-                    how = f"crashed with {signal.Signals(-proc.returncode).name}"
-                except ValueError:
-                    how = f"was killed by signal {-proc.returncode}"
-            else:
-                last = proc.stderr.strip().splitlines()[-1:] or ["no message"]
-                how = f"failed ({last[0]})"
+        if proc.returncode < 0:
+            try:
+                how = f"crashed with {signal.Signals(-proc.returncode).name}"
+            except ValueError:
+                how = f"was killed by signal {-proc.returncode}"
             raise InputError(
                 f"xatlas {how} while unwrapping a mesh of {len(faces)} triangles; "
                 "very regular meshes such as finely subdivided icospheres are known to crash it "
                 "(jpcy/xatlas#146): provide your own UVs or perturb the mesh"
             )
+        if proc.returncode != 0:
+            last = proc.stderr.strip().splitlines()[-1:] or [f"exit status {proc.returncode}"]
+            raise InputError(f"unwrapping a mesh of {len(faces)} triangles failed: {last[0]}")
         with np.load(dst) as data:
-            return Unwrapped(data["vmapping"], data["faces"], data["uv"])
+            info = {"charts": int(data["charts"]), "utilization": float(data["utilization"])}
+            return Unwrapped(data["vmapping"], data["faces"], data["uv"]), info
 
 
 def unwrap(positions, faces, resolution: int, padding: int, *, isolate: bool = True) -> Unwrapped:
@@ -353,8 +371,10 @@ def unwrap(positions, faces, resolution: int, padding: int, *, isolate: bool = T
 
     positions : (n, 3) float; faces : (f, 3) int.
     resolution : side of the square target image in texels.
-    padding : texels between charts in that image (xatlas ``padding``, with
-        ``bilinear=True`` so bilinear lookups stay inside a chart).
+    padding : empty texels kept around each chart (xatlas ``padding``, with
+        ``bilinear=True``).  Two charts' covered texels end up at least
+        ``2 * padding`` empty texels apart, so dilating each chart by
+        ``padding`` rings (``aobake.post.dilate``) never mixes two charts.
     isolate : run xatlas in a child Python process so that an xatlas crash
         raises InputError instead of killing this process (costs ~0.3 s).
 
@@ -379,11 +399,12 @@ def unwrap(positions, faces, resolution: int, padding: int, *, isolate: bool = T
         raise ValueError(f"padding must be a non-negative integer, got {padding}")
     start = time.perf_counter()
     run = _unwrap_isolated if isolate else _unwrap_in_process
-    result = run(positions, faces.astype(np.int64), int(resolution), int(padding))
+    result, info = run(positions, faces.astype(np.int64), int(resolution), int(padding))
     log.info(
-        "unwrapped %d triangles into %dx%d texels in %.1f s (%d -> %d vertices)",
-        len(faces), resolution, resolution, time.perf_counter() - start,
-        len(positions), len(result.vmapping),
+        "unwrapped %d triangles into %dx%d texels in %.1f s: %d charts covering %.0f%%, "
+        "%d -> %d vertices",
+        len(faces), resolution, resolution, time.perf_counter() - start, info["charts"],
+        100 * info["utilization"], len(positions), len(result.vmapping),
     )
     return result
 
@@ -530,25 +551,51 @@ def _edge_values(ed: _Edges, t: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.
     return ed.dx[t] * (y[:, None] - ed.ay[t]) - ed.dy[t] * (x[:, None] - ed.ax[t])
 
 
-def _inside(ed: _Edges, t: np.ndarray, e: np.ndarray) -> np.ndarray:
-    return np.all((e > 0) | ((e == 0) & ed.owner[t]), axis=1)
+@dataclass
+class _PairEdges:
+    """Edge coefficients gathered once per (triangle, texel) candidate pair."""
+
+    ax: np.ndarray  # (m, 3) float64
+    ay: np.ndarray
+    dx: np.ndarray
+    dy: np.ndarray
+    owner: np.ndarray  # (m, 3) bool
+
+    @classmethod
+    def gather(cls, ed: _Edges, t: np.ndarray) -> "_PairEdges":
+        return cls(ed.ax[t], ed.ay[t], ed.dx[t], ed.dy[t], ed.owner[t])
+
+    def take(self, keep: np.ndarray) -> "_PairEdges":
+        return _PairEdges(self.ax[keep], self.ay[keep], self.dx[keep], self.dy[keep], self.owner[keep])
+
+    def values(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(m, 3) edge functions at one point (x, y) per pair; same formula as _edge_values."""
+        return self.dx * (y[:, None] - self.ay) - self.dy * (x[:, None] - self.ax)
+
+    def inside(self, e: np.ndarray) -> np.ndarray:
+        """(m,) bool: the point is on the triangle under the tie-break rule."""
+        return np.all((e > 0) | ((e == 0) & self.owner), axis=1)
 
 
-def _bary_from_edges(ed: _Edges, t: np.ndarray, e: np.ndarray) -> np.ndarray:
-    """Barycentrics in face-corner order from (m, 3) edge values of inside points."""
+def _bary_from_edges(corner: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """Barycentrics in face-corner order from (m, 3) edge values of inside points.
+
+    corner : (m, 3) int64 face corner of each oriented vertex.
+    """
     # Edge e is opposite oriented vertex e + 2: weights (E1, E2, E0).
     w = e[:, [1, 2, 0]]
     w = w / w.sum(axis=1, keepdims=True)
     out = np.empty_like(w)
-    np.put_along_axis(out, ed.corner[t], w, axis=1)
+    np.put_along_axis(out, corner, w, axis=1)
     return out
 
 
 def _nearest_on_triangle(ed: _Edges, t: np.ndarray, px: np.ndarray, py: np.ndarray):
     """Nearest point of triangles t to points (px, py), as barycentrics.
 
-    Returns (bary (m, 3) float64 in face-corner order, dist2 (m,) float64 in
-    texels^2).  Points inside the triangle are their own nearest point.
+    Returns (bary (m, 3) float64 in face-corner order, each in [0, 1], and
+    dist2 (m,) float64 in texels^2).  Points inside the triangle are their own
+    nearest point.
     """
     m = len(t)
     v = ed.verts[t]  # (m, 3, 2)
@@ -578,6 +625,23 @@ def _nearest_on_triangle(ed: _Edges, t: np.ndarray, px: np.ndarray, py: np.ndarr
     return out, best_d2
 
 
+def _candidate_chunks(band_tri, band_c0, band_bw, band_r0, band_rows, budget):
+    """Yield (t, row, col) int64 arrays of candidate pairs, ~budget at a time."""
+    counts = band_bw * band_rows
+    ends = np.cumsum(counts)
+    lo = 0
+    while lo < len(counts):
+        base = ends[lo - 1] if lo else 0
+        hi = max(lo + 1, int(np.searchsorted(ends, base + budget, side="right")))
+        cnt = counts[lo:hi]
+        t = np.repeat(band_tri[lo:hi], cnt)
+        local = np.arange(int(cnt.sum()), dtype=np.int64) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        bw = np.repeat(band_bw[lo:hi], cnt)
+        row, col = np.divmod(local, bw)
+        yield t, row + np.repeat(band_r0[lo:hi], cnt), col + np.repeat(band_c0[lo:hi], cnt)
+        lo = hi
+
+
 def rasterize(
     uv,
     faces,
@@ -602,6 +666,7 @@ def rasterize(
     the point of the overlapping triangle nearest to the texel centre (ties go
     to the lower face index).  It lies on the triangle (clamped to its edges),
     so edge texels are sampled on the surface, never extrapolated off it.
+    Triangles with zero UV area or non-finite UVs get no samples.
     """
     uv, faces = _check_uv_faces(uv, faces, width, height)
     width, height, n_sub = int(width), int(height), int(texel_samples)
@@ -611,66 +676,53 @@ def rasterize(
 
     xy = np.stack([uv[:, 0] * width, (1.0 - uv[:, 1]) * height], axis=1)
     ed, usable = _edges(xy, faces)
-    c0, c1, r0, r1 = _bbox(np.where(usable[:, None, None], ed.verts, 0.0), width, height)
+    verts = np.where(usable[:, None, None], ed.verts, 0.0)
+    c0, c1, r0, r1 = _bbox(verts, width, height)
+    vmax = verts.max(axis=1)  # (f, 2) for the open bounding-box overlap test
     keep = usable & (c1 >= c0) & (r1 >= r0)
     tri_ids = np.flatnonzero(keep)
-    band_tri, band_c0, band_bw, band_r0, band_rows = _bands(
-        tri_ids, c0[keep], c1[keep], r0[keep], r1[keep], max(1, int(chunk_pairs))
-    )
-    counts = band_bw * band_rows
-    ends = np.cumsum(counts)
+    bands = _bands(tri_ids, c0[keep], c1[keep], r0[keep], r1[keep], max(1, int(chunk_pairs)))
 
     out_texel, out_face, out_bary, out_k = [], [], [], []
-    centre_texels = []
-    cand_texel, cand_face = [], []
+    centre_texels, cand_texel, cand_face = [], [], []
+    for t, row, col in _candidate_chunks(*bands, max(1, int(chunk_pairs))):
+        pe = _PairEdges.gather(ed, t)
+        cx, cy = col + 0.5, row + 0.5
+        e_centre = pe.values(cx, cy)
+        # Separating axes for triangle vs texel square: the bounding boxes
+        # (closed overlap is guaranteed by how candidates are made), then each
+        # edge, where the largest value of a linear E over the square is
+        # E(centre) + (|dx| + |dy|) / 2.  Closed overlap: a sub-position can
+        # land; open overlap (positive area in common): fallback candidate.
+        reach = e_centre + 0.5 * (np.abs(pe.dx) + np.abs(pe.dy))
+        touch = np.all(reach >= 0, axis=1)
+        vm = vmax[t]
+        open_overlap = np.all(reach > 0, axis=1) & (vm[:, 0] > col) & (vm[:, 1] > row)
+        centre_in = pe.inside(e_centre)
+        centre_texels.append((row * width + col)[centre_in])
 
-    lo = 0
-    while lo < len(counts):
-        base = ends[lo - 1] if lo else 0
-        hi = max(lo + 1, int(np.searchsorted(ends, base + chunk_pairs, side="right")))
-        cnt = counts[lo:hi]
-        t = np.repeat(band_tri[lo:hi], cnt)
-        local = np.arange(int(cnt.sum()), dtype=np.int64) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-        bw = np.repeat(band_bw[lo:hi], cnt)
-        row = np.repeat(band_r0[lo:hi], cnt) + local // bw
-        col = np.repeat(band_c0[lo:hi], cnt) + local % bw
-        del local, bw
+        if n_sub > 1:  # with K = 1 the centre test above is all there is to do
+            t, row, col, open_overlap = t[touch], row[touch], col[touch], open_overlap[touch]
+            pe, e_centre = pe.take(touch), e_centre[touch]
         texel = row * width + col
+        corner = ed.corner[t]
         fx, fy = col.astype(np.float64), row.astype(np.float64)
-
         pair_hit = np.zeros(len(t), dtype=bool)
         for k in range(n_sub):
-            dx, dy = subsample_offsets(texel, k, n_sub, seed)
-            e = _edge_values(ed, t, fx + dx, fy + dy)
-            ins = _inside(ed, t, e)
+            if n_sub == 1:
+                e, ins = e_centre, centre_in
+            else:
+                dx, dy = subsample_offsets(texel, k, n_sub, seed)
+                e = pe.values(fx + dx, fy + dy)
+                ins = pe.inside(e)
             pair_hit |= ins
             out_texel.append(texel[ins])
             out_face.append(t[ins])
-            out_bary.append(_bary_from_edges(ed, t[ins], e[ins]))
+            out_bary.append(_bary_from_edges(corner[ins], e[ins]))
             out_k.append(np.full(int(ins.sum()), k, dtype=np.int64))
-            if n_sub == 1:
-                centre_texels.append(texel[ins])
-        if n_sub > 1:
-            e = _edge_values(ed, t, fx + 0.5, fy + 0.5)
-            centre_texels.append(texel[_inside(ed, t, e)])
-
-        # Fallback candidates: the triangle overlaps the open texel square
-        # (separating axes: bounding box, then each edge, where the largest
-        # value of a linear E over the square is E(centre) + (|dx| + |dy|) / 2)
-        # but put none of its own sub-positions in it.
-        rest = ~pair_hit
-        tr, cx, cy = t[rest], fx[rest] + 0.5, fy[rest] + 0.5
-        e = _edge_values(ed, tr, cx, cy)
-        reach = 0.5 * (np.abs(ed.dx[tr]) + np.abs(ed.dy[tr]))
-        v = ed.verts[tr]
-        overlaps = (
-            np.all(e + reach > 0, axis=1)
-            & (v[:, :, 0].min(axis=1) < cx + 0.5) & (v[:, :, 0].max(axis=1) > cx - 0.5)
-            & (v[:, :, 1].min(axis=1) < cy + 0.5) & (v[:, :, 1].max(axis=1) > cy - 0.5)
-        )
-        cand_texel.append(texel[rest][overlaps])
-        cand_face.append(tr[overlaps])
-        lo = hi
+        cand = open_overlap & ~pair_hit
+        cand_texel.append(texel[cand])
+        cand_face.append(t[cand])
 
     def cat(parts, dtype, shape=(0,)):
         return np.concatenate(parts) if parts else np.zeros(shape, dtype=dtype)
@@ -681,10 +733,17 @@ def rasterize(
     sub = cat(out_k, np.int64)
     n_texels = width * height
 
+    # Sort by (texel, sub-position); candidates are made in increasing
+    # triangle order and the sort is stable, so ties (stacked shells) end up
+    # ordered by face: the result does not depend on chunking.
+    key = texel * n_sub + sub
+    order = np.argsort(key, kind="stable")
+    key, texel, face, bary, sub = key[order], texel[order], face[order], bary[order], sub[order]
     # Coverage counts distinct sub-positions, so stacked (overlapping) shells
     # do not push a texel above 1.
-    distinct = np.unique(texel * n_sub + sub)
-    landed = np.bincount(distinct // n_sub, minlength=n_texels)
+    distinct = np.ones(len(key), dtype=bool)
+    distinct[1:] = key[1:] != key[:-1]
+    landed = np.bincount(texel[distinct], minlength=n_texels)
     coverage = landed.astype(np.float32) / np.float32(n_sub)
 
     cand_texel = cat(cand_texel, np.int64)
@@ -694,31 +753,33 @@ def rasterize(
     if len(cand_texel):
         r, c = np.divmod(cand_texel, width)
         fb_bary, d2 = _nearest_on_triangle(ed, cand_face, c + 0.5, r + 0.5)
-        order = np.lexsort((cand_face, d2, cand_texel))  # nearest, then lowest face
-        first = np.ones(len(order), dtype=bool)
-        first[1:] = cand_texel[order][1:] != cand_texel[order][:-1]
-        pick = order[first]
+        pick_order = np.lexsort((cand_face, d2, cand_texel))  # nearest, then lowest face
+        first = np.ones(len(pick_order), dtype=bool)
+        first[1:] = cand_texel[pick_order][1:] != cand_texel[pick_order][:-1]
+        pick = pick_order[first]  # one per texel, in increasing texel order
         fb_texel, fb_face, fb_bary = cand_texel[pick], cand_face[pick], fb_bary[pick]
         coverage[fb_texel] = FALLBACK_COVERAGE_FRACTION / n_sub
     else:
         fb_texel = fb_face = np.zeros(0, dtype=np.int64)
         fb_bary = np.zeros((0, 3))
 
+    # Merge the fallback samples (texels with no regular sample) into the order.
     n_regular = len(texel)
     texel = np.concatenate([texel, fb_texel])
-    face = np.concatenate([face, fb_face])
-    bary = np.concatenate([bary, fb_bary])
-    sub = np.concatenate([sub, np.zeros(len(fb_texel), dtype=np.int64)])
-    is_fallback = np.arange(len(texel)) >= n_regular
-    order = np.lexsort((face, sub, texel))
+    order = np.argsort(texel, kind="stable")
+    face = np.concatenate([face, fb_face])[order]
+    bary = np.concatenate([bary, fb_bary])[order]
+    sub = np.concatenate([sub, np.zeros(len(fb_texel), dtype=np.int64)])[order]
+    is_fallback = (np.arange(len(texel)) >= n_regular)[order]
+    texel = texel[order]
 
     shared = np.bincount(cat(centre_texels, np.int64), minlength=n_texels).astype(np.int32)
     result = TexelSamples(
-        texel=texel[order],
-        face=face[order],
-        bary=bary[order],
-        sample=sub[order],
-        is_fallback=is_fallback[order],
+        texel=texel,
+        face=face,
+        bary=bary,
+        sample=sub,
+        is_fallback=is_fallback,
         coverage=coverage.reshape(height, width),
         shared=shared.reshape(height, width),
         width=width,

@@ -1,0 +1,235 @@
+"""Texture files: multi-channel EXR and 8/16-bit PNG/TIFF, through OpenImageIO.
+
+Images follow the texel convention of ``aobake.targets.texels``: a map of
+W x H texels is an array (H, W) or (H, W, C) whose row 0 is the TOP of the image
+(v near 1 in OBJ-convention UVs).  Image files also store the top row first, so
+arrays are written as they are, without flipping.
+
+Every write goes through ``atomic_path``: a failed write leaves neither a
+partial file nor a temporary one.  OpenImageIO failures raise ``OutputError``
+naming the path and OpenImageIO's message.
+
+OpenImageIO behaviours this module relies on or works around (checked with
+OIIO 3.2):
+
+- PNG and TIFF alpha: OIIO treats alpha as associated (premultiplied) by
+  default, dividing colour by alpha when writing a PNG and multiplying when
+  reading PNG or unassociated-alpha TIFF.  Our alpha is coverage, not opacity,
+  so every LDR file is written with ``oiio:UnassociatedAlpha = 1`` (PNG data is
+  stored untouched; TIFF is tagged ExtraSamples = unassociated alpha) and
+  ``read_image`` asks for unassociated alpha too.
+- Colour space: AO maps are data, written linear (no sRGB curve).  With
+  ``oiio:ColorSpace = "lin_rec709_scene"`` the PNG writer stores a gAMA chunk
+  of 1.0 and no sRGB chunk; without it OIIO writes sRGB + gAMA 1/2.2 chunks.
+  TIFF has no such tag.  EXR is linear by definition.
+- EXR channel order: OpenEXR stores channels sorted by name, and OIIO reads
+  them back grouped (unlayered names first, then by layer), so the order given
+  to ``write_exr`` is not what a reader sees.  It is kept in the
+  ``aobake:channels`` attribute (JSON list).
+- Custom attributes: PNG (text chunks) and EXR keep ``aobake:*`` attributes;
+  TIFF drops them, so the metadata JSON also goes into ``ImageDescription``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from aobake.errors import OutputError
+from aobake.outputs.atomic import atomic_path
+
+log = logging.getLogger(__name__)
+
+LDR_SUFFIXES = (".png", ".tif", ".tiff")
+#: oiio:ColorSpace name that makes OIIO tag a PNG with gAMA = 1.0 (linear).
+LINEAR_COLORSPACE = "lin_rec709_scene"
+
+
+def _oiio():
+    import OpenImageIO as oiio
+
+    return oiio
+
+
+def _json_default(value: Any):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    raise TypeError(f"cannot store {type(value).__name__} in image metadata")
+
+
+def _metadata_attributes(metadata: Mapping[str, Any] | None) -> dict[str, str]:
+    """'aobake:<key>' string attributes (non-strings as JSON) + 'aobake:metadata'."""
+    metadata = dict(metadata or {})
+    attrs = {}
+    for key, value in metadata.items():
+        attrs[f"aobake:{key}"] = value if isinstance(value, str) else json.dumps(value, default=_json_default)
+    attrs["aobake:metadata"] = json.dumps(metadata, default=_json_default, sort_keys=True)
+    return attrs
+
+
+def _write(path, pixels: np.ndarray, fmt, channel_names, attributes: Mapping[str, Any]) -> None:
+    """Write (H, W, C) pixels to path via a temp file; raise OutputError on failure."""
+    oiio = _oiio()
+    height, width, n_channels = pixels.shape
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None:
+            raise OutputError(f"{path}: {oiio.geterror() or 'no OpenImageIO writer for this file type'}")
+        spec = oiio.ImageSpec(width, height, n_channels, fmt)
+        spec.channelnames = tuple(channel_names)
+        for name, value in attributes.items():
+            spec.attribute(name, value)
+        try:
+            if not out.open(str(tmp), spec):
+                raise OutputError(f"{path}: {out.geterror() or 'cannot open for writing'}")
+            if not out.write_image(np.ascontiguousarray(pixels)):
+                raise OutputError(f"{path}: {out.geterror() or 'write failed'}")
+        finally:
+            # Close before atomic_path renames or deletes the temp file; a close
+            # after a failed write may still flush a partial file, which the
+            # atomic_path cleanup then removes.
+            ok = out.close()
+        if not ok:
+            raise OutputError(f"{path}: {out.geterror() or 'close failed'}")
+    log.debug("wrote %s (%dx%d, %d channels)", path, width, height, n_channels)
+
+
+def write_exr(path, channels: Mapping[str, np.ndarray], metadata: Mapping[str, Any] | None = None,
+              half: bool = False) -> None:
+    """Write named (H, W) float channels to an OpenEXR file (zip compression).
+
+    channels : name -> (H, W) float array, e.g. 'ao', 'ao_stderr',
+        'bent_normal.X'; written in the given order (but see the module note:
+        readers see OpenEXR's sorted order; the given order is in
+        'aobake:channels').
+    metadata : stored as one string attribute 'aobake:<key>' per key (JSON
+        text for non-strings) plus 'aobake:metadata', the whole dict as JSON.
+    half : store 16-bit half floats instead of 32-bit floats (about 3 decimal
+        digits; integers such as ray counts are exact only up to 2048).
+    """
+    if not channels:
+        raise ValueError("write_exr needs at least one channel")
+    names = list(channels)
+    arrays = [np.asarray(channels[name], dtype=np.float32) for name in names]
+    shape = arrays[0].shape
+    for name, array in zip(names, arrays):
+        if array.ndim != 2 or array.shape != shape:
+            raise ValueError(f"channel {name!r} must be (H, W) = {shape}, got {array.shape}")
+    oiio = _oiio()
+    attrs: dict[str, Any] = {"compression": "zip", "Software": "aobake"}
+    attrs.update(_metadata_attributes(metadata))
+    attrs["aobake:channels"] = json.dumps(names)
+    # The pixels are handed over as float32; OIIO converts to half if asked.
+    _write(path, np.stack(arrays, axis=-1), oiio.HALF if half else oiio.FLOAT, names, attrs)
+
+
+def quantize(x, bit_depth: int) -> np.ndarray:
+    """Map [0, 1] floats to integers: round(clip(x, 0, 1) * (2**bits - 1)).
+
+    NaN maps to 0.  Returns uint8 for 8 bits, uint16 for 16 bits.
+    """
+    _check_bit_depth(bit_depth)
+    top = float(2 ** bit_depth - 1)
+    x = np.nan_to_num(np.asarray(x, dtype=np.float64), nan=0.0)
+    return np.rint(np.clip(x, 0.0, 1.0) * top).astype(np.uint8 if bit_depth == 8 else np.uint16)
+
+
+def _check_bit_depth(bit_depth) -> None:
+    if bit_depth not in (8, 16):
+        raise ValueError(f"bit_depth must be 8 or 16, got {bit_depth}")
+
+
+def _ldr_pixels(value, coverage, bit_depth: int, r_only: bool) -> np.ndarray:
+    value = np.asarray(value, dtype=np.float64)
+    coverage = np.asarray(coverage, dtype=np.float64)
+    if value.ndim != 2:
+        raise ValueError(f"value must be (H, W), got {value.shape}")
+    if coverage.shape != value.shape:
+        raise ValueError(f"coverage must be {value.shape}, got {coverage.shape}")
+    v = quantize(value, bit_depth)
+    zero = np.zeros_like(v)
+    rgb = [v, zero, zero] if r_only else [v, v, v]
+    return np.stack(rgb + [quantize(coverage, bit_depth)], axis=-1)
+
+
+def write_ldr(path, value, coverage, bit_depth: int = 8, r_only: bool = False,
+              metadata: Mapping[str, Any] | None = None) -> None:
+    """Write a [0, 1] map as an RGBA PNG or TIFF (.png, .tif, .tiff).
+
+    value : (H, W) float, written to R, G and B (or to R only, with G = B = 0,
+        when r_only: the glTF occlusion-texture convention reads R).
+    coverage : (H, W) float in [0, 1], written to alpha (unassociated: colour is
+        never multiplied by it).
+    bit_depth : 8 or 16.  Integer = round(clip(x, 0, 1) * (2**bits - 1)), so
+        0 -> 0 and 1 -> 255 or 65535; NaN -> 0.  Values are linear data, stored
+        without an sRGB curve and tagged linear where the format can say so.
+    metadata : as in ``write_exr``; also stored as JSON in ImageDescription.
+    """
+    _check_bit_depth(bit_depth)
+    suffix = Path(path).suffix.lower()
+    if suffix not in LDR_SUFFIXES:
+        raise ValueError(f"{path}: LDR images must end in {', '.join(LDR_SUFFIXES)}")
+    pixels = _ldr_pixels(value, coverage, bit_depth, r_only)
+    oiio = _oiio()
+    attrs: dict[str, Any] = {
+        "oiio:UnassociatedAlpha": 1,
+        "oiio:ColorSpace": LINEAR_COLORSPACE,
+        "Software": "aobake",
+    }
+    if suffix != ".png":
+        attrs["compression"] = "zip"
+    meta = _metadata_attributes(metadata)
+    attrs.update(meta)
+    attrs["ImageDescription"] = meta["aobake:metadata"]
+    _write(path, pixels, oiio.UINT8 if bit_depth == 8 else oiio.UINT16, ("R", "G", "B", "A"), attrs)
+
+
+def png_bytes(value, coverage, bit_depth: int = 8, r_only: bool = True,
+              metadata: Mapping[str, Any] | None = None) -> bytes:
+    """Encode a map as PNG file bytes (e.g. to embed in a GLB); see ``write_ldr``."""
+    # OIIO's Python binding has no in-memory writer, so go through a temp file.
+    with tempfile.TemporaryDirectory(prefix="aobake-png-") as tmp:
+        path = Path(tmp, "image.png")
+        write_ldr(path, value, coverage, bit_depth=bit_depth, r_only=r_only, metadata=metadata)
+        return path.read_bytes()
+
+
+def read_image(path) -> tuple[np.ndarray, list[str], dict[str, Any]]:
+    """Read an image back (mainly for tests and inspection).
+
+    Returns (pixels (H, W, C) float32, channel_names, attributes).  Float files
+    come back as stored; integer files in OIIO's normalised scale, x / (2**bits
+    - 1), so ``np.rint(pixels * (2**bits - 1))`` recovers the stored integers
+    exactly ('oiio:BitsPerSample' or the format says how many bits).  Alpha is
+    read unassociated (colour is not multiplied by alpha).  attributes includes
+    'oiio:format' (e.g. 'uint8', 'half') and, for EXR, channel names in the
+    reader's order.
+    """
+    oiio = _oiio()
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    inp = oiio.ImageInput.open(str(path), config)
+    if inp is None:
+        raise OutputError(f"{path}: {oiio.geterror() or 'cannot open for reading'}")
+    try:
+        spec = inp.spec()
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        if pixels is None:
+            raise OutputError(f"{path}: {inp.geterror() or 'cannot read pixels'}")
+        attrs = {p.name: p.value for p in spec.extra_attribs}
+        attrs["oiio:format"] = str(spec.format)
+        names = list(spec.channelnames)
+    finally:
+        inp.close()
+    pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
+    return pixels, names, attrs

@@ -1,0 +1,166 @@
+"""Image files through OpenImageIO: EXR channels, PNG/TIFF integers, errors."""
+
+import json
+import struct
+
+import numpy as np
+import pytest
+
+from aobake.errors import OutputError
+from aobake.outputs.image import png_bytes, quantize, read_image, write_exr, write_ldr
+
+H, W = 5, 7
+
+
+@pytest.fixture
+def maps():
+    rng = np.random.default_rng(0)
+    return {
+        "ao": rng.random((H, W)),
+        "ao_stderr": 0.01 * rng.random((H, W)),
+        "obscurance": rng.random((H, W)),
+        "bent_normal.X": rng.uniform(-1, 1, (H, W)),
+        "bent_normal.Y": rng.uniform(-1, 1, (H, W)),
+        "bent_normal.Z": rng.uniform(0, 1, (H, W)),
+        "rays": rng.integers(1, 2048, (H, W)).astype(float),
+        "coverage": rng.random((H, W)),
+    }
+
+
+def by_name(pixels, names):
+    return {n: pixels[..., i] for i, n in enumerate(names)}
+
+
+def leftovers(directory):
+    return sorted(p.name for p in directory.iterdir())
+
+
+@pytest.mark.parametrize("half", [False, True])
+def test_exr_round_trip(tmp_path, maps, half):
+    path = tmp_path / "ao.exr"
+    meta = {"seed": 3, "samples": 256, "backend": "embree", "offset": 1e-4, "sizes": [1, 2]}
+    write_exr(path, maps, meta, half=half)
+    pixels, names, attrs = read_image(path)
+    assert pixels.shape == (H, W, len(maps)) and pixels.dtype == np.float32
+    assert sorted(names) == sorted(maps)
+    assert json.loads(attrs["aobake:channels"]) == list(maps)  # the order as given
+    got = by_name(pixels, names)
+    for name, value in maps.items():
+        if half:
+            # half: 11 significant bits; integers up to 2048 stay exact
+            np.testing.assert_allclose(got[name], value, rtol=2**-11, atol=2**-24)
+        else:
+            np.testing.assert_array_equal(got[name], value.astype(np.float32))
+    np.testing.assert_array_equal(got["rays"], maps["rays"])
+    assert attrs["oiio:format"] == ("half" if half else "float")
+    assert attrs["compression"] == "zip"
+    assert attrs["aobake:backend"] == "embree"
+    assert attrs["aobake:seed"] == "3" and json.loads(attrs["aobake:sizes"]) == [1, 2]
+    assert json.loads(attrs["aobake:metadata"]) == meta
+    assert leftovers(tmp_path) == ["ao.exr"]
+
+
+def test_exr_numpy_metadata_and_bad_channels(tmp_path):
+    path = tmp_path / "m.exr"
+    write_exr(path, {"ao": np.zeros((2, 3))}, {"n": np.int64(4), "v": np.array([1.5, 2.0])})
+    _, _, attrs = read_image(path)
+    assert json.loads(attrs["aobake:metadata"]) == {"n": 4, "v": [1.5, 2.0]}
+    with pytest.raises(ValueError, match="channel 'b'"):
+        write_exr(path, {"a": np.zeros((2, 3)), "b": np.zeros((3, 2))}, {})
+
+
+@pytest.mark.parametrize("suffix,bits", [(".png", 8), (".png", 16), (".tif", 16), (".tiff", 8)])
+def test_ldr_round_trip_exact_integers(tmp_path, suffix, bits):
+    rng = np.random.default_rng(1)
+    value = rng.random((H, W))
+    value[0, :3] = [0.0, 1.0, 0.5]
+    coverage = rng.random((H, W))
+    coverage[1, :2] = [0.0, 1.0]  # zero alpha must not wipe the value (unassociated alpha)
+    path = tmp_path / f"ao{suffix}"
+    write_ldr(path, value, coverage, bit_depth=bits, metadata={"seed": 9})
+    pixels, names, attrs = read_image(path)
+    top = 2**bits - 1
+    ints = np.rint(pixels.astype(np.float64) * top).astype(np.int64)
+    assert names == ["R", "G", "B", "A"]
+    expect = np.rint(np.clip(value, 0, 1) * top).astype(np.int64)
+    for ch in range(3):
+        np.testing.assert_array_equal(ints[..., ch], expect)
+    np.testing.assert_array_equal(ints[..., 3], np.rint(coverage * top))
+    assert ints[0, 0, 0] == 0 and ints[0, 1, 0] == top
+    assert attrs["oiio:format"] == ("uint8" if bits == 8 else "uint16")
+    assert json.loads(attrs["ImageDescription"]) == {"seed": 9}
+    assert leftovers(tmp_path) == [path.name]
+
+
+def test_png_is_tagged_linear(tmp_path):
+    path = tmp_path / "ao.png"
+    write_ldr(path, np.full((2, 2), 0.5), np.ones((2, 2)))
+    data = path.read_bytes()
+    chunks, i = {}, 8
+    while i < len(data):
+        n = struct.unpack(">I", data[i:i + 4])[0]
+        chunks[data[i + 4:i + 8]] = data[i + 8:i + 8 + n]
+        i += 12 + n
+    assert b"sRGB" not in chunks
+    assert struct.unpack(">I", chunks[b"gAMA"])[0] == 100000  # gamma 1.0
+    _, _, attrs = read_image(path)
+    assert attrs["aobake:metadata"] == "{}"
+
+
+def test_r_only(tmp_path):
+    path = tmp_path / "occ.png"
+    write_ldr(path, np.full((H, W), 0.25), np.ones((H, W)), r_only=True)
+    pixels, _, _ = read_image(path)
+    assert np.all(np.rint(pixels[..., 0] * 255) == 64)
+    assert np.all(pixels[..., 1:3] == 0) and np.all(pixels[..., 3] == 1)
+
+
+def test_quantize_mapping():
+    x = np.array([-1.0, 0.0, 0.5, 1.0, 2.0, np.nan, 1 / 255 * 0.49, 1 / 255 * 0.51])
+    np.testing.assert_array_equal(quantize(x, 8), [0, 0, 128, 255, 255, 0, 0, 1])
+    assert quantize(x, 16).dtype == np.uint16 and quantize(x, 16)[3] == 65535
+
+
+def test_bad_bit_depth_and_suffix(tmp_path):
+    with pytest.raises(ValueError, match="bit_depth"):
+        write_ldr(tmp_path / "a.png", np.zeros((2, 2)), np.zeros((2, 2)), bit_depth=12)
+    with pytest.raises(ValueError, match="bit_depth"):
+        png_bytes(np.zeros((2, 2)), np.zeros((2, 2)), bit_depth=32)
+    with pytest.raises(ValueError):
+        write_ldr(tmp_path / "a.jpg", np.zeros((2, 2)), np.zeros((2, 2)))
+    assert leftovers(tmp_path) == []
+
+
+def test_unwritable_path_raises_output_error_and_leaves_nothing(tmp_path, maps):
+    with pytest.raises(OutputError, match="missing"):
+        write_exr(tmp_path / "missing" / "ao.exr", maps, {})
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(OutputError, match="file"):
+        write_ldr(blocker / "ao.png", np.zeros((2, 2)), np.zeros((2, 2)))
+    assert leftovers(tmp_path) == ["file"]
+
+
+def test_oiio_failure_inside_the_temp_file_is_cleaned_up(tmp_path, maps, monkeypatch):
+    # Force a failure after the temporary file exists: OIIO refuses 9-channel PNG.
+    import aobake.outputs.image as image
+
+    monkeypatch.setattr(image, "LDR_SUFFIXES", (".png", ".tif", ".tiff", ".xyz"))
+    with pytest.raises(OutputError, match=r"ao\.xyz"):
+        write_ldr(tmp_path / "ao.xyz", np.zeros((2, 2)), np.zeros((2, 2)))
+    pixels = np.zeros((2, 2, 9), np.uint8)
+    with pytest.raises(OutputError, match="channel"):
+        image._write(tmp_path / "nine.png", pixels, "uint8", [f"c{i}" for i in range(9)], {})
+    assert leftovers(tmp_path) == []
+
+
+def test_png_bytes_decodes(tmp_path):
+    value = np.linspace(0, 1, H * W).reshape(H, W)
+    data = png_bytes(value, np.ones((H, W)), bit_depth=8)
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    path = tmp_path / "x.png"
+    path.write_bytes(data)
+    pixels, names, _ = read_image(path)
+    assert pixels.shape == (H, W, 4)
+    np.testing.assert_array_equal(np.rint(pixels[..., 0] * 255), np.rint(value * 255))
+    assert np.all(pixels[..., 1:3] == 0)  # r_only by default for glTF occlusion

@@ -1,0 +1,414 @@
+"""Texel targets: rasteriser, UV checks, unwrapping, splatting; dilation; tangents.
+
+Texel convention under test: row 0 of an (H, W) image is the top (v near 1);
+texel (r, c) has its centre at u = (c + 0.5) / W, v = 1 - (r + 0.5) / H.
+"""
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import Delaunay
+
+from aobake import post, tangents
+from aobake.errors import InputError
+from aobake.targets import texels
+from aobake.targets.texels import check_uvs, rasterize, splat, splat_count, surface_points, unwrap
+
+QUAD_UV = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+QUAD_FACES = np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def centre_uv(texel, width, height):
+    r, c = np.divmod(texel, width)
+    return np.stack([(c + 0.5) / width, 1.0 - (r + 0.5) / height], axis=1)
+
+
+def sample_uv(uv, faces, samples):
+    return np.einsum("sk,skd->sd", samples.bary, uv[faces[samples.face]])
+
+
+def assert_same_samples(a, b):
+    for name in ("texel", "face", "bary", "sample", "is_fallback", "coverage", "shared"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
+# --- exact coverage -------------------------------------------------------------
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 4, 9])
+def test_unit_quad_covers_every_texel_once(k):
+    w, h = 6, 4
+    s = rasterize(QUAD_UV, QUAD_FACES, w, h, texel_samples=k)
+    assert s.n_samples == w * h * k  # no sub-position lost or counted twice
+    assert np.all(s.coverage == 1.0)
+    assert np.all(s.shared == 1)
+    assert not s.is_fallback.any()
+    assert np.array_equal(splat_count(s), np.full((h, w), k))
+    # every (texel, k) exactly once
+    key = s.texel * k + s.sample
+    assert np.array_equal(np.sort(key), np.arange(w * h * k))
+
+
+def test_single_triangle_coverage_counts():
+    # Face 1 = uv (0,0), (1,1), (0,1) is the upper-left half of the image:
+    # texels with r + c <= 3 at 4 x 4.  6 centres lie strictly inside and 4 on
+    # the shared diagonal, which exactly one of the two faces owns.
+    s = rasterize(QUAD_UV, QUAD_FACES[1:], 4, 4)
+    other = rasterize(QUAD_UV, QUAD_FACES[:1], 4, 4)
+    regular, other_regular = s.n_samples - s.is_fallback.sum(), other.n_samples - other.is_fallback.sum()
+    assert regular in (6, 10)
+    assert regular + other_regular == 16
+    assert np.array_equal(s.shared + other.shared, np.ones((4, 4)))
+    r, c = s.rows_cols()
+    assert np.all(r + c <= 3)
+    # The face that does not own the diagonal still overlaps those texels, so
+    # it gets one fallback sample there (on its edge); 4 in total between them.
+    assert s.is_fallback.sum() + other.is_fallback.sum() == 4
+    fb_r, fb_c = np.divmod(np.concatenate([s.texel[s.is_fallback], other.texel[other.is_fallback]]), 4)
+    assert np.all(fb_r + fb_c == 3)
+    # texels the triangle does not reach at all stay empty
+    assert np.all(s.coverage[r.max():, c.max():][np.add.outer(np.arange(4), np.arange(4))[r.max():, c.max():] > 3] == 0)
+    assert s.coverage.sum() + other.coverage.sum() == 16 + 4 * texels.FALLBACK_COVERAGE_FRACTION
+
+
+def test_triangle_away_from_centres_matches_brute_force():
+    uv = np.array([[0.07, 0.11], [0.93, 0.29], [0.41, 0.88]])
+    w, h = 13, 9
+    s = rasterize(uv, np.array([[0, 1, 2]]), w, h)
+    # brute force: texel centres strictly inside (none lies on an edge here)
+    cuv = centre_uv(np.arange(w * h), w, h)
+    a, b, c = uv
+    def side(p, q):
+        return (q[0] - p[0]) * (cuv[:, 1] - p[1]) - (q[1] - p[1]) * (cuv[:, 0] - p[0])
+    e = np.stack([side(a, b), side(b, c), side(c, a)], 1)
+    assert np.all(np.abs(e) > 1e-9)
+    inside = np.all(e > 0, axis=1)
+    assert np.array_equal(np.sort(s.texel[~s.is_fallback]), np.flatnonzero(inside))
+
+
+def test_shared_edges_and_vertices_on_texel_centres_counted_once():
+    # A triangulation whose vertices sit on texel centres, texel corners and
+    # random points: every centre must be covered by exactly one triangle.
+    w = h = 16
+    rng = np.random.default_rng(1)
+    centres = centre_uv(rng.choice(w * h, 40, replace=False), w, h)
+    corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+    grid = np.stack(np.meshgrid(np.arange(0, 17, 4), np.arange(0, 17, 4)), -1).reshape(-1, 2) / 16
+    pts = np.unique(np.concatenate([corners, grid, centres, rng.random((30, 2))]), axis=0)
+    tri = Delaunay(pts).simplices
+    for k in (1, 4):
+        s = rasterize(pts, tri, w, h, texel_samples=k)
+        assert np.all(s.shared == 1)
+        assert s.n_samples == w * h * k
+        assert np.all(s.coverage == 1)
+    assert check_uvs(pts, tri, w, h).overlapping_texels == 0
+
+
+# --- texel convention -------------------------------------------------------------
+
+
+def test_centre_samples_map_back_to_texel_centres():
+    w, h = 7, 5
+    s = rasterize(QUAD_UV, QUAD_FACES, w, h)
+    np.testing.assert_allclose(sample_uv(QUAD_UV, QUAD_FACES, s), centre_uv(s.texel, w, h), atol=1e-12)
+    # row 0 is the top of the image: v close to 1
+    r, _ = s.rows_cols()
+    assert np.all(sample_uv(QUAD_UV, QUAD_FACES, s)[r == 0][:, 1] > 0.8)
+
+
+def test_row_zero_is_top():
+    top = np.array([[0.0, 0.5], [1.0, 0.5], [1.0, 1.0], [0.0, 1.0]])  # v in [0.5, 1]
+    s = rasterize(top, QUAD_FACES, 4, 4)
+    assert np.all(s.coverage[:2] == 1) and np.all(s.coverage[2:] == 0)
+
+
+def test_jittered_samples_stay_in_their_texel():
+    w, h = 8, 8
+    for k in (4, 5):
+        s = rasterize(QUAD_UV, QUAD_FACES, w, h, texel_samples=k, seed=7)
+        p = sample_uv(QUAD_UV, QUAD_FACES, s)
+        r, c = s.rows_cols()
+        x, y = p[:, 0] * w, (1 - p[:, 1]) * h
+        assert np.all((x >= c - 1e-9) & (x <= c + 1 + 1e-9) & (y >= r - 1e-9) & (y <= r + 1 + 1e-9))
+
+
+def test_square_k_is_stratified():
+    # K = 4: one sub-position in each quarter of every texel
+    tex = np.arange(100)
+    cells = []
+    for k in range(4):
+        dx, dy = texels.subsample_offsets(tex, k, 4, seed=3)
+        cells.append((dx >= 0.5).astype(int) + 2 * (dy >= 0.5))
+    assert np.all(np.sort(np.stack(cells, 1), axis=1) == [0, 1, 2, 3])
+
+
+# --- UV checks -------------------------------------------------------------------
+
+
+def shell(x0, x1, y0=0.0, y1=1.0, mirror=False):
+    uv = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    if mirror:
+        uv[:, 0] = x0 + x1 - uv[:, 0]
+    return uv
+
+
+def test_overlap_detection_counts_shared_texels():
+    w = h = 8
+    uv = np.concatenate([shell(0.0, 0.5), shell(0.25, 0.75)])
+    faces = np.concatenate([QUAD_FACES, QUAD_FACES + 4])
+    chk = check_uvs(uv, faces, w, h)
+    assert chk.overlapping_texels == 2 * h  # columns 2 and 3 covered twice
+    assert not chk.valid and "more than one face" in chk.message
+    s = rasterize(uv, faces, w, h)
+    assert np.count_nonzero(s.shared == 2) == 2 * h
+    assert s.coverage.max() == 1.0  # stacked shells do not exceed full coverage
+
+
+def test_separate_shells_are_valid():
+    uv = np.concatenate([shell(0.0, 0.5), shell(0.5, 1.0)])  # touching, not overlapping
+    faces = np.concatenate([QUAD_FACES, QUAD_FACES + 4])
+    chk = check_uvs(uv, faces, 8, 8)
+    assert chk.valid and chk.overlapping_texels == 0 and chk.mirrored_faces == 0
+
+
+def test_mirrored_and_degenerate_and_out_of_range_faces():
+    uv = np.concatenate([shell(0.0, 0.3), shell(0.35, 0.65), shell(0.7, 1.0, mirror=True)])
+    faces = np.concatenate([QUAD_FACES, QUAD_FACES + 4, QUAD_FACES + 8])
+    chk = check_uvs(uv, faces, 16, 16)
+    assert chk.mirrored_faces == 2 and chk.valid
+    uv2 = np.concatenate([uv, [[0.5, 0.5], [0.5, 0.5], [0.6, 0.6]], [[0.9, 0.9], [1.2, 0.9], [0.9, 0.95]]])
+    faces2 = np.concatenate([faces, [[12, 13, 14], [15, 16, 17]]])
+    chk2 = check_uvs(uv2, faces2, 16, 16)
+    assert chk2.degenerate_faces == 1
+    assert chk2.out_of_range_faces == 1 and not chk2.valid
+
+
+# --- fallback samples ---------------------------------------------------------------
+
+
+def test_sliver_gets_fallback_samples_on_the_triangle():
+    # A thin sliver between texel-centre rows: no centre lands on it.
+    w = h = 16
+    uv = np.array([[0.02, 0.5 + 0.1 / h], [0.98, 0.5 + 0.3 / h], [0.5, 0.5 + 0.45 / h]])
+    f = np.array([[0, 1, 2]])
+    for k in (1, 4):
+        s = rasterize(uv, f, w, h, texel_samples=k)
+        fb = s.is_fallback
+        assert fb.sum() > (10 if k == 1 else 0)  # with K = 4 some jittered points do land
+        assert np.all(s.coverage.ravel()[np.unique(s.texel)] > 0)
+        assert np.all((s.bary[fb] >= 0) & (s.bary[fb] <= 1))
+        np.testing.assert_allclose(s.bary[fb].sum(1), 1.0)
+        # the point is within half a texel diagonal of its texel's centre
+        p = sample_uv(uv, f, s)[fb]
+        d = (p - centre_uv(s.texel[fb], w, h)) * [w, h]
+        assert np.all(np.hypot(d[:, 0], d[:, 1]) <= np.sqrt(0.5) + 1e-9)
+        # one sample per fallback texel, and its coverage is > 0 but below 1/K
+        assert len(np.unique(s.texel[fb])) == fb.sum()
+        cov = s.coverage.ravel()[s.texel[fb]]
+        assert np.all(cov == texels.FALLBACK_COVERAGE_FRACTION / k)
+    s1 = rasterize(uv, f, w, h, texel_samples=1)
+    assert s1.is_fallback.all()  # K = 1: every sample is a fallback here
+
+
+def test_every_overlapped_texel_gets_a_sample():
+    rng = np.random.default_rng(5)
+    uv = rng.random((60, 2))
+    faces = rng.integers(0, 60, (40, 3))
+    s = rasterize(uv, faces, 32, 32, texel_samples=2)
+    assert np.array_equal(np.unique(s.texel), np.flatnonzero(s.coverage.ravel() > 0))
+    assert np.all((s.bary >= -1e-12) & (s.bary <= 1 + 1e-12))
+
+
+# --- determinism ---------------------------------------------------------------------
+
+
+def test_same_seed_same_samples_any_chunking():
+    rng = np.random.default_rng(2)
+    uv = rng.random((50, 2))
+    faces = rng.integers(0, 50, (60, 3))
+    a = rasterize(uv, faces, 40, 30, texel_samples=5, seed=11)
+    b = rasterize(uv, faces, 40, 30, texel_samples=5, seed=11, chunk_pairs=97)
+    assert_same_samples(a, b)
+    c = rasterize(uv, faces, 40, 30, texel_samples=5, seed=12)
+    assert not np.array_equal(a.bary, c.bary)
+
+
+# --- unwrap ---------------------------------------------------------------------------
+
+
+def chart_labels(n_vertices, faces):
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n_vertices, n_vertices))
+    return connected_components(graph, directed=False)[1]
+
+
+def test_unwrap_icosphere():
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    res, pad = 128, 2
+    un = unwrap(mesh.vertices, mesh.faces, res, pad, isolate=False)
+    assert un.vmapping.dtype == np.int64 and un.faces.dtype == np.int64 and un.uv.dtype == np.float64
+    assert un.uv.min() >= 0 and un.uv.max() <= 1
+    chk = check_uvs(un.uv, un.faces, res, res)
+    assert chk.valid and chk.overlapping_texels == 0 and chk.out_of_range_faces == 0
+    # new vertices map back to the original positions, faces in input order
+    np.testing.assert_array_equal(mesh.vertices[un.vmapping][un.faces], mesh.vertices[mesh.faces])
+    # charts are >= 2 * padding empty texels apart (padding around each chart)
+    s = rasterize(un.uv, un.faces, res, res)
+    chart = np.full(res * res, -1)
+    chart[s.texel] = chart_labels(len(un.uv), un.faces)[un.faces[s.face, 0]]
+    chart = chart.reshape(res, res)
+    for dr in range(-2 * pad, 2 * pad + 1):
+        for dc in range(-2 * pad, 2 * pad + 1):
+            a = chart[max(0, dr):res + min(0, dr), max(0, dc):res + min(0, dc)]
+            b = chart[max(0, -dr):res + min(0, -dr), max(0, -dc):res + min(0, -dc)]
+            assert not np.any((a >= 0) & (b >= 0) & (a != b))
+
+
+def test_unwrap_v_orientation_matches_xatlas_chart_image():
+    # xatlas's v runs down its chart image (row 0 first); unwrap flips it to
+    # OBJ's v-up so that our row r is xatlas's row r.
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    vm, f, uv_x, image, _ = texels._xatlas_atlas(mesh.vertices, mesh.faces, 64, 1, chart_image=True)
+    un = unwrap(mesh.vertices, mesh.faces, 64, 1, isolate=False)
+    np.testing.assert_allclose(un.uv[:, 1], 1.0 - uv_x[:, 1])
+    charts = image.sum(axis=-1) > 0
+    ours = rasterize(un.uv, un.faces, 64, 64).coverage > 0
+    assert np.all(charts[ours])
+    unflipped = rasterize(uv_x, f, 64, 64).coverage > 0
+    assert not np.all(charts[unflipped])
+
+
+def test_unwrap_isolated_matches_in_process():
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    a = unwrap(mesh.vertices, mesh.faces, 64, 1)
+    b = unwrap(mesh.vertices, mesh.faces, 64, 1, isolate=False)
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_unwrap_crash_becomes_input_error(monkeypatch):
+    monkeypatch.setattr(texels, "_WORKER_CODE", "import os, signal; os.kill(os.getpid(), signal.SIGSEGV)")
+    mesh = trimesh.creation.box()
+    with pytest.raises(InputError, match="SIGSEGV"):
+        unwrap(mesh.vertices, mesh.faces, 32, 1)
+
+
+# --- surface points and splatting -------------------------------------------------
+
+
+def test_surface_points_on_a_plane():
+    positions = np.array([[0, 0, 0], [2, 0, 0], [2, 1, 0], [0, 1, 0]], float)
+    normals = np.tile([0.0, 0.0, 1.0], (4, 1))
+    normals[2] = [0.0, 0.0, -1.0]  # a flipped vertex normal
+    s = rasterize(QUAD_UV, QUAD_FACES, 8, 4)
+    pts, n, fn = surface_points(positions, normals, QUAD_FACES, s)
+    uvs = centre_uv(s.texel, 8, 4)
+    np.testing.assert_allclose(pts[:, :2], uvs * [2, 1], atol=1e-12)
+    np.testing.assert_allclose(fn, np.tile([0, 0, 1.0], (len(fn), 1)))
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0)
+    assert np.all(n @ [0, 0, 1.0] > 0)  # flipped/zero interpolations fall back to the face normal
+    _, n_flat, _ = surface_points(positions, None, QUAD_FACES, s)
+    np.testing.assert_allclose(n_flat, fn)
+
+
+def test_splat_means_per_texel():
+    s = rasterize(QUAD_UV, QUAD_FACES, 4, 2, texel_samples=4)
+    vals = np.stack([s.sample.astype(float), np.ones(s.n_samples)], 1)
+    img = splat(s, vals)
+    assert img.shape == (2, 4, 2)
+    np.testing.assert_allclose(img[..., 0], 1.5)  # mean of 0..3
+    np.testing.assert_allclose(img[..., 1], 1.0)
+    assert splat(s, vals[:, 0]).shape == (2, 4, 1)
+    with pytest.raises(ValueError):
+        splat(s, vals, width=5)
+
+
+# --- dilation ------------------------------------------------------------------------
+
+
+def chebyshev_distance_to(mask):
+    rr, cc = np.nonzero(mask)
+    h, w = mask.shape
+    r, c = np.mgrid[:h, :w]
+    return np.min(np.maximum(np.abs(r[..., None] - rr), np.abs(c[..., None] - cc)), axis=-1)
+
+
+@pytest.mark.parametrize("padding", [1, 2, 5])
+def test_dilate_fills_rings_and_keeps_covered_texels(padding):
+    rng = np.random.default_rng(4)
+    mask = np.zeros((24, 30), bool)
+    mask[5:9, 6:12] = True
+    mask[15, 20] = True
+    image = rng.random((24, 30, 3))
+    out, filled = post.dilate(image, mask, padding)
+    np.testing.assert_array_equal(out[mask], image[mask])
+    dist = chebyshev_distance_to(mask)
+    np.testing.assert_array_equal(filled, dist <= padding)
+    np.testing.assert_array_equal(out[~filled], image[~filled])
+    assert np.all(out[filled] >= image[mask].min(0)) and np.all(out[filled] <= image[mask].max(0))
+
+
+def test_dilate_constant_and_zero_padding():
+    mask = np.zeros((10, 10), bool)
+    mask[3:5, 4] = True
+    image = np.where(mask[..., None], 0.25, np.nan) * np.ones((1, 1, 2))
+    out, filled = post.dilate(image, mask, 3)
+    np.testing.assert_array_equal(out[filled], 0.25)
+    same, same_mask = post.dilate(image, mask, 0)
+    assert same is image and np.array_equal(same_mask, mask)
+
+
+# --- tangents -------------------------------------------------------------------------
+
+
+def plane_mesh(mirror=False):
+    grid = np.stack(np.meshgrid(np.linspace(0, 1, 4), np.linspace(0, 1, 3)), -1).reshape(-1, 2)
+    positions = np.c_[grid * [2.0, 1.0], np.zeros(len(grid))]
+    uv = grid.copy()
+    if mirror:
+        uv[:, 0] = 1 - uv[:, 0]
+    faces = Delaunay(grid).simplices
+    # wind every face counter-clockwise seen from +z
+    p = positions[faces]
+    flip = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])[:, 2] < 0
+    faces[flip] = faces[flip][:, ::-1]
+    normals = np.tile([0.0, 0.0, 1.0], (len(grid), 1))
+    return positions, normals, uv, faces
+
+
+def test_tangents_on_flat_plane():
+    positions, normals, uv, faces = plane_mesh()
+    t = tangents.vertex_tangents(positions, normals, uv, faces)
+    np.testing.assert_allclose(t, np.tile([1.0, 0, 0, 1.0], (len(t), 1)), atol=1e-12)
+    tm = tangents.vertex_tangents(*plane_mesh(mirror=True))
+    np.testing.assert_allclose(tm, np.tile([-1.0, 0, 0, -1.0], (len(t), 1)), atol=1e-12)
+
+
+def test_tangent_space_round_trip_is_orthonormal():
+    rng = np.random.default_rng(6)
+    n = rng.normal(size=(200, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    t = np.c_[rng.normal(size=(200, 3)), np.where(rng.random(200) < 0.5, -1.0, 1.0)]
+    v = rng.normal(size=(200, 3))
+    local = tangents.to_tangent_space(v, n, t)
+    np.testing.assert_allclose(np.linalg.norm(local, axis=1), np.linalg.norm(v, axis=1))
+    np.testing.assert_allclose(tangents.from_tangent_space(local, n, t), v, atol=1e-12)
+    np.testing.assert_allclose(tangents.to_tangent_space(n, n, t), np.tile([0, 0, 1.0], (200, 1)), atol=1e-12)
+    basis = [tangents.to_tangent_space(np.tile(e, (200, 1)), n, t) for e in np.eye(3)]
+    m = np.stack(basis, axis=2)  # (s, 3, 3) rotation per sample
+    np.testing.assert_allclose(np.einsum("sij,skj->sik", m, m), np.tile(np.eye(3), (200, 1, 1)), atol=1e-12)
+    # handedness: det = w
+    np.testing.assert_allclose(np.linalg.det(m), t[:, 3], atol=1e-12)
+
+
+def test_tangents_on_unwrapped_sphere_are_perpendicular_and_unit():
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    un = unwrap(mesh.vertices, mesh.faces, 64, 1, isolate=False)
+    pos = mesh.vertices[un.vmapping]
+    nrm = mesh.vertex_normals[un.vmapping]
+    t = tangents.vertex_tangents(pos, nrm, un.uv, un.faces)
+    np.testing.assert_allclose(np.linalg.norm(t[:, :3], axis=1), 1.0)
+    assert np.max(np.abs(np.sum(t[:, :3] * nrm, axis=1))) < 1e-9
+    assert set(np.unique(t[:, 3])) <= {-1.0, 1.0}
