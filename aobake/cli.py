@@ -89,14 +89,16 @@ def _progress_bar(quiet: bool):
 @click.option("--quantity", "-q", "quantities", multiple=True, type=click.Choice(QUANTITIES),
               help="What to bake (repeatable). Default: ao.")
 @click.option("--rays", default=256, show_default=True, type=click.IntRange(min=1),
-              help="Rays per point (the QMC samplers round up to a multiple of 8).")
+              help="Rays per vertex, or per texel (split over --texel-samples). The QMC "
+                   "samplers round up to a multiple of 8 replicates.")
 @click.option("--max-distance", default="inf", show_default=True, type=DistanceType(),
               help="Occluder search distance: scene units, 'inf', or 'P%' of the bounding-box "
                    "diagonal. Default inf: AO as defined, with no cut-off.")
 @click.option("--tau", type=TauType(), default=None,
               help="Obscurance decay per scene unit in rho(L) = 1 - exp(-tau L). "
                    "Default: 10 / bounding-box diagonal.")
-@click.option("--seed", default=0, show_default=True, type=click.IntRange(0, 2**63 - 1))
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(0, 2**63 - 1),
+              help="Same inputs + seed = bit-identical outputs, for any --threads.")
 @click.option("--sampler", default="sobol", show_default=True, type=click.Choice(sorted(SAMPLERS)),
               help="random: i.i.d.; stratified: jittered grid; sobol: Sobol net. "
                    "All randomised, all unbiased.")
@@ -108,7 +110,8 @@ def _progress_bar(quiet: bool):
               help="Vertex normals: the file's (angle-weighted where it has none), or computed.")
 @click.option("--ground-plane", is_flag=True,
               help="Add an infinite solid ground plane at the scene's lowest point along --up-axis.")
-@click.option("--up-axis", default="y", show_default=True, type=click.Choice(AXES))
+@click.option("--up-axis", default="y", show_default=True, type=click.Choice(AXES),
+              help="Up axis for --ground-plane.")
 @click.option("--backfaces", default="occlude", show_default=True, type=click.Choice(BACKFACES),
               help="ignore: rays pass through back faces (costs closest-hit queries).")
 @click.option("--ray-offset", default=1e-5, show_default=True, type=click.FloatRange(0, 0.1, min_open=True, max_open=True),

@@ -42,6 +42,25 @@ def mean_and_stderr(f: np.ndarray, iid: bool, max_weight: float):
     return mean, np.sqrt(var / groups)
 
 
+def _binary_mean_and_stderr(escaped: np.ndarray, iid: bool, max_weight: float):
+    """mean_and_stderr for 0/1 contributions (k, R, m) bool, from exact counts."""
+    k, groups, m = escaped.shape
+    n = groups * m
+    counts = np.count_nonzero(escaped, axis=2).astype(np.float64)  # (k, R)
+    if iid:
+        # i.i.d. 0/1 samples: sample variance = n/(n-1) p (1 - p).
+        mean = counts.sum(axis=1) / n
+        if n < 2:
+            return mean, np.full(k, max_weight / (2.0 * np.sqrt(n)))
+        return mean, np.sqrt(mean * (1.0 - mean) / (n - 1))
+    group_means = counts / m
+    mean = group_means.sum(axis=1) / groups
+    if groups < 2:
+        return mean, np.full(k, max_weight / (2.0 * np.sqrt(n)))
+    var = np.square(group_means - mean[:, None]).sum(axis=1) / (groups - 1)
+    return mean, np.sqrt(var / groups)
+
+
 def rho(distance: np.ndarray, tau: float) -> np.ndarray:
     """Zhukov obscurance rho(L) = 1 - exp(-tau L) in [0, 1]; 1 for a miss (L = inf).
 
@@ -68,10 +87,11 @@ def estimate(quantities, directions, weight, occluded, distance, samples, tau, m
     out = {}
     escaped = ~occluded
     if "ao" in quantities:
-        f = escaped.astype(np.float32)
-        if weight is not None:
-            f *= weight
-        out["ao"], out["ao_stderr"] = mean_and_stderr(f, samples.iid, max_weight)
+        if weight is None:
+            # Contributions are 0/1: escape counts are exact and cheaper than float sums.
+            out["ao"], out["ao_stderr"] = _binary_mean_and_stderr(escaped, samples.iid, max_weight)
+        else:
+            out["ao"], out["ao_stderr"] = mean_and_stderr(escaped * weight, samples.iid, max_weight)
     if "obscurance" in quantities:
         f = rho(distance, tau)
         if weight is not None:

@@ -1,12 +1,14 @@
 """Sample values u in [0,1)^2 as pure functions of (seed, point id, sample id).
 
 Every sampler here is a *randomised* point set with Cranley-Patterson rotation:
-a base set ``b_j`` (j = 0..m-1) shared by all points, shifted per point and per
-replicate by a uniform random vector ``s`` (a hash of seed and point id):
-``u = frac(b_j + s)``.  Each u is then exactly uniform on [0,1)^2, so every
-estimate is unbiased whatever the base set, and the shift in the second
-coordinate is an azimuthal rotation, which ``warp`` applies to a whole frame
-instead of to every ray (that is what keeps ray generation cheap).
+a base set ``b_j`` (j = 0..m-1) shared by all points, shifted by a uniform random
+vector: ``u = frac(b_j + (e_g, s_pg))``.  The first (elevation) shift ``e_g`` is
+drawn per replicate g and shared by all points; the second (azimuth) shift
+``s_pg`` per point and replicate (hashes of seed, replicate and point id).  Each
+u is then exactly uniform on [0,1)^2, so every estimate is unbiased whatever
+the base set; replicates are independent; and the azimuth shift is a rotation
+of the point's frame, so ``rays`` warps the base set once and only rotates it
+per point (that is what keeps ray generation cheap).
 
 How the standard error is estimated depends on the sampler (``iid`` flag):
 
@@ -33,6 +35,7 @@ REPLICATES = 8
 # Hash streams: distinct constants so base points and shifts never share numbers.
 _STREAM_BASE = 0x5EED_0001
 _STREAM_SHIFT = 0x5EED_0002
+_STREAM_ELEVATION = 0x5EED_0003
 _TWO_POW_M53 = 2.0**-53
 
 
@@ -140,6 +143,16 @@ def sample_set(name: str, n_rays: int, seed: int) -> SampleSet:
     if n_rays < 1:
         raise ValueError(f"rays must be >= 1, got {n_rays}")
     return SAMPLERS[name](n_rays, seed)
+
+
+def elevation_shifts(seed: int, groups: int) -> np.ndarray:
+    """(groups,) float64 shift of the first coordinate per replicate, shared by all points.
+
+    Sharing it across points lets the elevation warp run once per bake (see
+    ``rays``); each point's samples stay exactly uniform because its azimuth
+    shift is independent.
+    """
+    return hash_uniform(seed, _STREAM_ELEVATION, np.arange(groups), 0)
 
 
 def shifts(seed: int, point_ids: np.ndarray, groups: int) -> np.ndarray:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import logging
 import os
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -62,13 +63,18 @@ class Scene:
     normals_source: str = "angle"
     warnings: list = field(default_factory=list)
 
-    @property
+    @cached_property
+    def used(self) -> np.ndarray:
+        """(u,) int64 sorted indices of the vertices that faces reference."""
+        return np.unique(self.faces)
+
+    @cached_property
     def bounds(self) -> np.ndarray:
         """(2, 3) float64 min and max corner over vertices used by faces."""
-        used = self.vertices[np.unique(self.faces)]
+        used = self.vertices[self.used]
         return np.stack([used.min(axis=0), used.max(axis=0)])
 
-    @property
+    @cached_property
     def diagonal(self) -> float:
         """Length of the bounding-box diagonal: the scene's scale for relative settings."""
         lo, hi = self.bounds
@@ -83,7 +89,7 @@ class Scene:
             "vertices": int(len(self.vertices)),
             "triangles": int(len(self.faces)),
             "degenerate_triangles": int(np.count_nonzero(areas <= 0)),
-            "unreferenced_vertices": int(len(self.vertices) - len(np.unique(self.faces))),
+            "unreferenced_vertices": int(len(self.vertices) - len(self.used)),
             "surface_area": float(areas.sum()),
             "bounds_min": lo.tolist(),
             "bounds_max": hi.tolist(),

@@ -77,9 +77,10 @@ def test_floor_under_ceiling_texel_by_texel(ceiling_obj, sampler):
         bad = np.abs(values - exact) > k * errors
         assert not bad.any(), (values[bad][:5], errors[bad][:5])
     else:
-        # Mean over texels (see test_analytic: QMC replicate stderr per point can be 0).
+        # Mean over texels (see test_analytic: QMC replicate stderr per point can be 0;
+        # points share elevation shifts, so sd(mean) <= mean(sd) is the bound).
         k = z_bound(1, dof_for(sampler, rays_per_sample))
-        assert abs(values.mean() - exact) <= k * math.sqrt(np.sum(errors**2)) / values.size
+        assert abs(values.mean() - exact) <= k * errors.mean()
     assert res.report["texture"]["texels_shared"] == 0
     assert res.report["texture"]["atlas"] == "mesh UVs"
 
@@ -118,8 +119,9 @@ def test_vertex_and_texel_bakes_agree(tmp_path):
     assert np.all(se > 0)
     k = z_bound(len(diff), None)
     assert np.all(np.abs(diff) <= k * se), np.abs(diff / se).max()
-    # No systematic offset: the mean difference within its stderr.
-    assert abs(diff.mean()) <= z_bound(1, None) * math.sqrt(np.sum(se**2)) / len(diff)
+    # No systematic offset: the mean difference within its stderr (bounded by the
+    # mean stderr, since points share elevation shifts and their errors correlate).
+    assert abs(diff.mean()) <= z_bound(1, None) * se.mean()
 
 
 def _bilinear(img, uv):

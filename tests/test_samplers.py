@@ -69,9 +69,13 @@ def test_warp_chi_square_against_pdf(weighting):
     rng = np.random.default_rng(0)
     normal = rng.normal(size=3)
     normal /= np.linalg.norm(normal)
-    gen = RayGenerator(sample_set("random", 256, 3), weighting, seed=3)
-    rays = gen.rays(np.zeros((200, 3)), np.tile(normal, (200, 1)), np.arange(200))
-    d = rays.directions.reshape(-1, 3).astype(np.float64)
+    # One point per seed: the elevation part is shared by the points of one bake,
+    # so independent samples of it need independent seeds.
+    d = []
+    for seed in range(200):
+        gen = RayGenerator(sample_set("random", 256, seed), weighting, seed=seed)
+        d.append(gen.rays(np.zeros((1, 3)), normal[None], np.array([seed])).directions.reshape(-1, 3))
+    d = np.concatenate(d).astype(np.float64)
     t, b = frames(normal[None])
     z = d @ normal
     phi = np.arctan2(d @ b[0], d @ t[0])

@@ -694,10 +694,13 @@ def rasterize(
         # edge, where the largest value of a linear E over the square is
         # E(centre) + (|dx| + |dy|) / 2.  Closed overlap: a sub-position can
         # land; open overlap (positive area in common): fallback candidate.
-        reach = e_centre + 0.5 * (np.abs(pe.dx) + np.abs(pe.dy))
-        touch = np.all(reach >= 0, axis=1)
+        half = 0.5 * (np.abs(pe.dx) + np.abs(pe.dy))
+        # The closed test is only a pre-filter, so it gets a relative margin
+        # for rounding: dropping a pair whose sub-position does land would lose
+        # a sample, keeping an extra pair costs nothing.
+        touch = np.all(e_centre + half * (1.0 + 1e-9) >= 0, axis=1)
         vm = vmax[t]
-        open_overlap = np.all(reach > 0, axis=1) & (vm[:, 0] > col) & (vm[:, 1] > row)
+        open_overlap = np.all(e_centre + half > 0, axis=1) & (vm[:, 0] > col) & (vm[:, 1] > row)
         centre_in = pe.inside(e_centre)
         centre_texels.append((row * width + col)[centre_in])
 
