@@ -473,8 +473,10 @@ def _make_atlas(scene: Scene, unwrap: str, width: int, height: int, padding: int
     if scene.faces_uv is not None and unwrap == "auto":
         warnings.append(f"{scene.source}: the mesh's UVs cannot be baked ({check.message}); "
                         "made a new atlas with xatlas")
-    side = max(width, height)
-    unwrapped = xatlas_unwrap(scene.vertices, scene.faces, side, padding)
+    if width != height:
+        raise ValueError(f"a new atlas needs a square resolution (xatlas packs squares), got "
+                         f"{width}x{height}; use the mesh's own UVs (--no-unwrap) or N")
+    unwrapped = xatlas_unwrap(scene.vertices, scene.faces, width, padding)
     if not np.array_equal(unwrapped.vmapping[unwrapped.faces], scene.faces):
         raise RuntimeError("xatlas changed the face order")  # the texel->face mapping relies on it
     if scene.faces_uv is not None:

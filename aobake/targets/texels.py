@@ -293,7 +293,8 @@ def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False):
         atlas = pack_at(scale)
         repacks += 1
     if atlas is None:
-        raise InputError(f"xatlas could not pack the charts into one {resolution}x{resolution} atlas")
+        raise InputError(f"xatlas could not pack the charts into one {resolution}x{resolution} "
+                         f"atlas with {padding} texels of padding: raise --resolution or lower --padding")
     for _ in range(8):
         bigger = pack_at(scale * 1.03)
         repacks += 1
@@ -360,7 +361,8 @@ def _unwrap_isolated(positions, faces, resolution, padding) -> tuple[Unwrapped, 
             )
         if proc.returncode != 0:
             last = proc.stderr.strip().splitlines()[-1:] or [f"exit status {proc.returncode}"]
-            raise InputError(f"unwrapping a mesh of {len(faces)} triangles failed: {last[0]}")
+            message = last[0].split("InputError: ", 1)[-1]  # the child's own message, not its type
+            raise InputError(f"unwrapping a mesh of {len(faces)} triangles failed: {message}")
         with np.load(dst) as data:
             info = {"charts": int(data["charts"]), "utilization": float(data["utilization"])}
             return Unwrapped(data["vmapping"], data["faces"], data["uv"]), info
