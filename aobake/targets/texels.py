@@ -819,25 +819,30 @@ def surface_points(positions, normals, faces, samples: TexelSamples):
     faces = np.asarray(faces, dtype=np.int64)
     if positions.ndim != 2 or positions.shape[1] != 3:
         raise ValueError(f"positions must be (n, 3), got {positions.shape}")
-    corners = faces[samples.face]  # (s, 3)
-    b = samples.bary[:, :, None]
-    tri = positions[corners]  # (s, 3, 3)
-    points = np.sum(tri * b, axis=1)
-
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    # Face normals once per face (not per sample): np.cross on millions of rows is slow.
+    ftri = positions[faces]
+    fn = np.cross(ftri[:, 1] - ftri[:, 0], ftri[:, 2] - ftri[:, 0])
     fn_len = np.linalg.norm(fn, axis=1, keepdims=True)
-    face_normals = np.divide(fn, fn_len, out=np.zeros_like(fn), where=fn_len > 0)
+    unit = np.divide(fn, fn_len, out=np.zeros_like(fn), where=fn_len > 0)
+    face_normals = unit[samples.face]
+    has_face = fn_len[samples.face, 0] > 0
+    corners = faces[samples.face]  # (s, 3)
+    bary = samples.bary
 
+    def interpolate(values):
+        return (bary[:, 0, None] * values[corners[:, 0]] + bary[:, 1, None] * values[corners[:, 1]]
+                + bary[:, 2, None] * values[corners[:, 2]])
+
+    points = interpolate(positions)
     if normals is None:
         return points, face_normals.copy(), face_normals
     normals = np.asarray(normals, dtype=np.float64)
     if normals.shape != positions.shape:
         raise ValueError(f"normals must be {positions.shape}, got {normals.shape}")
-    n = np.sum(normals[corners] * b, axis=1)
+    n = interpolate(normals)
     n_len = np.linalg.norm(n, axis=1, keepdims=True)
     n = np.divide(n, n_len, out=np.zeros_like(n), where=n_len > 0)
-    has_face = fn_len[:, 0] > 0
-    bad = has_face & ((n_len[:, 0] == 0) | (np.sum(n * face_normals, axis=1) <= 0))
+    bad = has_face & ((n_len[:, 0] == 0) | (np.einsum("ij,ij->i", n, face_normals) <= 0))
     n[bad] = face_normals[bad]
     if bad.any():
         log.debug("%d samples use the face normal (vertex normal zero or flipped)", int(bad.sum()))
