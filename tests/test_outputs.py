@@ -597,3 +597,18 @@ def test_to_jsonable_scalars():
     assert to_jsonable(float("nan")) == "nan"
     assert to_jsonable(np.array(-np.inf)) == "-inf"
     assert to_jsonable({True: 1, None: 2, 1.5: 3}) == {"true": 1, "null": 2, "1.5": 3}
+
+
+def test_outputs_get_ordinary_file_permissions(tmp_path):
+    import os
+
+    from aobake.outputs.atomic import atomic_path
+
+    umask = os.umask(0o022)
+    try:
+        target = tmp_path / "x.bin"
+        with atomic_path(target) as tmp:
+            tmp.write_bytes(b"data")
+        assert (target.stat().st_mode & 0o777) == 0o644
+    finally:
+        os.umask(umask)
