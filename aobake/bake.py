@@ -373,7 +373,8 @@ class Atlas:
     uv : (m, 2) float64 atlas UVs (OBJ convention), base_uv : (m, 2) float64 |
     None the mesh's own UVs when a new atlas was made for a mesh that had them,
     source_vertex : (m,) int64 index of each vertex in the input scene,
-    new : bool True when the atlas was made by xatlas (the mesh must be written out).
+    new : bool True when the atlas was made by xatlas (the mesh must be written out),
+    material : dict | None the input's base colour (see Scene.material), kept in GLBs.
     """
 
     positions: np.ndarray
@@ -383,6 +384,7 @@ class Atlas:
     base_uv: np.ndarray | None
     source_vertex: np.ndarray
     new: bool
+    material: dict | None = None
 
 
 @dataclass
@@ -468,7 +470,7 @@ def _make_atlas(scene: Scene, unwrap: str, width: int, height: int, padding: int
     if use_own:
         keys, faces = _split_corners(scene.faces, scene.faces_uv)
         atlas = Atlas(scene.vertices[keys[:, 0]], scene.vertex_normals[keys[:, 0]], faces,
-                      scene.uv[keys[:, 1]], None, keys[:, 0], new=False)
+                      scene.uv[keys[:, 1]], None, keys[:, 0], new=False, material=scene.material)
         return atlas, scene.uv, scene.faces_uv, check
     if scene.faces_uv is not None and unwrap == "auto":
         warnings.append(f"{scene.source}: the mesh's UVs cannot be baked ({check.message}); "
@@ -487,7 +489,8 @@ def _make_atlas(scene: Scene, unwrap: str, width: int, height: int, padding: int
         base_uv = None
     source = unwrapped.vmapping[keys[:, 0]]
     atlas = Atlas(scene.vertices[source], scene.vertex_normals[source], faces,
-                  unwrapped.uv[keys[:, 0]], base_uv, source, new=True)
+                  unwrapped.uv[keys[:, 0]], base_uv, source, new=True,
+                  material=scene.material if base_uv is not None else None)
     return atlas, unwrapped.uv, unwrapped.faces, check
 
 

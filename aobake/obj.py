@@ -9,9 +9,9 @@ so OBJ is read here and every index is checked.
 Supported: ``v`` (extra w or colour columns ignored), ``vt``, ``vn``, ``f`` with
 ``v``, ``v/vt``, ``v//vn``, ``v/vt/vn`` corners, negative (relative) indices,
 quads and n-gons (fan-triangulated from the first corner, as most tools do),
-``o``/``g`` groups (recorded), line continuations.  Ignored with a count in the
-warnings: ``l``/``p`` elements.  Ignored silently: ``s``, ``usemtl``,
-``mtllib``, comments.
+``o``/``g`` groups (recorded), ``mtllib``/``usemtl`` (recorded, so a lightmap
+GLB can keep the base colour), line continuations.  Ignored with a count in the
+warnings: ``l``/``p`` elements.  Ignored silently: ``s``, comments.
 """
 
 from __future__ import annotations
@@ -47,6 +47,8 @@ class ObjData:
     groups: list = field(default_factory=list)
     polygons: int = 0
     warnings: list = field(default_factory=list)
+    mtllibs: list = field(default_factory=list)
+    materials: list = field(default_factory=list)
 
 
 def _logical_lines(text: str):
@@ -101,6 +103,7 @@ def read_obj(path: str | os.PathLike) -> ObjData:
     verts, uvs, norms = [], [], []
     tri_v, tri_t, tri_n = [], [], []
     groups, skipped, polygons = [], 0, 0
+    mtllibs, materials = [], []
     all_have_t = True
     for number, line in _logical_lines(text):
         parts = line.split()
@@ -139,6 +142,12 @@ def read_obj(path: str | os.PathLike) -> ObjData:
                 groups.append((name, len(tri_v)))
             elif key in ("l", "p"):
                 skipped += 1
+            elif key == "mtllib":
+                mtllibs.append(line.split(None, 1)[1].strip())
+            elif key == "usemtl":
+                name = line.split(None, 1)[1].strip()
+                if name not in materials:
+                    materials.append(name)
         except InputError:
             raise
         except (IndexError, ValueError):
@@ -166,4 +175,6 @@ def read_obj(path: str | os.PathLike) -> ObjData:
         groups=spans,
         polygons=polygons,
         warnings=warnings,
+        mtllibs=mtllibs,
+        materials=materials,
     )

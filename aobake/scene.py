@@ -62,6 +62,9 @@ class Scene:
     source: str = "<memory>"
     normals_source: str = "angle"
     warnings: list = field(default_factory=list)
+    #: the base colour of a single-material mesh, kept for lightmap GLBs:
+    #: {"base_color_png": bytes | None, "base_color_factor": [r, g, b, a] | None}, or None
+    material: dict | None = None
 
     @cached_property
     def used(self) -> np.ndarray:
@@ -150,6 +153,7 @@ def make_scene(
     faces_uv=None,
     source: str = "<memory>",
     warnings=None,
+    material: dict | None = None,
 ) -> Scene:
     """Validate arrays and build a :class:`Scene`.
 
@@ -205,7 +209,7 @@ def make_scene(
     for message in warnings:
         log.warning(message)
     return Scene(vertices, faces, vnormals, fnormals, uv, faces_uv if uv is not None else None,
-                 source, mode, warnings)
+                 source, mode, warnings, material)
 
 
 def _obj_normals(data) -> np.ndarray | None:
@@ -223,8 +227,65 @@ def _obj_normals(data) -> np.ndarray | None:
     return accum
 
 
+def _png_bytes(image) -> bytes:
+    """Any PIL image -> PNG file bytes (glTF embeds PNG or JPEG; the GLB writer takes PNG)."""
+    import io
+
+    buffer = io.BytesIO()
+    image.save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def _obj_material(path: Path, data) -> dict | None:
+    """Base colour (Kd, map_Kd) of an OBJ that uses exactly one material from its .mtl."""
+    if len(data.materials) != 1 or not data.mtllibs:
+        return None
+    mtl = path.parent / data.mtllibs[0]
+    if not mtl.is_file():
+        return None
+    current, found = None, {}
+    for line in mtl.read_text(errors="replace").splitlines():
+        parts = line.split("#", 1)[0].split()
+        if not parts:
+            continue
+        if parts[0] == "newmtl":
+            current = " ".join(parts[1:])
+        elif current == data.materials[0] and parts[0] in ("Kd", "map_Kd") and len(parts) > 1:
+            found[parts[0]] = parts[1:]
+    if not found:
+        return None
+    material = {"base_color_png": None, "base_color_factor": None}
+    try:
+        if "Kd" in found:
+            material["base_color_factor"] = [float(x) for x in found["Kd"][:3]] + [1.0]
+        if "map_Kd" in found:
+            from PIL import Image
+
+            with Image.open(path.parent / found["map_Kd"][-1]) as image:
+                material["base_color_png"] = _png_bytes(image)
+    except (OSError, ValueError) as exc:
+        log.warning("%s: base colour of material %r not kept (%s)", path, data.materials[0], exc)
+    return material
+
+
+def _trimesh_material(meshes) -> dict | None:
+    """Base colour of glTF/PLY meshes that share one PBR material (None otherwise)."""
+    materials = {id(getattr(m.visual, "material", None)) for m in meshes}
+    material = getattr(meshes[0].visual, "material", None)
+    if len(materials) != 1 or material is None:
+        return None
+    texture = getattr(material, "baseColorTexture", None)
+    factor = getattr(material, "baseColorFactor", None)
+    out = {"base_color_png": _png_bytes(texture) if texture is not None else None,
+           "base_color_factor": None}
+    if factor is not None:
+        factor = np.asarray(factor, dtype=np.float64)
+        out["base_color_factor"] = (factor / 255.0 if factor.max() > 1 else factor).tolist()
+    return out if (out["base_color_png"] or out["base_color_factor"]) else None
+
+
 def _load_with_trimesh(path: Path):
-    """(vertices, faces, normals | None, uv | None) for non-OBJ formats via trimesh."""
+    """(vertices, faces, normals | None, uv | None, material | None) for non-OBJ formats via trimesh."""
     import trimesh
 
     try:
@@ -262,7 +323,7 @@ def _load_with_trimesh(path: Path):
         faces = inverse.reshape(-1)[faces]
         normals = []
     return (vertices, faces, np.concatenate(normals) if normals else None,
-            np.concatenate(uvs) if uvs else None)
+            np.concatenate(uvs) if uvs else None, _trimesh_material(meshes) if uvs else None)
 
 
 def load_scene(source, normals_mode: str = "file") -> Scene:
@@ -300,6 +361,8 @@ def load_scene(source, normals_mode: str = "file") -> Scene:
         data = read_obj(path)
         return make_scene(data.vertices, data.faces, _obj_normals(data), normals_mode,
                           uv=data.uv if data.faces_uv is not None else None,
-                          faces_uv=data.faces_uv, source=str(path), warnings=data.warnings)
-    vertices, faces, normals, uv = _load_with_trimesh(path)
-    return make_scene(vertices, faces, normals, normals_mode, uv=uv, source=str(path))
+                          faces_uv=data.faces_uv, source=str(path), warnings=data.warnings,
+                          material=_obj_material(path, data) if data.faces_uv is not None else None)
+    vertices, faces, normals, uv, material = _load_with_trimesh(path)
+    return make_scene(vertices, faces, normals, normals_mode, uv=uv, source=str(path),
+                      material=material)

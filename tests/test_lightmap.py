@@ -316,3 +316,37 @@ def test_output_on_read_only_filesystem(tmp_path):
     res = run(src, "--out", "/proc/aobake-test.exr", "--resolution", 8, "--rays", 4)
     assert res.exit_code == 1, res.output
     assert "Traceback" not in res.output and len(res.output.strip().splitlines()) == 1
+
+
+def test_glb_keeps_base_colour_and_uvs_with_new_atlas(tmp_path):
+    from PIL import Image
+
+    Image.new("RGB", (4, 4), (200, 30, 30)).save(tmp_path / "albedo.png")
+    (tmp_path / "m.mtl").write_text("newmtl red\nKd 0.8 0.1 0.1\nmap_Kd albedo.png\n")
+    v, f, uv = uv_quad([0, 0, 0], 1.0)
+    # Two quads sharing the same UV square: overlapping UVs force a new atlas.
+    v2 = np.vstack([v, v + [0, 0, 0.5]])
+    f2 = np.vstack([f, f + 4])
+    uv2 = np.vstack([uv, uv])
+    body = obj_text([(v2, f2, uv2)])
+    (tmp_path / "m.obj").write_text("mtllib m.mtl\nusemtl red\n" + body)
+    out = tmp_path / "ao.glb"
+    rep = tmp_path / "r.json"
+    res = run(tmp_path / "m.obj", "--out", out, "--target", "texels", "--resolution", 64,
+              "--padding", 2, "--rays", 8, "--report", rep)
+    assert res.exit_code == 0, res.output
+    report = json.loads(rep.read_text())
+    assert report["texture"]["uv_check"]["overlapping_texels"] > 0  # the overlap is reported
+    assert any("cannot be baked" in w for w in report["warnings"])
+    gltf, blob = read_glb(out)
+    material = gltf["materials"][0]
+    assert material["occlusionTexture"]["texCoord"] == 1
+    pbr = material["pbrMetallicRoughness"]
+    assert pbr["baseColorTexture"]["texCoord"] == 0
+    np.testing.assert_allclose(pbr["baseColorFactor"], [0.8, 0.1, 0.1, 1.0])
+    prim = gltf["meshes"][0]["primitives"][0]
+    base = read_accessor(gltf, blob, prim["attributes"]["TEXCOORD_0"])
+    # The input's own UVs, flipped to glTF's top-left origin: exactly the corners of [0,1]^2.
+    assert set(np.round(base.ravel(), 6)) == {0.0, 1.0}
+    atlas = read_accessor(gltf, blob, prim["attributes"]["TEXCOORD_1"])
+    assert atlas.min() >= 0 and atlas.max() <= 1 and len(np.unique(atlas, axis=0)) > 4

@@ -44,7 +44,7 @@ def write_obj(path, positions, faces, uv, normals=None, header: str = "") -> Non
 
 def write_texture(path, result, metadata: dict, *, half=False, bit_depth=8, r_only=False) -> None:
     """Write ``result`` (a TexelResult) to ``path`` chosen by extension."""
-    from aobake.outputs import glb, image
+    from aobake.outputs import image
 
     suffix = Path(path).suffix.lower()
     if suffix == ".exr":
@@ -54,13 +54,7 @@ def write_texture(path, result, metadata: dict, *, half=False, bit_depth=8, r_on
         image.write_ldr(path, value, result.channels["coverage"], bit_depth=bit_depth,
                         r_only=r_only, metadata=dict(metadata, map=name))
     elif suffix == ".glb":
-        value, _ = _map(result)
-        # glTF reads occlusion from R; the gutters are already dilated, so alpha
-        # (coverage) is not needed by viewers and is left opaque.
-        png = image.png_bytes(value, np.ones_like(value), bit_depth=8, r_only=True)
-        atlas = result.atlas
-        glb.write_textured(path, atlas.positions, atlas.faces, atlas.normals, atlas.uv, png,
-                           metadata, base_uv=atlas.base_uv)
+        _write_glb(path, result, _map(result)[0], metadata)
     else:
         raise OutputError(f"{path}: unsupported lightmap format {suffix!r}; "
                           f"use one of {', '.join(TEXTURE_OUTPUTS)}")
@@ -73,17 +67,35 @@ def default_mesh_out(out: Path) -> Path:
 
 def write_atlas_mesh(path, result, metadata: dict) -> None:
     """Write the atlas mesh (OBJ with the atlas UVs, or GLB with the occlusion texture)."""
-    from aobake.outputs import glb, image
-
     atlas = result.atlas
     suffix = Path(path).suffix.lower()
     if suffix == ".obj":
         write_obj(path, atlas.positions, atlas.faces, atlas.uv, atlas.normals,
                   header="aobake lightmap atlas: vt are the lightmap UVs (OBJ convention)")
     elif suffix == ".glb":
-        value, _ = _map(result)
-        png = image.png_bytes(value, np.ones_like(value), bit_depth=8, r_only=True)
-        glb.write_textured(path, atlas.positions, atlas.faces, atlas.normals, atlas.uv, png,
-                           metadata, base_uv=atlas.base_uv)
+        _write_glb(path, result, _map(result)[0], metadata)
     else:
         raise OutputError(f"{path}: unsupported mesh format for --mesh-out; use .obj or .glb")
+
+
+def _write_glb(path, result, value, metadata: dict) -> None:
+    """The atlas mesh with the AO map as occlusionTexture, keeping the input's base colour.
+
+    With the mesh's own UVs the base colour and the AO share them (TEXCOORD_0 and an
+    identical TEXCOORD_1); with a new atlas the input UVs stay in TEXCOORD_0 and the
+    atlas goes to TEXCOORD_1.
+    """
+    from aobake.outputs import glb, image
+
+    atlas = result.atlas
+    material = atlas.material or {}
+    base_png, factor = material.get("base_color_png"), material.get("base_color_factor")
+    base_uv = atlas.base_uv
+    if base_uv is None and base_png is not None:
+        base_uv = atlas.uv  # own UVs: the base colour texture uses the same coordinates
+    # glTF reads occlusion from R; the gutters are already dilated, so alpha
+    # (coverage) is not needed by viewers and is left opaque.
+    png = image.png_bytes(value, np.ones_like(value), bit_depth=8, r_only=True)
+    glb.write_textured(path, atlas.positions, atlas.faces, atlas.normals, atlas.uv, png,
+                       metadata, base_uv=base_uv, base_color_png=base_png,
+                       base_color_factor=factor)
