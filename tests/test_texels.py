@@ -247,7 +247,7 @@ def chart_labels(n_vertices, faces):
 def test_unwrap_icosphere():
     mesh = trimesh.creation.icosphere(subdivisions=3)
     res, pad = 128, 2
-    un = unwrap(mesh.vertices, mesh.faces, res, pad, isolate=False)
+    un = unwrap(mesh.vertices, mesh.faces, res, pad)
     assert un.vmapping.dtype == np.int64 and un.faces.dtype == np.int64 and un.uv.dtype == np.float64
     assert un.uv.min() >= 0 and un.uv.max() <= 1
     chk = check_uvs(un.uv, un.faces, res, res)
@@ -270,8 +270,10 @@ def test_unwrap_v_orientation_matches_xatlas_chart_image():
     # xatlas's v runs down its chart image (row 0 first); unwrap flips it to
     # OBJ's v-up so that our row r is xatlas's row r.
     mesh = trimesh.creation.icosphere(subdivisions=2)
-    vm, f, uv_x, image, _ = texels._xatlas_atlas(mesh.vertices, mesh.faces, 64, 1, chart_image=True)
-    un = unwrap(mesh.vertices, mesh.faces, 64, 1, isolate=False)
+    # xatlas runs in child processes only (see texels._unwrap_isolated: its thread
+    # pool can deadlock; a child can be timed out, this test process cannot).
+    f, uv_x, image = _xatlas_chart_image_in_child(mesh.vertices, mesh.faces, 64, 1)
+    un = unwrap(mesh.vertices, mesh.faces, 64, 1)
     np.testing.assert_allclose(un.uv[:, 1], 1.0 - uv_x[:, 1])
     charts = image.sum(axis=-1) > 0
     ours = rasterize(un.uv, un.faces, 64, 64).coverage > 0
@@ -280,12 +282,46 @@ def test_unwrap_v_orientation_matches_xatlas_chart_image():
     assert not np.all(charts[unflipped])
 
 
-def test_unwrap_isolated_matches_in_process():
+def _xatlas_chart_image_in_child(positions, faces, resolution, padding):
+    """texels._xatlas_atlas(..., chart_image=True) in a child process with a time limit."""
+    import subprocess
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    code = ("import sys, numpy as np; from aobake.targets import texels; d = np.load(sys.argv[1]);"
+            "vm, f, uv, img, _ = texels._xatlas_atlas(d['p'], d['f'], int(d['r']), int(d['pad']),"
+            " chart_image=True); np.savez(sys.argv[2], f=f, uv=uv, img=img)")
+    root = Path(__file__).resolve().parents[1]
+    with tempfile.TemporaryDirectory() as tmp:
+        src, dst = Path(tmp, "in.npz"), Path(tmp, "out.npz")
+        np.savez(src, p=positions, f=faces, r=resolution, pad=padding)
+        for _ in range(2):
+            try:
+                subprocess.run([sys.executable, "-c", code, str(src), str(dst)], cwd=root,
+                               check=True, timeout=120)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+        with np.load(dst) as data:
+            return data["f"], data["uv"], data["img"]
+
+
+def test_unwrap_is_deterministic():
     mesh = trimesh.creation.icosphere(subdivisions=2)
     a = unwrap(mesh.vertices, mesh.faces, 64, 1)
-    b = unwrap(mesh.vertices, mesh.faces, 64, 1, isolate=False)
+    b = unwrap(mesh.vertices, mesh.faces, 64, 1)
     for x, y in zip(a, b):
         np.testing.assert_array_equal(x, y)
+
+
+def test_unwrap_timeout_retries_then_fails(monkeypatch):
+    monkeypatch.setattr(texels, "_WORKER_CODE", "import time; time.sleep(30)")
+    monkeypatch.setattr(texels, "XATLAS_TIMEOUT_BASE_S", 0.5)
+    monkeypatch.setattr(texels, "XATLAS_TIMEOUT_PER_FACE_S", 0.0)
+    mesh = trimesh.creation.box()
+    with pytest.raises(InputError, match="did not finish"):
+        unwrap(mesh.vertices, mesh.faces, 64, 1)
 
 
 def test_unwrap_crash_becomes_input_error(monkeypatch):
@@ -405,7 +441,7 @@ def test_tangent_space_round_trip_is_orthonormal():
 
 def test_tangents_on_unwrapped_sphere_are_perpendicular_and_unit():
     mesh = trimesh.creation.icosphere(subdivisions=2)
-    un = unwrap(mesh.vertices, mesh.faces, 64, 1, isolate=False)
+    un = unwrap(mesh.vertices, mesh.faces, 64, 1)
     pos = mesh.vertices[un.vmapping]
     nrm = mesh.vertex_normals[un.vmapping]
     t = tangents.vertex_tangents(pos, nrm, un.uv, un.faces)

@@ -328,6 +328,11 @@ def _unwrap_worker(argv: list[str]) -> None:
              charts=info["charts"], utilization=info["utilization"])
 
 
+#: time limit of one xatlas child process: base + per triangle (the bunny's 69k
+#: triangles took 53 s on 2 cores; the limit is ~5x that).
+XATLAS_TIMEOUT_BASE_S = 120.0
+XATLAS_TIMEOUT_PER_FACE_S = 2e-3
+
 # The child imports this module and runs the worker; kept as data so tests can
 # swap in a crashing stand-in.
 _WORKER_CODE = "import sys; from aobake.targets.texels import _unwrap_worker; _unwrap_worker(sys.argv[1:])"
@@ -343,12 +348,22 @@ def _unwrap_isolated(positions, faces, resolution, padding) -> tuple[Unwrapped, 
     with tempfile.TemporaryDirectory(prefix="aobake-xatlas-") as tmp:
         src, dst = Path(tmp, "in.npz"), Path(tmp, "out.npz")
         np.savez(src, positions=positions, faces=faces, resolution=resolution, padding=padding)
-        proc = subprocess.run(
-            [sys.executable, "-c", _WORKER_CODE, str(src), str(dst)],
-            env=env,
-            capture_output=True,
-            text=True,
-        )
+        # xatlas's own thread pool has been seen to deadlock now and then (all
+        # threads in futex waits, no CPU); a child that outlives a generous limit
+        # is killed and the unwrap tried once more before giving up.
+        limit = XATLAS_TIMEOUT_BASE_S + XATLAS_TIMEOUT_PER_FACE_S * len(faces)
+        for attempt in (1, 2):
+            try:
+                proc = subprocess.run(
+                    [sys.executable, "-c", _WORKER_CODE, str(src), str(dst)],
+                    env=env, capture_output=True, text=True, timeout=limit,
+                )
+                break
+            except subprocess.TimeoutExpired:
+                log.warning("xatlas did not finish in %.0f s (attempt %d of 2)", limit, attempt)
+        else:
+            raise InputError(f"xatlas did not finish unwrapping {len(faces)} triangles in "
+                             f"{limit:.0f} s, twice; provide your own UVs")
         if proc.returncode < 0:
             try:
                 how = f"crashed with {signal.Signals(-proc.returncode).name}"
