@@ -7,17 +7,18 @@ Python API::
     result.ao, result.ao_stderr, result.report
 
     values = aobake.bake_points("mesh.obj", points, normals, rays=1024)
+    lightmap = aobake.bake_texels("mesh.obj", resolution=1024)
 """
 
 import logging
 
-from aobake.bake import BakeResult, bake, bake_points
+from aobake.bake import BakeResult, TexelResult, bake, bake_points, bake_texels
 from aobake.config import BakeConfig
 from aobake.errors import AobakeError, InputError, OutputError
 from aobake.scene import Scene, load_scene
 
 __all__ = ["AobakeError", "BakeConfig", "BakeResult", "InputError", "OutputError", "Scene",
-           "bake", "bake_points", "load_scene"]
+           "TexelResult", "bake", "bake_points", "bake_texels", "load_scene"]
 __version__ = "0.1.0"
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())

@@ -350,3 +350,11 @@ def test_glb_keeps_base_colour_and_uvs_with_new_atlas(tmp_path):
     assert set(np.round(base.ravel(), 6)) == {0.0, 1.0}
     atlas = read_accessor(gltf, blob, prim["attributes"]["TEXCOORD_1"])
     assert atlas.min() >= 0 and atlas.max() <= 1 and len(np.unique(atlas, axis=0)) > 4
+
+
+def test_public_api_exports_the_lightmap_baker():
+    import aobake
+
+    res = aobake.bake_texels(trimesh.creation.box(), resolution=64, rays=8, padding=1)
+    assert isinstance(res, aobake.TexelResult)
+    assert res.channels["ao"].shape == (64, 64) and res.atlas.new
