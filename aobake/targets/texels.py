@@ -257,13 +257,16 @@ def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False):
     positions = np.ascontiguousarray(positions, dtype=np.float32)
     faces = np.ascontiguousarray(faces, dtype=np.uint32)
 
+    def options(**extra):
+        pack = xatlas.PackOptions()
+        pack.resolution, pack.padding, pack.bilinear = resolution, padding, True
+        for name, value in extra.items():
+            setattr(pack, name, value)
+        return pack
+
     first = xatlas.Atlas()
     first.add_mesh(positions, faces)
-    pack = xatlas.PackOptions()
-    pack.resolution = resolution
-    pack.padding = padding
-    pack.bilinear = True
-    first.generate(pack_options=pack)
+    first.generate(pack_options=options())
     vm_a, faces_a, uv_a = first[0]
     w_a, h_a = first.width, first.height
     uv_texels = (uv_a.astype(np.float64) * [w_a, h_a]).astype(np.float32)
@@ -272,13 +275,8 @@ def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False):
     def pack_at(texels_per_unit):
         atlas = xatlas.Atlas()
         atlas.add_uv_mesh(uv_texels, faces_a)
-        pack = xatlas.PackOptions()
-        pack.resolution = resolution
-        pack.padding = padding
-        pack.bilinear = True
-        pack.texels_per_unit = texels_per_unit
-        pack.create_image = chart_image
-        atlas.generate(pack_options=pack)
+        atlas.generate(pack_options=options(texels_per_unit=texels_per_unit,
+                                            create_image=chart_image))
         fits = atlas.atlas_count == 1 and atlas.width == resolution and atlas.height == resolution
         return atlas if fits else None
 
