@@ -303,7 +303,7 @@ def bake(
     for message in warnings:
         log.warning(message)
     return BakeResult(scene.vertices, scene.faces, scene.vertex_normals, rays,
-                      report=report, **_named(values))
+                      report=report, **values)
 
 
 def bake_points(
@@ -346,11 +346,7 @@ def bake_points(
     wall = time.perf_counter() - start
     report = _report("points", scene, tracer, config, len(points), rays, values, wall,
                      threads, chunk_rays, [])
-    return BakeResult(points, None, normals, rays, report=report, **_named(values))
-
-
-def _named(values: dict) -> dict:
-    return {name: array for name, array in values.items()}
+    return BakeResult(points, None, normals, rays, report=report, **values)
 
 
 # --------------------------------------------------------------------------- texels

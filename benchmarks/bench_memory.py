@@ -40,7 +40,7 @@ def main():
     res = aobake.bake(scene, rays=args.rays, threads=args.threads)
     wall = time.perf_counter() - start
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f"| triangles | vertices | rays | wall s | Mrays/s | peak RSS MiB (before bake) |")
+    print("| triangles | vertices | rays | wall s | Mrays/s | peak RSS MiB (before bake) |")
     print("|---|---|---|---|---|---|")
     print(f"| {len(scene.faces)} | {len(scene.vertices)} | {int(res.rays.sum())} | {wall:.1f} | "
           f"{res.rays.sum() / wall / 1e6:.2f} | {peak:.0f} ({before:.0f}) |")

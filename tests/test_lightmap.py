@@ -2,7 +2,6 @@
 round trips through the CLI, reproducibility and bad input."""
 
 import json
-import math
 
 import numpy as np
 import pytest
