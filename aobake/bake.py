@@ -20,6 +20,7 @@ import numpy as np
 from aobake.backends.embree import EmbreeOccluder, PlaneOccluder
 from aobake.config import AXES, BakeConfig
 from aobake.estimators import estimate, no_information
+from aobake.rays import KERNEL as RAY_KERNEL
 from aobake.rays import RayGenerator
 from aobake.samplers import sample_set
 from aobake.scene import Scene, load_scene
@@ -122,6 +123,7 @@ class Tracer:
             "stderr_method": "per-ray variance (iid)" if self.samples.iid
             else f"spread of {self.samples.groups} randomised replicates",
             "query": self.query,
+            "ray_kernel": RAY_KERNEL,
             "rebase_center": self.center.tolist(),
             "diagonal": self.diagonal,
         }
@@ -149,9 +151,7 @@ class Tracer:
         origins = points + self.offset * normals - self.center
         rays = self.generator.rays(origins, normals, ids)
         k, groups, m, _ = rays.directions.shape
-        flat_dirs = rays.directions.reshape(-1, 3)
-        flat_orgs = np.repeat(rays.origins, groups * m, axis=0)
-        occluded, distance = self._trace(flat_orgs, flat_dirs)
+        occluded, distance = self._trace(rays.origins, rays.directions.reshape(-1, 3))
         shape = (k, groups, m)
         return estimate(self.config.quantities, rays.directions, rays.weight,
                         occluded.reshape(shape),

@@ -13,6 +13,11 @@ frame (T, B, N) rotated about N by 2 pi s_pg, and its rays are one small
 matrix product ``D[g] @ frame[p, g]``: 9 multiply-adds per ray, no square root
 or trigonometry per ray.  Rays are laid out point-major (all rays of one point
 together) because Embree traces coherent rays about twice as fast as shuffled.
+
+The per-ray work (the 3x3 product and repeating each origin for its rays) runs
+in the compiled ``aobake._kernels`` when it was built, otherwise in numpy.  Both
+do the same IEEE operations in the same order and precision, so they give
+bit-identical rays; ``KERNEL`` says which one runs.
 """
 
 from __future__ import annotations
@@ -24,12 +29,20 @@ import numpy as np
 from aobake.samplers import SampleSet, elevation_shifts, shifts
 from aobake.warp import WEIGHTINGS, frames
 
+try:  # built by setup.py; optional (see there)
+    from aobake import _kernels
+except ImportError:  # pragma: no cover - exercised only where no C compiler was available
+    _kernels = None
+
+#: "compiled" or "numpy": which implementation builds the rays (recorded in reports).
+KERNEL = "numpy" if _kernels is None else "compiled"
+
 
 @dataclass(frozen=True)
 class Rays:
     """The rays of k points, point-major.
 
-    origins : (k, 3) float32   one origin per point (already offset and rebased)
+    origins : (k * R * m, 3) float32  the origin of every ray (its point's, offset and rebased)
     directions : (k, R, m, 3) float32  unit directions in scene axes (C-contiguous)
     weight : (R, m) float32 | None  cos(theta) / (pi pdf) per sample (same for every
              point); None means 1 for every ray
@@ -55,16 +68,35 @@ class RayGenerator:
         self.local = local.astype(np.float32)
         self.weight = None if weight is None else weight.astype(np.float32)
 
-    def rays(self, origins: np.ndarray, normals: np.ndarray, point_ids: np.ndarray) -> Rays:
-        """origins (k, 3) float64 (offset, rebased), normals (k, 3) float64 unit, point_ids (k,) int64."""
-        groups = self.samples.groups
+    def rays(self, origins: np.ndarray, normals: np.ndarray, point_ids: np.ndarray,
+             compiled: bool | None = None) -> Rays:
+        """origins (k, 3) float64 (offset, rebased), normals (k, 3) float64 unit, point_ids (k,) int64.
+
+        ``compiled`` picks the implementation (default: the compiled kernel when built).
+        """
+        groups, m = self.samples.groups, self.local.shape[1]
+        k = len(normals)
         azimuth = 2.0 * np.pi * shifts(self.seed, point_ids, groups)[..., 1]  # (k, R)
+        cs, ss = np.cos(azimuth), np.sin(azimuth)
         tangent, bitangent = frames(normals)
-        cs, ss = np.cos(azimuth)[..., None], np.sin(azimuth)[..., None]
-        frame = np.empty((len(normals), groups, 3, 3), dtype=np.float32)
-        # Rows of the per-(point, replicate) frame: T and B rotated about N, then N.
-        frame[:, :, 0] = cs * tangent[:, None, :] + ss * bitangent[:, None, :]
-        frame[:, :, 1] = cs * bitangent[:, None, :] - ss * tangent[:, None, :]
-        frame[:, :, 2] = normals[:, None, :]
-        directions = np.matmul(self.local[None], frame)  # (k, R, m, 3): d = x T' + y B' + z N
-        return Rays(origins.astype(np.float32), directions, self.weight)
+        origins32 = np.ascontiguousarray(origins, dtype=np.float32)
+        if compiled is None:
+            compiled = _kernels is not None
+        if compiled:
+            flat_origins = np.empty((k * groups * m, 3), dtype=np.float32)
+            directions = np.empty((k, groups, m, 3), dtype=np.float32)
+            _kernels.fill_rays(origins32, tangent, bitangent, np.ascontiguousarray(normals, dtype=np.float64),
+                               cs, ss, self.local, k, groups, m, flat_origins, directions)
+            return Rays(flat_origins, directions, self.weight)
+        # Reference formulation.  Rows of the per-(point, replicate) frame: T and B
+        # rotated about N (in float64, rounded once to float32), then N.
+        cs, ss = cs[..., None], ss[..., None]
+        rows = (
+            (cs * tangent[:, None, :] + ss * bitangent[:, None, :]).astype(np.float32),
+            (cs * bitangent[:, None, :] - ss * tangent[:, None, :]).astype(np.float32),
+            np.broadcast_to(normals.astype(np.float32)[:, None, :], (k, groups, 3)),
+        )
+        # d = x T' + y B' + z N, summed left to right in float32: (k, R, m, 3).
+        x, y, z = (self.local[None, :, :, i:i + 1] for i in range(3))
+        directions = x * rows[0][:, :, None, :] + y * rows[1][:, :, None, :] + z * rows[2][:, :, None, :]
+        return Rays(np.repeat(origins32, groups * m, axis=0), directions, self.weight)

@@ -51,8 +51,7 @@ def bare_loop(tracer, points, normals, ids, threads, chunk_rays):
         sel = order[start:start + per_chunk]
         origins = points[sel] + tracer.offset * normals[sel] - tracer.center
         rays = tracer.generator.rays(origins, normals[sel], ids[sel])
-        n = rays.directions.shape[1] * rays.directions.shape[2]
-        chunks.append((np.repeat(rays.origins, n, axis=0), rays.directions.reshape(-1, 3).copy()))
+        chunks.append((rays.origins, rays.directions.reshape(-1, 3).copy()))
     scene = tracer.occluders[0]._scene
     total = sum(len(o) for o, _ in chunks)
     tmax = np.float32(1e37)
