@@ -239,8 +239,11 @@ def _config(config: BakeConfig | None, options: dict) -> BakeConfig:
     return config
 
 
-def _report(kind, scene, tracer, config, n_points, rays, values, wall, threads, chunk_rays, warnings):
-    cast = int(rays.astype(np.int64).sum())
+def _report(kind, scene, tracer, config, n_points, rays, values, wall, threads, chunk_rays, warnings,
+            cast=None):
+    """The bake's report dict.  ``cast``: rays actually traced when points shared samples
+    (default: the sum of ``rays``)."""
+    cast = int(rays.astype(np.int64).sum()) if cast is None else int(cast)
     return {
         "aobake_report": 1,
         "target": kind,
@@ -290,6 +293,7 @@ def bake(
     threads = threads or default_threads()
     values, rays = tracer.estimate(scene.vertices[first], scene.vertex_normals[first],
                                    first.astype(np.int64), threads, chunk_rays, progress)
+    traced = int(rays.astype(np.int64).sum())  # before copying to vertices that share samples
     values = {name: array[inverse] for name, array in values.items()}
     rays = rays[inverse]
     wall = time.perf_counter() - start
@@ -299,7 +303,7 @@ def bake(
         warnings.append(f"{unsampled} vertices have no defined normal (unreferenced or only on "
                         "zero-area faces): not sampled, no-information values")
     report = _report("vertices", scene, tracer, config, len(scene.vertices), rays, values, wall,
-                     threads, chunk_rays, warnings)
+                     threads, chunk_rays, warnings, cast=traced)
     for message in warnings:
         log.warning(message)
     return BakeResult(scene.vertices, scene.faces, scene.vertex_normals, rays,
