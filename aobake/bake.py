@@ -71,17 +71,35 @@ class BakeResult:
         return {name: getattr(self, name) for name in names if getattr(self, name) is not None}
 
 
+def _spread_bits(q: np.ndarray) -> np.ndarray:
+    """(n,) uint32 of 10-bit ints -> their bits moved to positions 0, 3, 6, ... (uint32)."""
+    q = q & np.uint32(0x3FF)
+    for shift, mask in ((16, 0x030000FF), (8, 0x0300F00F), (4, 0x030C30C3), (2, 0x09249249)):
+        q = (q | (q << np.uint32(shift))) & np.uint32(mask)
+    return q
+
+
 def morton_order(points: np.ndarray) -> np.ndarray:
-    """(n,) int64 permutation sorting ``points`` (n, 3) along a Z-order curve (ray coherence)."""
-    if len(points) == 0:
+    """(n,) int64 permutation sorting ``points`` (n, 3) along a Z-order curve (ray coherence).
+
+    10 bits per axis; ties keep their input order.  Sorting (code << 32 | index) as
+    one uint64 key is a stable argsort at the cost of a plain sort (~5x cheaper),
+    which matters for lightmaps with millions of sample points.
+    """
+    n = len(points)
+    if n == 0:
         return np.zeros(0, dtype=np.int64)
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    q = ((points - lo) / np.where(hi > lo, hi - lo, 1.0) * 1023).astype(np.uint64)
-    code = np.zeros(len(points), dtype=np.uint64)
-    for bit in range(10):
-        for axis in range(3):
-            code |= ((q[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
-    return np.argsort(code, kind="stable")
+    code = np.zeros(n, dtype=np.uint32)
+    for axis in range(3):  # column by column: a (n, 3) reduction over axis 0 is ~2x slower
+        x = points[:, axis]
+        lo, hi = x.min(), x.max()
+        q = ((x - lo) * (1023.0 / (hi - lo) if hi > lo else 0.0)).astype(np.uint32)
+        code |= _spread_bits(q) << np.uint32(axis)
+    if n >= 2**32:  # pragma: no cover - beyond any texture budget
+        return np.argsort(code, kind="stable")
+    key = (code.astype(np.uint64) << np.uint64(32)) | np.arange(n, dtype=np.uint64)
+    key.sort()
+    return (key & np.uint64(0xFFFFFFFF)).astype(np.int64)
 
 
 class Tracer:

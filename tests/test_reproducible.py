@@ -52,3 +52,23 @@ def test_vertices_split_at_seams_get_identical_values():
     split = trimesh.Trimesh(v2, f2, vertex_normals=n2, process=False)
     res = aobake.bake(split, rays=32, normals="file")
     assert np.array_equal(res.ao[f[0]], res.ao[len(v):])
+
+
+def test_morton_order_matches_bitwise_interleave():
+    """The bit-spreading Morton sort equals a literal per-bit interleave, ties in input order."""
+    from aobake.bake import morton_order
+
+    rng = np.random.default_rng(3)
+    points = rng.random((5000, 3)) * [1e-4, 1.0, 1e5] + [0.0, -3.0, 1e5]
+    points[100:200] = points[100]  # ties
+    points[:, 1][::7] = points[0, 1]
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    q = ((points - lo) * (1023.0 / (hi - lo))).astype(np.int64)
+    code = np.zeros(len(points), dtype=np.int64)
+    for bit in range(10):
+        for axis in range(3):
+            code |= ((q[:, axis] >> bit) & 1) << (3 * bit + axis)
+    order = morton_order(points)
+    np.testing.assert_array_equal(order, np.argsort(code, kind="stable"))
+    assert morton_order(np.zeros((0, 3))).shape == (0,)
+    np.testing.assert_array_equal(morton_order(np.ones((4, 3))), np.arange(4))
