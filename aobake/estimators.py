@@ -22,6 +22,11 @@ from __future__ import annotations
 
 import numpy as np
 
+try:  # built by setup.py; optional
+    from aobake import _kernels
+except ImportError:  # pragma: no cover
+    _kernels = None
+
 
 def mean_and_stderr(f: np.ndarray, iid: bool, max_weight: float):
     """f (k, R, m) per-ray contributions -> (mean (k,), stderr (k,)) float64."""
@@ -42,11 +47,23 @@ def mean_and_stderr(f: np.ndarray, iid: bool, max_weight: float):
     return mean, np.sqrt(var / groups)
 
 
-def _binary_mean_and_stderr(escaped: np.ndarray, iid: bool, max_weight: float):
-    """mean_and_stderr for 0/1 contributions (k, R, m) bool, from exact counts."""
-    k, groups, m = escaped.shape
+def _escape_counts(occluded: np.ndarray) -> np.ndarray:
+    """(k, R, m) bool occluded -> (k, R) float64 number of rays that escaped."""
+    k, groups, m = occluded.shape
+    if _kernels is None:  # pragma: no cover - only without the compiled kernel
+        return (m - np.count_nonzero(occluded, axis=2)).astype(np.float64)
+    # count_nonzero over a short last axis costs as much as generating the rays.
+    blocked = np.empty(k * groups, dtype=np.int32)
+    _kernels.row_counts(np.ascontiguousarray(occluded), k * groups, m, blocked)
+    return (m - blocked).reshape(k, groups).astype(np.float64)
+
+
+def _binary_mean_and_stderr(occluded: np.ndarray, iid: bool, max_weight: float):
+    """mean_and_stderr for 0/1 contributions (1 = escaped) from (k, R, m) bool ``occluded``,
+    from exact counts."""
+    k, groups, m = occluded.shape
     n = groups * m
-    counts = np.count_nonzero(escaped, axis=2).astype(np.float64)  # (k, R)
+    counts = _escape_counts(occluded)  # (k, R)
     if iid:
         # i.i.d. 0/1 samples: sample variance = n/(n-1) p (1 - p).
         mean = counts.sum(axis=1) / n
@@ -85,13 +102,12 @@ def estimate(quantities, directions, weight, occluded, distance, samples, tau, m
     the quantities asked ("ao", "obscurance", "bent-normal").
     """
     out = {}
-    escaped = ~occluded
     if "ao" in quantities:
         if weight is None:
             # Contributions are 0/1: escape counts are exact and cheaper than float sums.
-            out["ao"], out["ao_stderr"] = _binary_mean_and_stderr(escaped, samples.iid, max_weight)
+            out["ao"], out["ao_stderr"] = _binary_mean_and_stderr(occluded, samples.iid, max_weight)
         else:
-            out["ao"], out["ao_stderr"] = mean_and_stderr(escaped * weight, samples.iid, max_weight)
+            out["ao"], out["ao_stderr"] = mean_and_stderr(~occluded * weight, samples.iid, max_weight)
     if "obscurance" in quantities:
         f = rho(distance, tau)
         if weight is not None:
@@ -99,7 +115,7 @@ def estimate(quantities, directions, weight, occluded, distance, samples, tau, m
         out["obscurance"], out["obscurance_stderr"] = mean_and_stderr(f, samples.iid, max_weight)
     if "bent-normal" in quantities:
         k = len(directions)
-        total = (directions * escaped[..., None]).reshape(k, -1, 3).sum(axis=1, dtype=np.float64)
+        total = (directions * ~occluded[..., None]).reshape(k, -1, 3).sum(axis=1, dtype=np.float64)
         length = np.linalg.norm(total, axis=1, keepdims=True)
         out["bent_normal"] = np.where(length > 0, total / np.where(length > 0, length, 1.0), normals)
     return out

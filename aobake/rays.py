@@ -22,11 +22,12 @@ bit-identical rays; ``KERNEL`` says which one runs.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from aobake.samplers import SampleSet, elevation_shifts, shifts
+from aobake.samplers import SampleSet, dim_salt, elevation_shifts, shift_key, shifts
 from aobake.warp import WEIGHTINGS, frames
 
 try:  # built by setup.py; optional (see there)
@@ -76,21 +77,25 @@ class RayGenerator:
         """
         groups, m = self.samples.groups, self.local.shape[1]
         k = len(normals)
-        azimuth = 2.0 * np.pi * shifts(self.seed, point_ids, groups)[..., 1]  # (k, R)
-        cs, ss = np.cos(azimuth), np.sin(azimuth)
-        tangent, bitangent = frames(normals)
         origins32 = np.ascontiguousarray(origins, dtype=np.float32)
         if compiled is None:
             compiled = _kernels is not None
         if compiled:
             flat_origins = np.empty((k * groups * m, 3), dtype=np.float32)
             directions = np.empty((k, groups, m, 3), dtype=np.float32)
-            _kernels.fill_rays(origins32, tangent, bitangent, np.ascontiguousarray(normals, dtype=np.float64),
-                               cs, ss, self.local, k, groups, m, flat_origins, directions)
+            _kernels.fill_rays(origins32, np.ascontiguousarray(normals, dtype=np.float64),
+                               np.ascontiguousarray(point_ids, dtype=np.int64),
+                               shift_key(self.seed), dim_salt(1), self.local,
+                               k, groups, m, flat_origins, directions)
             return Rays(flat_origins, directions, self.weight)
-        # Reference formulation.  Rows of the per-(point, replicate) frame: T and B
-        # rotated about N (in float64, rounded once to float32), then N.
-        cs, ss = cs[..., None], ss[..., None]
+        # Reference formulation (and the fallback).  cos/sin through math, i.e. the C
+        # library the kernel calls: numpy's own float64 cos may use other code (SVML).
+        azimuth = 2.0 * np.pi * shifts(self.seed, point_ids, groups)[..., 1]  # (k, R)
+        cs = np.frompyfunc(math.cos, 1, 1)(azimuth).astype(np.float64)[..., None]
+        ss = np.frompyfunc(math.sin, 1, 1)(azimuth).astype(np.float64)[..., None]
+        tangent, bitangent = frames(normals)
+        # Rows of the per-(point, replicate) frame: T and B rotated about N (in
+        # float64, rounded once to float32), then N.
         rows = (
             (cs * tangent[:, None, :] + ss * bitangent[:, None, :]).astype(np.float32),
             (cs * bitangent[:, None, :] - ss * tangent[:, None, :]).astype(np.float32),

@@ -48,16 +48,33 @@ def _mix(x: np.ndarray) -> np.ndarray:
     return x ^ (x >> np.uint64(31))
 
 
+def hash_key(seed: int, stream: int) -> int:
+    """The uint64 key of one (seed, stream): the first half of :func:`hash_uniform`."""
+    with np.errstate(over="ignore"):
+        key = _mix(np.asarray([(seed * 0x9E3779B97F4A7C15 + stream) & 0xFFFFFFFFFFFFFFFF],
+                              dtype=np.uint64))
+    return int(key[0])
+
+
+def dim_salt(dim: int) -> int:
+    """The uint64 added for dimension ``dim`` in :func:`hash_uniform`."""
+    return (dim + 1) * 0x632BE59BD9B4E019 & 0xFFFFFFFFFFFFFFFF
+
+
+def shift_key(seed: int) -> int:
+    """hash_key of the Cranley-Patterson shift stream (see :func:`shifts`)."""
+    return hash_key(seed, _STREAM_SHIFT)
+
+
 def hash_uniform(seed: int, stream: int, index, dim: int) -> np.ndarray:
     """Uniform float64 in [0,1) as a pure function of (seed, stream, index, dim).
 
     index : (n,) integer array (or scalar); returns (n,) float64.
+    (aobake/_kernels.c computes the azimuth shifts with the same arithmetic.)
     """
     with np.errstate(over="ignore"):
-        key = _mix(np.asarray([(seed * 0x9E3779B97F4A7C15 + stream) & 0xFFFFFFFFFFFFFFFF],
-                              dtype=np.uint64))
-        x = _mix(key ^ np.asarray(index, dtype=np.uint64))
-        x = _mix(x + np.uint64((dim + 1) * 0x632BE59BD9B4E019 & 0xFFFFFFFFFFFFFFFF))
+        x = _mix(np.uint64(hash_key(seed, stream)) ^ np.asarray(index, dtype=np.uint64))
+        x = _mix(x + np.uint64(dim_salt(dim)))
     return (x >> np.uint64(11)).astype(np.float64) * _TWO_POW_M53
 
 

@@ -156,3 +156,12 @@ def test_compiled_rays_equal_numpy_rays_bit_for_bit(sampler, weighting):
     # Every direction lies in the hemisphere of its normal.
     cos = np.einsum("kgmi,ki->kgm", a.directions.astype(np.float64), normals)
     assert cos.min() > 0
+
+
+def test_compiled_escape_counts_equal_numpy():
+    from aobake import estimators
+
+    occluded = np.random.default_rng(2).random((37, 8, 13)) < 0.3
+    expected = (13 - np.count_nonzero(occluded, axis=2)).astype(np.float64)
+    np.testing.assert_array_equal(estimators._escape_counts(occluded), expected)
+    np.testing.assert_array_equal(estimators._escape_counts(occluded[:0]), expected[:0])
