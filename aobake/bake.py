@@ -564,7 +564,8 @@ def bake_texels(
     timings["unwrap_s"] = time.perf_counter() - clock if atlas.new else 0.0
 
     clock = time.perf_counter()
-    samples = rasterize(bake_uv, bake_faces_uv, width, height, texel_samples, config.seed)
+    samples = rasterize(bake_uv, bake_faces_uv, width, height, texel_samples, config.seed,
+                        threads=threads or default_threads())
     points, normals, _ = surface_points(scene.vertices, scene.vertex_normals, scene.faces, samples)
     timings["rasterize_s"] = time.perf_counter() - clock
 
@@ -578,7 +579,7 @@ def bake_texels(
 
     clock = time.perf_counter()
     traced = rays > 0  # samples on zero-area faces have no normal: left out of the texel means
-    sub = _subset(samples, traced)
+    sub = samples if traced.all() else _subset(samples, traced)
     count = np.bincount(sub.texel, minlength=width * height).reshape(height, width)
     covered = count > 0
     channels = {}

@@ -224,12 +224,14 @@ def test_every_overlapped_texel_gets_a_sample():
 # --- determinism ---------------------------------------------------------------------
 
 
-def test_same_seed_same_samples_any_chunking():
+def test_same_seed_same_samples_any_chunking_and_threads():
     rng = np.random.default_rng(2)
     uv = rng.random((50, 2))
     faces = rng.integers(0, 50, (60, 3))
     a = rasterize(uv, faces, 40, 30, texel_samples=5, seed=11)
     b = rasterize(uv, faces, 40, 30, texel_samples=5, seed=11, chunk_pairs=97)
+    assert_same_samples(a, b)
+    b = rasterize(uv, faces, 40, 30, texel_samples=5, seed=11, chunk_pairs=211, threads=2)
     assert_same_samples(a, b)
     c = rasterize(uv, faces, 40, 30, texel_samples=5, seed=12)
     assert not np.array_equal(a.bary, c.bary)
