@@ -12,13 +12,6 @@ import numpy as np
 _NEIGHBOURS = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0)]
 
 
-def _add_shifted(total: np.ndarray, a: np.ndarray, dr: int, dc: int) -> None:
-    """total[r, c] += a[r + dr, c + dc] where that texel exists (in place)."""
-    h, w = a.shape[:2]
-    total[max(0, -dr):h - max(0, dr), max(0, -dc):w - max(0, dc)] += \
-        a[max(0, dr):h - max(0, -dr), max(0, dc):w - max(0, -dc)]
-
-
 def dilate(image, mask, padding: int) -> tuple[np.ndarray, np.ndarray]:
     """Fill the gutter around covered texels, ring by ring.
 
@@ -49,18 +42,28 @@ def dilate(image, mask, padding: int) -> tuple[np.ndarray, np.ndarray]:
     # Background values never enter a mean: they are zeroed and not counted.
     out[~mask] = 0.0
     filled = mask.copy()
+    h, w = filled.shape
     for _ in range(int(padding)):
-        weight = filled.astype(np.float64)
-        total = np.zeros_like(out)
-        count = np.zeros(filled.shape)
+        # The ring: unfilled texels with a filled 8-neighbour (a 3x3 dilation of the
+        # bool mask).  Only its texels are averaged, so a ring costs its perimeter,
+        # not the whole image.
+        grown = filled.copy()
         for dr, dc in _NEIGHBOURS:
-            _add_shifted(total, out, dr, dc)
-            _add_shifted(count, weight, dr, dc)
-        ring = ~filled & (count > 0)
-        if not ring.any():
+            grown[max(0, -dr):h - max(0, dr), max(0, -dc):w - max(0, dc)] |= \
+                filled[max(0, dr):h - max(0, -dr), max(0, dc):w - max(0, -dc)]
+        rows, cols = np.nonzero(grown & ~filled)
+        if not len(rows):
             break
-        out[ring] = total[ring] / count[ring][:, None]
-        filled |= ring
+        total = np.zeros((len(rows), out.shape[2]))
+        count = np.zeros(len(rows))
+        for dr, dc in _NEIGHBOURS:  # fixed order: the sums are reproducible
+            r, c = rows + dr, cols + dc
+            ok = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+            ok[ok] = filled[r[ok], c[ok]]
+            total[ok] += out[r[ok], c[ok]]
+            count += ok
+        out[rows, cols] = total / count[:, None]
+        filled[rows, cols] = True
     # Texels beyond the last ring keep their input values.
     out[~filled] = np.asarray(image, dtype=np.float64)[~filled]
     return out, filled
