@@ -246,16 +246,13 @@ def chart_labels(n_vertices, faces):
     return connected_components(graph, directed=False)[1]
 
 
-def test_unwrap_icosphere():
-    mesh = trimesh.creation.icosphere(subdivisions=3)
-    res, pad = 128, 2
-    un = unwrap(mesh.vertices, mesh.faces, res, pad)
+def assert_valid_atlas(vertices, faces, un, res, pad):
     assert un.vmapping.dtype == np.int64 and un.faces.dtype == np.int64 and un.uv.dtype == np.float64
     assert un.uv.min() >= 0 and un.uv.max() <= 1
     chk = check_uvs(un.uv, un.faces, res, res)
     assert chk.valid and chk.overlapping_texels == 0 and chk.out_of_range_faces == 0
     # new vertices map back to the original positions, faces in input order
-    np.testing.assert_array_equal(mesh.vertices[un.vmapping][un.faces], mesh.vertices[mesh.faces])
+    np.testing.assert_array_equal(vertices[un.vmapping][un.faces], vertices[faces])
     # charts are >= 2 * padding empty texels apart (padding around each chart)
     s = rasterize(un.uv, un.faces, res, res)
     chart = np.full(res * res, -1)
@@ -266,6 +263,34 @@ def test_unwrap_icosphere():
             a = chart[max(0, dr):res + min(0, dr), max(0, dc):res + min(0, dc)]
             b = chart[max(0, -dr):res + min(0, -dr), max(0, -dc):res + min(0, -dc)]
             assert not np.any((a >= 0) & (b >= 0) & (a != b))
+    return s
+
+
+def test_unwrap_icosphere():
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    res, pad = 128, 2
+    assert_valid_atlas(mesh.vertices, mesh.faces, unwrap(mesh.vertices, mesh.faces, res, pad), res, pad)
+
+
+def test_unwrap_large_mesh_in_parts():
+    """Above texels.PART_FACES triangles the mesh is charted in spatial parts with capped
+    chart areas: still one valid, padded, deterministic atlas that uses the image."""
+    from aobake.targets import texels
+
+    mesh = trimesh.creation.torus(major_radius=1.0, minor_radius=0.35, major_sections=180,
+                                  minor_sections=130)
+    rng = np.random.default_rng(5)
+    vertices = mesh.vertices + rng.normal(scale=2e-3, size=mesh.vertices.shape)  # not too regular
+    assert len(mesh.faces) > 2 * texels.PART_FACES
+    res, pad = 512, 2
+    un = unwrap(vertices, mesh.faces, res, pad)
+    s = assert_valid_atlas(vertices, mesh.faces, un, res, pad)
+    # the packed layout reaches most of the image on both axes (AIM/ACCEPT)
+    rows, cols = np.divmod(s.texel, res)
+    assert rows.max() >= 0.9 * res and cols.max() >= 0.9 * res
+    again = unwrap(vertices, mesh.faces, res, pad)
+    for x, y in zip(un, again):
+        np.testing.assert_array_equal(x, y)
 
 
 def test_unwrap_v_orientation_matches_xatlas_chart_image():
