@@ -14,9 +14,10 @@ matrix product ``D[g] @ frame[p, g]``: 9 multiply-adds per ray, no square root
 or trigonometry per ray.  Rays are laid out point-major (all rays of one point
 together) because Embree traces coherent rays about twice as fast as shuffled.
 
-The per-ray work (the 3x3 product and repeating each origin for its rays) runs
-in the compiled ``aobake._kernels`` when it was built, otherwise in numpy.  Both
-do the same IEEE operations in the same order and precision, so they give
+The per-point and per-ray work (azimuth hash, cos/sin, frame, the 3x3 product
+and repeating each origin for its rays) runs in the compiled ``aobake._kernels``
+when it was built, otherwise in numpy.  Both do the same IEEE operations in the
+same order and precision (cos/sin from the C library in both), so they give
 bit-identical rays; ``KERNEL`` says which one runs.
 """
 
