@@ -39,6 +39,8 @@ CONVENTIONS = {
     "max_distance": "a hit beyond the max distance is a miss",
     "obscurance": "(1/pi) int rho(L) cos dw with rho(L) = 1 - exp(-tau L); a miss counts rho = 1",
     "bent_normal": "normalised mean of the unoccluded sample directions; the surface normal if none",
+    "bent_normal_stderr": "angular standard error of the bent normal in radians (delta method); "
+                          "pi/2 when nothing escapes or there is no spread to measure",
     "stderr": "one standard error of the Monte-Carlo estimate",
 }
 
@@ -50,7 +52,8 @@ class BakeResult:
     positions : (n, 3) float64, faces : (f, 3) int64 | None (None for bake_points),
     normals : (n, 3) float64 (the normals the hemispheres were built on),
     ao, ao_stderr, obscurance, obscurance_stderr : (n,) float64,
-    bent_normal : (n, 3) float64, rays : (n,) int32 rays cast per point,
+    bent_normal : (n, 3) float64, bent_normal_stderr : (n,) float64 radians,
+    rays : (n,) int32 rays cast per point,
     report : dict (configuration, parameters used, statistics, versions).
     """
 
@@ -63,11 +66,13 @@ class BakeResult:
     obscurance: np.ndarray | None = None
     obscurance_stderr: np.ndarray | None = None
     bent_normal: np.ndarray | None = None
+    bent_normal_stderr: np.ndarray | None = None
     report: dict = field(default_factory=dict)
 
     def fields(self) -> dict:
         """Per-point arrays that were computed, keyed as in the NPZ/PLY/GLB outputs."""
-        names = ("normals", "ao", "ao_stderr", "obscurance", "obscurance_stderr", "bent_normal", "rays")
+        names = ("normals", "ao", "ao_stderr", "obscurance", "obscurance_stderr", "bent_normal",
+                 "bent_normal_stderr", "rays")
         return {name: getattr(self, name) for name in names if getattr(self, name) is not None}
 
 
@@ -231,6 +236,10 @@ def _summary(values: dict, rays: np.ndarray) -> dict:
                 "stderr_mean": float(values[name + "_stderr"][sampled].mean()),
                 "stderr_p95": float(np.percentile(values[name + "_stderr"][sampled], 95)),
             }
+    if "bent_normal_stderr" in values and sampled.any():
+        se = values["bent_normal_stderr"][sampled]
+        stats["bent_normal"] = {"stderr_mean_rad": float(se.mean()),
+                                "stderr_p95_rad": float(np.percentile(se, 95))}
     return stats
 
 

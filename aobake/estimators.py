@@ -8,7 +8,8 @@ cosine weighting):
 * obscurance  f = w * rho(L), rho = 1 - exp(-tau L) for a hit at distance L,
               rho = 1 for a miss (nothing within the max distance);  1 = open, 0 = occluded
 * bent normal normalise(sum of the escaping sample directions); the surface
-              normal when no ray escapes.  Unit vector, no error bar.
+              normal when no ray escapes.  Unit vector; its error is an angle
+              in radians (see ``bent_normal_and_stderr``).
 
 Standard error: the spread of i.i.d. per-ray contributions (``random``) or of
 the replicate means (randomised QMC samplers), see ``samplers``.  With a single
@@ -114,11 +115,55 @@ def estimate(quantities, directions, weight, occluded, distance, samples, tau, m
             f *= weight
         out["obscurance"], out["obscurance_stderr"] = mean_and_stderr(f, samples.iid, max_weight)
     if "bent-normal" in quantities:
-        k = len(directions)
-        total = (directions * ~occluded[..., None]).reshape(k, -1, 3).sum(axis=1, dtype=np.float64)
-        length = np.linalg.norm(total, axis=1, keepdims=True)
-        out["bent_normal"] = np.where(length > 0, total / np.where(length > 0, length, 1.0), normals)
+        out["bent_normal"], out["bent_normal_stderr"] = bent_normal_and_stderr(
+            directions, occluded, samples.iid, normals)
     return out
+
+
+#: Angular standard error (radians) reported when there is nothing to measure it
+#: from (no escaping ray, a single ray or replicate, no rays): the bent normal is
+#: then only known to lie in the hemisphere, up to pi/2 from the normal.
+NO_INFORMATION_ANGLE = np.pi / 2
+
+
+def bent_normal_and_stderr(directions, occluded, iid: bool, normals):
+    """Bent normal and its angular standard error for k points.
+
+    directions : (k, R, m, 3) float32 unit, occluded : (k, R, m) bool, normals : (k, 3) float64.
+    Returns (bent (k, 3) float64 unit, stderr (k,) float64 radians).
+
+    The bent normal is b / |b| with b the mean of f = d [ray escapes] over all rays.
+    Its error is the delta method for normalising: the component of b's error
+    perpendicular to b, over |b|: stderr^2 = tr(P Cov(b) P) / |b|^2 with
+    P = I - b b^T / |b|^2 (the expected squared angle to the true bent normal).
+    Cov(b) comes from the same source as the AO error: i.i.d. per-ray
+    contributions (``random``) or the spread of the R replicate means.  Capped at
+    pi/2, which is also the value when no ray escapes or there is no spread.
+    """
+    k, groups, m, _ = directions.shape
+    n = groups * m
+    f = directions * ~occluded[..., None]  # (k, R, m, 3) float32
+    if iid:
+        per = f.reshape(k, n, 3).astype(np.float64)
+        count = n
+    else:
+        per = f.sum(axis=2, dtype=np.float64) / m  # replicate means (k, R, 3)
+        count = groups
+    b = per.sum(axis=1) / count  # (k, 3)
+    length = np.linalg.norm(b, axis=1)
+    ok = length > 0
+    unit = b / np.where(ok, length, 1.0)[:, None]
+    bent = np.where(ok[:, None], unit, normals)
+    stderr = np.full(k, NO_INFORMATION_ANGLE)
+    if count >= 2:
+        dev = per - b[:, None, :]
+        along = np.einsum("kjc,kc->kj", dev, unit)
+        perp2 = (np.square(dev).sum(axis=2) - np.square(along)).sum(axis=1)  # sum |dev_perp|^2
+        var = np.maximum(perp2, 0.0) / (count * (count - 1))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            angle = np.sqrt(var) / length
+        stderr = np.where(ok, np.minimum(angle, NO_INFORMATION_ANGLE), NO_INFORMATION_ANGLE)
+    return bent, stderr
 
 
 def no_information(quantities, normals: np.ndarray, max_weight: float) -> dict:
@@ -131,4 +176,5 @@ def no_information(quantities, normals: np.ndarray, max_weight: float) -> dict:
             out[name + "_stderr"] = np.full(k, max_weight / 2.0)
     if "bent-normal" in quantities:
         out["bent_normal"] = normals.copy()
+        out["bent_normal_stderr"] = np.full(k, NO_INFORMATION_ANGLE)
     return out

@@ -42,3 +42,36 @@ def test_stderr_matches_spread_over_seeds(sampler, quantity):
         # mean(stderr^2) has relative error ~ std(stderr^2) / (mean sqrt(K)); widen by 4 of those.
         rel = var[:, p].std(ddof=1) / (reported * math.sqrt(K))
         assert lo / (1 + 4 * rel) <= ratio <= hi * (1 + 4 * rel), (sampler, quantity, p, ratio)
+
+
+@pytest.mark.parametrize("sampler", ["random", "stratified", "sobol"])
+def test_bent_normal_angular_stderr_matches_spread_over_seeds(sampler):
+    """The reported angular stderr (radians) matches the angles by which the bent normal
+    scatters around its mean over seeds.
+
+    The scatter is 2-D (the tangent plane of the mean direction): sum over seeds of the
+    squared angle / sigma^2 has between K - 1 and 2 (K - 1) degrees of freedom depending
+    on how round the error ellipse is; the test uses the wider chi2(K - 1) interval.
+    """
+    mesh = combine(polygon([0.2, 0.1, 0.8], 1.0, 17), quad([0, 0, 0], 3, 3))
+    pts = np.array([[0.0, 0.0, 1e-6], [0.9, -0.4, 1e-6]])
+    nrm = np.tile([0, 0, 1.0], (2, 1))
+    bent, var = [], []
+    for seed in range(K):
+        res = aobake.bake_points(mesh, pts, nrm, rays=64, seed=seed, sampler=sampler,
+                                 quantities=("bent-normal",), max_distance=2.0, threads=1)
+        bent.append(res.bent_normal)
+        var.append(res.bent_normal_stderr ** 2)
+    bent, var = np.array(bent), np.array(var)  # (K, 2, 3), (K, 2)
+    assert np.all(var > 0) and np.all(var < (np.pi / 2) ** 2)
+    for p in range(len(pts)):
+        mean = bent[:, p].mean(axis=0)
+        mean /= np.linalg.norm(mean)
+        perp = bent[:, p] - np.outer(bent[:, p] @ mean, mean)  # ~ angle vectors, radians
+        observed = np.square(perp).sum(axis=1).sum() / (K - 1)
+        reported = var[:, p].mean()
+        ratio = observed / reported
+        lo = stats.chi2.ppf(1e-4 / 2, K - 1) / (K - 1)
+        hi = stats.chi2.ppf(1 - 1e-4 / 2, K - 1) / (K - 1)
+        rel = var[:, p].std(ddof=1) / (reported * math.sqrt(K))
+        assert lo / (1 + 4 * rel) <= ratio <= hi * (1 + 4 * rel), (sampler, p, ratio)

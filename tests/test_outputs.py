@@ -61,6 +61,7 @@ def make_fields(mesh, seed=0):
         "obscurance": rng.random(n),
         "obscurance_stderr": 0.05 * rng.random(n),
         "bent_normal": bent / np.linalg.norm(bent, axis=1, keepdims=True),
+        "bent_normal_stderr": 0.1 * rng.random(n),
         "rays": rng.integers(1, 1 << 20, n),
     }
 
@@ -105,7 +106,7 @@ def test_npz_round_trip(tmp_path, mesh):
     np.testing.assert_array_equal(loaded["faces"], mesh.faces)
     assert loaded["normals"].dtype == np.float64
     np.testing.assert_array_equal(loaded["normals"], fields["normals"])
-    for name in ("ao", "ao_stderr", "obscurance", "obscurance_stderr", "bent_normal"):
+    for name in ("ao", "ao_stderr", "obscurance", "obscurance_stderr", "bent_normal", "bent_normal_stderr"):
         assert loaded[name].dtype == np.float32, name
         np.testing.assert_allclose(loaded[name], fields[name], rtol=0, atol=F32_ATOL)
     assert loaded["rays"].dtype == np.int32
@@ -147,6 +148,7 @@ def test_ply_own_parse(tmp_path, mesh):
         ["float", "ao"], ["float", "ao_stderr"],
         ["float", "obscurance"], ["float", "obscurance_stderr"],
         ["float", "bent_normal_x"], ["float", "bent_normal_y"], ["float", "bent_normal_z"],
+        ["float", "bent_normal_stderr"],
         ["int", "rays"],
         ["uchar", "red"], ["uchar", "green"], ["uchar", "blue"],
         ["list", "uchar", "int", "vertex_indices"],
@@ -163,7 +165,7 @@ def test_ply_own_parse(tmp_path, mesh):
     np.testing.assert_array_equal(positions, mesh.vertices)  # double: exact
     normals = np.column_stack([vertex[a] for a in ("nx", "ny", "nz")])
     np.testing.assert_allclose(normals, fields["normals"], rtol=0, atol=F32_ATOL)
-    for name in ("ao", "ao_stderr", "obscurance", "obscurance_stderr"):
+    for name in ("ao", "ao_stderr", "obscurance", "obscurance_stderr", "bent_normal_stderr"):
         np.testing.assert_allclose(vertex[name], fields[name], rtol=0, atol=F32_ATOL)
     bent = np.column_stack([vertex[f"bent_normal_{a}"] for a in "xyz"])
     np.testing.assert_allclose(bent, fields["bent_normal"], rtol=0, atol=F32_ATOL)
@@ -259,7 +261,7 @@ def test_glb_round_trip(tmp_path, mesh):
     assert primitive["mode"] == 4
     assert set(primitive["attributes"]) == {
         "POSITION", "NORMAL", "COLOR_0", "_AO", "_AO_STDERR",
-        "_OBSCURANCE", "_OBSCURANCE_STDERR", "_BENT_NORMAL", "_RAYS",
+        "_OBSCURANCE", "_OBSCURANCE_STDERR", "_BENT_NORMAL", "_BENT_NORMAL_STDERR", "_RAYS",
     }  # fmt: skip
     assert gltf["scenes"][gltf["scene"]]["nodes"] == [0]
     assert gltf["nodes"][0]["mesh"] == 0

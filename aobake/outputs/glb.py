@@ -7,7 +7,8 @@ Two writers:
   float32) if normals were given, ``COLOR_0`` = (ao, ao, ao, 1) as linear
   float32 (obscurance when AO is absent, clipped to [0, 1], NaN -> 0), and the
   application-specific attributes ``_AO``, ``_AO_STDERR``, ``_OBSCURANCE``,
-  ``_OBSCURANCE_STDERR`` (SCALAR), ``_BENT_NORMAL`` (VEC3) and ``_RAYS`` (SCALAR)
+  ``_OBSCURANCE_STDERR`` (SCALAR), ``_BENT_NORMAL`` (VEC3), ``_BENT_NORMAL_STDERR``
+  (SCALAR, radians) and ``_RAYS`` (SCALAR)
   for the fields present.  All are float32: glTF attributes must be float or
   normalised integers, so ``_RAYS`` is a float32 count (exact below 2**24).
   The material is white (``baseColorFactor`` 1, metallic 0, roughness 1) so
@@ -53,6 +54,7 @@ CUSTOM_ATTRIBUTES = {
     "obscurance": "_OBSCURANCE",
     "obscurance_stderr": "_OBSCURANCE_STDERR",
     "bent_normal": "_BENT_NORMAL",
+    "bent_normal_stderr": "_BENT_NORMAL_STDERR",
     "rays": "_RAYS",
 }
 

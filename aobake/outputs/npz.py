@@ -14,6 +14,7 @@ name                 shape        dtype     meaning
 ``obscurance``       (n,)         float32   distance-weighted openness: 1 = open, 0 = occluded
 ``obscurance_stderr`` (n,)        float32   standard error of ``obscurance``
 ``bent_normal``      (n, 3)       float32   mean unoccluded direction
+``bent_normal_stderr`` (n,)       float32   angular standard error of ``bent_normal`` (radians)
 ``rays``             (n,)         int32     rays cast for each vertex
 ``metadata``         ()           str       JSON text: conventions and configuration
 ==================== ============ ========= =====================================
@@ -46,6 +47,7 @@ VERTEX_FIELDS: dict[str, tuple[tuple[int, ...], type]] = {
     "obscurance": ((), np.float32),
     "obscurance_stderr": ((), np.float32),
     "bent_normal": ((3,), np.float32),
+    "bent_normal_stderr": ((), np.float32),
     "rays": ((), np.int32),
 }
 

@@ -13,6 +13,7 @@ Layout (properties appear only for the fields that were computed, in this order)
     property float obscurance                          if obscurance
     property float obscurance_stderr                   if obscurance_stderr
     property float bent_normal_x (and _y, _z)          if bent_normal
+    property float bent_normal_stderr                  if bent_normal (radians)
     property int rays                                  if rays
     property uchar red           (and green, blue)     always
     element face f
@@ -57,6 +58,7 @@ _PROPERTIES = {
     "obscurance": ("obscurance",),
     "obscurance_stderr": ("obscurance_stderr",),
     "bent_normal": ("bent_normal_x", "bent_normal_y", "bent_normal_z"),
+    "bent_normal_stderr": ("bent_normal_stderr",),
     "rays": ("rays",),
 }
 _PLY_TYPES = {"<f8": "double", "<f4": "float", "<i4": "int", "|u1": "uchar"}
