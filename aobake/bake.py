@@ -419,7 +419,8 @@ class TexelResult:
     """A baked lightmap.
 
     channels : name -> (H, W) float32 images after gutter dilation ('ao', 'ao_stderr',
-    'obscurance', 'obscurance_stderr', 'bent_normal.X/.Y/.Z', 'rays', 'coverage'),
+    'obscurance', 'obscurance_stderr', 'bent_normal.X/.Y/.Z', 'bent_normal_stderr', 'rays',
+    'coverage'),
     row 0 = top of the image (v near 1), texel centres at u = (c + 0.5) / W,
     v = 1 - (r + 0.5) / H; covered : (H, W) bool texels with surface samples;
     atlas : Atlas; report : dict.
@@ -607,6 +608,9 @@ def bake_texels(
         mean = np.where(length > 0, mean / np.where(length > 0, length, 1), 0.0)
         for axis, label in enumerate("XYZ"):
             channels[f"bent_normal.{label}"] = mean[..., axis]
+        # Angle error of the mean of s sample directions, as for AO: sqrt(sum se^2) / s.
+        var = splat(sub, values["bent_normal_stderr"][traced] ** 2)[..., 0]
+        channels["bent_normal_stderr"] = np.sqrt(var / np.maximum(count, 1))
     rays_img = np.bincount(sub.texel, weights=rays[traced].astype(np.float64),
                            minlength=width * height).reshape(height, width)
     names = list(channels)

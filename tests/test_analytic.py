@@ -81,6 +81,8 @@ def test_inside_closed_box_is_fully_occluded(sampler):
     assert np.all(res.ao == 0.0) and np.all(res.ao_stderr == 0.0)
     # No escaping ray: the bent normal falls back to the normal.
     np.testing.assert_allclose(res.bent_normal, nrm / np.linalg.norm(nrm, axis=1)[:, None])
+    # ... and its angular error is the no-information pi/2.
+    np.testing.assert_array_equal(res.bent_normal_stderr, np.pi / 2)
     # Obscurance inside: every rho(L) < 1, so strictly below 1 and above 0.
     assert np.all((res.obscurance > 0) & (res.obscurance < 1))
 
