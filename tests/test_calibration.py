@@ -19,6 +19,17 @@ from analytic import combine, polygon, quad
 K = 150
 
 
+def assert_calibrated(observed: float, stderr2: np.ndarray, label) -> None:
+    """observed variance over K seeds vs the K reported stderr^2 values (K,)."""
+    reported = stderr2.mean()
+    ratio = observed / reported
+    lo = stats.chi2.ppf(1e-4 / 2, K - 1) / (K - 1)
+    hi = stats.chi2.ppf(1 - 1e-4 / 2, K - 1) / (K - 1)
+    # mean(stderr^2) has relative error ~ std(stderr^2) / (mean sqrt(K)); widen by 4 of those.
+    rel = stderr2.std(ddof=1) / (reported * math.sqrt(K))
+    assert lo / (1 + 4 * rel) <= ratio <= hi * (1 + 4 * rel), (label, ratio)
+
+
 @pytest.mark.parametrize("sampler", ["random", "stratified", "sobol"])
 @pytest.mark.parametrize("quantity", ["ao", "obscurance"])
 def test_stderr_matches_spread_over_seeds(sampler, quantity):
@@ -34,14 +45,7 @@ def test_stderr_matches_spread_over_seeds(sampler, quantity):
         var.append(getattr(res, quantity + "_stderr") ** 2)
     est, var = np.array(est), np.array(var)
     for p in range(len(pts)):
-        observed = est[:, p].var(ddof=1)
-        reported = var[:, p].mean()
-        ratio = observed / reported
-        lo = stats.chi2.ppf(1e-4 / 2, K - 1) / (K - 1)
-        hi = stats.chi2.ppf(1 - 1e-4 / 2, K - 1) / (K - 1)
-        # mean(stderr^2) has relative error ~ std(stderr^2) / (mean sqrt(K)); widen by 4 of those.
-        rel = var[:, p].std(ddof=1) / (reported * math.sqrt(K))
-        assert lo / (1 + 4 * rel) <= ratio <= hi * (1 + 4 * rel), (sampler, quantity, p, ratio)
+        assert_calibrated(est[:, p].var(ddof=1), var[:, p], (sampler, quantity, p))
 
 
 @pytest.mark.parametrize("sampler", ["random", "stratified", "sobol"])
@@ -68,10 +72,4 @@ def test_bent_normal_angular_stderr_matches_spread_over_seeds(sampler):
         mean = bent[:, p].mean(axis=0)
         mean /= np.linalg.norm(mean)
         perp = bent[:, p] - np.outer(bent[:, p] @ mean, mean)  # ~ angle vectors, radians
-        observed = np.square(perp).sum(axis=1).sum() / (K - 1)
-        reported = var[:, p].mean()
-        ratio = observed / reported
-        lo = stats.chi2.ppf(1e-4 / 2, K - 1) / (K - 1)
-        hi = stats.chi2.ppf(1 - 1e-4 / 2, K - 1) / (K - 1)
-        rel = var[:, p].std(ddof=1) / (reported * math.sqrt(K))
-        assert lo / (1 + 4 * rel) <= ratio <= hi * (1 + 4 * rel), (sampler, p, ratio)
+        assert_calibrated(np.square(perp).sum() / (K - 1), var[:, p], (sampler, p))
