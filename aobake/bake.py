@@ -401,7 +401,8 @@ class Atlas:
     None the mesh's own UVs when a new atlas was made for a mesh that had them,
     source_vertex : (m,) int64 index of each vertex in the input scene,
     new : bool True when the atlas was made by xatlas (the mesh must be written out),
-    material : dict | None the input's base colour (see Scene.material), kept in GLBs.
+    materials : list | None the input's materials (see Scene.materials), kept in GLBs,
+    face_material : (f,) int64 | None each face's material.
     """
 
     positions: np.ndarray
@@ -411,7 +412,8 @@ class Atlas:
     base_uv: np.ndarray | None
     source_vertex: np.ndarray
     new: bool
-    material: dict | None = None
+    materials: list | None = None
+    face_material: np.ndarray | None = None
 
 
 @dataclass
@@ -498,7 +500,8 @@ def _make_atlas(scene: Scene, unwrap: str, width: int, height: int, padding: int
     if use_own:
         keys, faces = _split_corners(scene.faces, scene.faces_uv)
         atlas = Atlas(scene.vertices[keys[:, 0]], scene.vertex_normals[keys[:, 0]], faces,
-                      scene.uv[keys[:, 1]], None, keys[:, 0], new=False, material=scene.material)
+                      scene.uv[keys[:, 1]], None, keys[:, 0], new=False, materials=scene.materials,
+                      face_material=scene.face_material)
         return atlas, scene.uv, scene.faces_uv, check
     if scene.faces_uv is not None and unwrap == "auto":
         warnings.append(f"{scene.source}: the mesh's UVs cannot be baked ({check.message}); "
@@ -518,7 +521,8 @@ def _make_atlas(scene: Scene, unwrap: str, width: int, height: int, padding: int
     source = unwrapped.vmapping[keys[:, 0]]
     atlas = Atlas(scene.vertices[source], scene.vertex_normals[source], faces,
                   unwrapped.uv[keys[:, 0]], base_uv, source, new=True,
-                  material=scene.material if base_uv is not None else None)
+                  materials=scene.materials if base_uv is not None else None,
+                  face_material=scene.face_material if base_uv is not None else None)
     return atlas, unwrapped.uv, unwrapped.faces, check
 
 

@@ -49,6 +49,8 @@ class ObjData:
     warnings: list = field(default_factory=list)
     mtllibs: list = field(default_factory=list)
     materials: list = field(default_factory=list)
+    #: (f,) int64 index into ``materials`` of each triangle, -1 before any usemtl
+    face_material: np.ndarray | None = None
 
 
 def _logical_lines(text: str):
@@ -103,7 +105,7 @@ def read_obj(path: str | os.PathLike) -> ObjData:
     verts, uvs, norms = [], [], []
     tri_v, tri_t, tri_n = [], [], []
     groups, skipped, polygons = [], 0, 0
-    mtllibs, materials = [], []
+    mtllibs, materials, tri_m, current = [], [], [], -1
     all_have_t = True
     for number, line in _logical_lines(text):
         parts = line.split()
@@ -137,6 +139,7 @@ def read_obj(path: str | os.PathLike) -> ObjData:
                     tri_v.append((cv[0], cv[k], cv[k + 1]))
                     tri_t.append((ct[0], ct[k], ct[k + 1]))
                     tri_n.append((cn[0], cn[k], cn[k + 1]))
+                    tri_m.append(current)
             elif key in ("o", "g"):
                 name = " ".join(parts[1:]) or "default"
                 groups.append((name, len(tri_v)))
@@ -148,6 +151,7 @@ def read_obj(path: str | os.PathLike) -> ObjData:
                 name = line.split(None, 1)[1].strip()
                 if name not in materials:
                     materials.append(name)
+                current = materials.index(name)
         except InputError:
             raise
         except (IndexError, ValueError):
@@ -177,4 +181,5 @@ def read_obj(path: str | os.PathLike) -> ObjData:
         warnings=warnings,
         mtllibs=mtllibs,
         materials=materials,
+        face_material=np.asarray(tri_m, dtype=np.int64),
     )

@@ -62,9 +62,12 @@ class Scene:
     source: str = "<memory>"
     normals_source: str = "angle"
     warnings: list = field(default_factory=list)
-    #: the base colour of a single-material mesh, kept for lightmap GLBs:
-    #: {"base_color_png": bytes | None, "base_color_factor": [r, g, b, a] | None}, or None
-    material: dict | None = None
+    #: the input's materials (base colour only), kept for lightmap GLBs: a list of
+    #: {"name": str, "base_color_png": bytes | None, "base_color_factor": [r, g, b, a] | None},
+    #: or None when the input has none (or no UVs to map them with)
+    materials: list | None = None
+    #: (f,) int64 index into ``materials`` of each face (None with ``materials``)
+    face_material: np.ndarray | None = None
 
     @cached_property
     def used(self) -> np.ndarray:
@@ -153,7 +156,8 @@ def make_scene(
     faces_uv=None,
     source: str = "<memory>",
     warnings=None,
-    material: dict | None = None,
+    materials: list | None = None,
+    face_material=None,
 ) -> Scene:
     """Validate arrays and build a :class:`Scene`.
 
@@ -206,10 +210,17 @@ def make_scene(
             raise InputError(f"{source}: UV indices do not match the faces")
         if not np.isfinite(uv[faces_uv]).all():
             raise InputError(f"{source}: UV coordinates contain NaN or infinity")
+    if materials is not None:
+        face_material = np.asarray(face_material, dtype=np.int64)
+        if face_material.shape != (len(faces),) or face_material.min() < 0 \
+                or face_material.max() >= len(materials):
+            raise InputError(f"{source}: material indices do not match the faces")
+    else:
+        face_material = None
     for message in warnings:
         log.warning(message)
     return Scene(vertices, faces, vnormals, fnormals, uv, faces_uv if uv is not None else None,
-                 source, mode, warnings, material)
+                 source, mode, warnings, materials, face_material)
 
 
 def _obj_normals(data) -> np.ndarray | None:
@@ -236,56 +247,95 @@ def _png_bytes(image) -> bytes:
     return buffer.getvalue()
 
 
-def _obj_material(path: Path, data) -> dict | None:
-    """Base colour (Kd, map_Kd) of an OBJ that uses exactly one material from its .mtl."""
-    if len(data.materials) != 1 or not data.mtllibs:
-        return None
-    mtl = path.parent / data.mtllibs[0]
-    if not mtl.is_file():
-        return None
-    current, found = None, {}
-    for line in mtl.read_text(errors="replace").splitlines():
+def _white(name: str) -> dict:
+    return {"name": name, "base_color_png": None, "base_color_factor": None}
+
+
+def _read_mtl(path: Path, names: list) -> dict:
+    """name -> {"Kd": [...], "map_Kd": [...]} for the materials ``names`` defined in ``path``."""
+    found, current = {}, None
+    for line in path.read_text(errors="replace").splitlines():
         parts = line.split("#", 1)[0].split()
         if not parts:
             continue
         if parts[0] == "newmtl":
             current = " ".join(parts[1:])
-        elif current == data.materials[0] and parts[0] in ("Kd", "map_Kd") and len(parts) > 1:
-            found[parts[0]] = parts[1:]
-    if not found:
-        return None
-    material = {"base_color_png": None, "base_color_factor": None}
-    try:
-        if "Kd" in found:
-            material["base_color_factor"] = [float(x) for x in found["Kd"][:3]] + [1.0]
-        if "map_Kd" in found:
-            from PIL import Image
-
-            with Image.open(path.parent / found["map_Kd"][-1]) as image:
-                material["base_color_png"] = _png_bytes(image)
-    except (OSError, ValueError) as exc:
-        log.warning("%s: base colour of material %r not kept (%s)", path, data.materials[0], exc)
-    return material
+        elif current in names and parts[0] in ("Kd", "map_Kd") and len(parts) > 1:
+            found.setdefault(current, {})[parts[0]] = parts[1:]
+    return found
 
 
-def _trimesh_material(meshes) -> dict | None:
-    """Base colour of glTF/PLY meshes that share one PBR material (None otherwise)."""
-    materials = {id(getattr(m.visual, "material", None)) for m in meshes}
-    material = getattr(meshes[0].visual, "material", None)
-    if len(materials) != 1 or material is None:
-        return None
+def _obj_materials(path: Path, data) -> tuple[list | None, np.ndarray | None]:
+    """Base colours (Kd, map_Kd) of an OBJ's materials from its .mtl files, and each face's
+    material.  Faces before any ``usemtl`` get a white material named "default"."""
+    if not data.materials or not data.mtllibs:
+        return None, None
+    found = {}
+    for lib in data.mtllibs:
+        mtl = path.parent / lib
+        if mtl.is_file():
+            for name, values in _read_mtl(mtl, data.materials).items():
+                found.setdefault(name, values)
+    materials = []
+    for name in data.materials:
+        material = _white(name)
+        values = found.get(name, {})
+        try:
+            if "Kd" in values:
+                material["base_color_factor"] = [min(max(float(x), 0.0), 1.0)
+                                                 for x in values["Kd"][:3]] + [1.0]
+            if "map_Kd" in values:
+                from PIL import Image
+
+                with Image.open(path.parent / values["map_Kd"][-1]) as image:
+                    material["base_color_png"] = _png_bytes(image)
+        except (OSError, ValueError) as exc:
+            log.warning("%s: base colour of material %r not kept (%s)", path, name, exc)
+        materials.append(material)
+    face_material = data.face_material.copy()
+    if (face_material < 0).any():
+        materials.append(_white("default"))
+        face_material[face_material < 0] = len(materials) - 1
+    return materials, face_material
+
+
+def _trimesh_material(mesh, index: int) -> dict:
+    """Base colour of one trimesh mesh's PBR (or simple) material."""
+    material = getattr(mesh.visual, "material", None)
+    out = _white(getattr(material, "name", None) or f"material_{index}")
+    if material is None:
+        return out
     texture = getattr(material, "baseColorTexture", None)
+    if texture is None:
+        texture = getattr(material, "image", None)
     factor = getattr(material, "baseColorFactor", None)
-    out = {"base_color_png": _png_bytes(texture) if texture is not None else None,
-           "base_color_factor": None}
+    if texture is not None:
+        out["base_color_png"] = _png_bytes(texture)
     if factor is not None:
         factor = np.asarray(factor, dtype=np.float64)
-        out["base_color_factor"] = (factor / 255.0 if factor.max() > 1 else factor).tolist()
-    return out if (out["base_color_png"] or out["base_color_factor"]) else None
+        out["base_color_factor"] = np.clip(factor / 255.0 if factor.max() > 1 else factor,
+                                           0.0, 1.0).tolist()
+    return out
+
+
+def _trimesh_materials(meshes) -> tuple[list, np.ndarray]:
+    """One entry per distinct material object of the meshes, and each face's index."""
+    index, materials, per_mesh = {}, [], []
+    for mesh in meshes:
+        material = _trimesh_material(mesh, len(materials))
+        # By content: trimesh's scene dump may copy one shared material per node.
+        factor = material["base_color_factor"]
+        key = (material["name"], material["base_color_png"], tuple(factor) if factor else None)
+        if key not in index:
+            index[key] = len(materials)
+            materials.append(material)
+        per_mesh.append(np.full(len(mesh.faces), index[key], dtype=np.int64))
+    return materials, np.concatenate(per_mesh)
 
 
 def _load_with_trimesh(path: Path):
-    """(vertices, faces, normals | None, uv | None, material | None) for non-OBJ formats via trimesh."""
+    """(vertices, faces, normals | None, uv | None, (materials, face_material) | None) for
+    non-OBJ formats via trimesh."""
     import trimesh
 
     try:
@@ -323,7 +373,7 @@ def _load_with_trimesh(path: Path):
         faces = inverse.reshape(-1)[faces]
         normals = []
     return (vertices, faces, np.concatenate(normals) if normals else None,
-            np.concatenate(uvs) if uvs else None, _trimesh_material(meshes) if uvs else None)
+            np.concatenate(uvs) if uvs else None, _trimesh_materials(meshes) if uvs else None)
 
 
 def load_scene(source, normals_mode: str = "file") -> Scene:
@@ -359,10 +409,12 @@ def load_scene(source, normals_mode: str = "file") -> Scene:
         from aobake.obj import read_obj
 
         data = read_obj(path)
+        has_uv = data.faces_uv is not None
+        materials, face_material = _obj_materials(path, data) if has_uv else (None, None)
         return make_scene(data.vertices, data.faces, _obj_normals(data), normals_mode,
-                          uv=data.uv if data.faces_uv is not None else None,
-                          faces_uv=data.faces_uv, source=str(path), warnings=data.warnings,
-                          material=_obj_material(path, data) if data.faces_uv is not None else None)
-    vertices, faces, normals, uv, material = _load_with_trimesh(path)
+                          uv=data.uv if has_uv else None, faces_uv=data.faces_uv, source=str(path),
+                          warnings=data.warnings, materials=materials, face_material=face_material)
+    vertices, faces, normals, uv, materials = _load_with_trimesh(path)
+    materials, face_material = materials or (None, None)
     return make_scene(vertices, faces, normals, normals_mode, uv=uv, source=str(path),
-                      material=material)
+                      materials=materials, face_material=face_material)

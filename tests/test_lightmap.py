@@ -359,3 +359,51 @@ def test_public_api_exports_the_lightmap_baker():
     res = aobake.bake_texels(trimesh.creation.box(), resolution=64, rays=8, padding=1)
     assert isinstance(res, aobake.TexelResult)
     assert res.channels["ao"].shape == (64, 64) and res.atlas.new
+
+
+def test_glb_keeps_every_material_of_a_multi_material_obj(tmp_path):
+    """Each material of the input becomes a primitive with its own base colour and the shared
+    AO occlusion texture; faces keep their material; faces before any usemtl get white."""
+    from PIL import Image
+
+    Image.new("RGB", (4, 4), (20, 200, 30)).save(tmp_path / "green.png")
+    (tmp_path / "m.mtl").write_text("newmtl red\nKd 0.8 0.1 0.1\n"
+                                    "newmtl green\nKd 1 1 1\nmap_Kd green.png\n")
+    v, f, uv = uv_quad([0, 0, 0], 0.5)
+    # Three quads side by side in their own UV thirds: valid own UVs, no new atlas.
+    parts = []
+    for i in range(3):
+        parts.append((v + [1.2 * i, 0, 0], f, uv * [1 / 3, 1] + [i / 3, 0]))
+    text = obj_text(parts).splitlines()
+    # insert usemtl statements: quad 0 before any (white), quad 1 red, quad 2 green
+    faces = [i for i, line in enumerate(text) if line.startswith("f ")]
+    assert len(faces) == 6
+    text.insert(faces[4], "usemtl green")
+    text.insert(faces[2], "usemtl red")
+    (tmp_path / "m.obj").write_text("mtllib m.mtl\n" + "\n".join(text) + "\n")
+    out = tmp_path / "ao.glb"
+    res = run(tmp_path / "m.obj", "--out", out, "--target", "texels", "--resolution", 48,
+              "--padding", 1, "--rays", 8, "--quiet")
+    assert res.exit_code == 0, res.output
+    gltf, blob = read_glb(out)
+    primitives = gltf["meshes"][0]["primitives"]
+    assert len(primitives) == 3 and len(gltf["materials"]) == 3
+    occlusion = {m["occlusionTexture"]["index"] for m in gltf["materials"]}
+    assert len(occlusion) == 1  # one AO atlas shared by every material
+    by_name = {}
+    for prim in primitives:
+        material = gltf["materials"][prim["material"]]
+        indices = read_accessor(gltf, blob, prim["indices"]).reshape(-1, 3)
+        positions = read_accessor(gltf, blob, prim["attributes"]["POSITION"])
+        by_name[material["name"]] = (material, positions[indices].mean(axis=(0, 1)), len(indices))
+    assert set(by_name) == {"red", "green", "default"}
+    red, green, white = by_name["red"], by_name["green"], by_name["default"]
+    assert all(part[2] == 2 for part in (red, green, white))  # two triangles each
+    # each material sits on its own quad (centres at x = 0, 1.2, 2.4)
+    np.testing.assert_allclose([white[1][0], red[1][0], green[1][0]], [0, 1.2, 2.4], atol=1e-6)
+    np.testing.assert_allclose(red[0]["pbrMetallicRoughness"]["baseColorFactor"], [0.8, 0.1, 0.1, 1])
+    assert "baseColorTexture" not in red[0]["pbrMetallicRoughness"]
+    assert green[0]["pbrMetallicRoughness"]["baseColorTexture"]["texCoord"] == 0
+    assert white[0]["pbrMetallicRoughness"]["baseColorFactor"] == [1.0, 1.0, 1.0, 1.0]
+    loaded = trimesh.load(out)  # a viewer-grade loader reads all three
+    assert len(loaded.geometry) == 3

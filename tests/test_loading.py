@@ -102,3 +102,40 @@ def test_bad_input_names_file_and_problem(tmp_path, name, content, message):
     with pytest.raises(InputError) as info:
         load_scene(path)
     assert str(path) in str(info.value) and message in str(info.value)
+
+
+def test_gltf_materials_are_kept_per_face(tmp_path):
+    """Two nodes with different PBR materials: one material entry each, faces tagged."""
+    from trimesh.visual import TextureVisuals
+    from trimesh.visual.material import PBRMaterial
+
+    parts = []
+    for i, colour in enumerate(([255, 0, 0, 255], [0, 0, 255, 255])):
+        box = trimesh.creation.box()
+        box.apply_translation([3.0 * i, 0, 0])
+        uv = np.random.default_rng(i).random((len(box.vertices), 2))
+        box.visual = TextureVisuals(uv=uv, material=PBRMaterial(name=f"m{i}", baseColorFactor=colour))
+        parts.append(box)
+    path = tmp_path / "two.glb"
+    trimesh.Scene(parts).export(path)
+    scene = load_scene(path)
+    assert len(scene.materials) == 2 and scene.face_material.shape == (len(scene.faces),)
+    colours = {m["name"]: m["base_color_factor"] for m in scene.materials}
+    assert colours == {"m0": [1.0, 0.0, 0.0, 1.0], "m1": [0.0, 0.0, 1.0, 1.0]}
+    centres = scene.vertices[scene.faces].mean(axis=1)[:, 0]
+    for k, material in enumerate(scene.materials):
+        expected = 0.0 if material["name"] == "m0" else 3.0
+        np.testing.assert_allclose(centres[scene.face_material == k], expected, atol=0.51)
+
+
+def test_obj_faces_keep_their_usemtl(tmp_path):
+    (tmp_path / "m.mtl").write_text("newmtl a\nKd 0.2 0.4 0.6\nnewmtl b\nKd 1 0 0\n")
+    (tmp_path / "m.obj").write_text(
+        "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+        "f 1/1 2/2 3/3\nusemtl b\nf 1/1 3/3 4/4\nusemtl a\nf 1/1 2/2 4/4\nusemtl b\nf 2/2 3/3 4/4\n")
+    scene = load_scene(tmp_path / "m.obj")
+    names = [m["name"] for m in scene.materials]
+    assert names == ["b", "a", "default"]  # in order of first use; untagged faces: default
+    np.testing.assert_array_equal(scene.face_material, [2, 0, 1, 0])
+    assert scene.materials[1]["base_color_factor"] == [0.2, 0.4, 0.6, 1.0]
+    assert scene.materials[2]["base_color_factor"] is None

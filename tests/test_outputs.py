@@ -451,7 +451,37 @@ def test_textured_glb_rejects_bad_input(tmp_path, mesh, atlas):
         glb.write_textured(
             *args, atlas["atlas_uv"], atlas["occlusion_png"], {}, base_color_factor=[1, 1, 1]
         )
+    two = [{"name": "a", "base_color_png": None, "base_color_factor": None}] * 2
+    with pytest.raises(ValueError, match="either materials or"):
+        glb.write_textured(*args, atlas["atlas_uv"], atlas["occlusion_png"], {}, materials=two,
+                           face_material=np.zeros(len(mesh.faces)), base_color_factor=[1, 1, 1, 1])
+    with pytest.raises(ValueError, match="face_material must be"):
+        glb.write_textured(*args, atlas["atlas_uv"], atlas["occlusion_png"], {}, materials=two,
+                           face_material=np.full(len(mesh.faces), 2))
+    with pytest.raises(ValueError, match="must not be empty"):
+        glb.write_textured(*args, atlas["atlas_uv"], atlas["occlusion_png"], {}, materials=[],
+                           face_material=np.zeros(len(mesh.faces)))
     assert list(tmp_path.iterdir()) == []
+
+
+def test_textured_glb_one_primitive_per_material(tmp_path, mesh, atlas):
+    half = np.arange(len(mesh.faces)) % 2
+    materials = [{"name": "plain", "base_color_png": None, "base_color_factor": [0.5, 0.5, 0.5, 1]},
+                 {"name": "textured", "base_color_png": atlas["base_color_png"],
+                  "base_color_factor": None},
+                 {"name": "unused", "base_color_png": None, "base_color_factor": None}]
+    path = tmp_path / "multi.glb"
+    glb.write_textured(path, mesh.vertices, mesh.faces, None, atlas["atlas_uv"],
+                       atlas["occlusion_png"], {}, base_uv=atlas["base_uv"], materials=materials,
+                       face_material=half)
+    gltf, binary = check_glb_layout(path)
+    primitives = gltf["meshes"][0]["primitives"]
+    assert [gltf["materials"][p["material"]]["name"] for p in primitives] == ["plain", "textured"]
+    for k, prim in enumerate(primitives):
+        indices = glb.read_accessor(gltf, binary, prim["indices"]).reshape(-1, 3)
+        np.testing.assert_array_equal(indices, mesh.faces[half == k])
+        assert prim["attributes"] == primitives[0]["attributes"]  # shared vertex data
+    assert len(trimesh.load(path).geometry) == 2
 
 
 # --------------------------------------------------------- validation and atomicity

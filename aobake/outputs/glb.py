@@ -121,7 +121,7 @@ def write(
             attributes[attribute] = _add_accessor(gltf, blob, fields[name], _ARRAY_BUFFER)
 
     material = {"name": GENERATOR, "pbrMetallicRoughness": _white_pbr()}
-    _add_mesh(gltf, blob, attributes, faces, material)
+    _add_mesh(gltf, blob, attributes, [(faces, material)])
     _write_glb(path, gltf, blob)
     log.debug("wrote %s: %d vertices, %d faces, %s", path, len(positions), len(faces), list(fields))
 
@@ -137,8 +137,10 @@ def write_textured(
     base_uv: np.ndarray | None = None,
     base_color_png: bytes | None = None,
     base_color_factor: Sequence[float] | None = None,
+    materials: Sequence[Mapping] | None = None,
+    face_material: np.ndarray | None = None,
 ) -> None:
-    """Write a mesh whose material carries the baked AO atlas as its occlusion texture.
+    """Write a mesh whose materials carry the baked AO atlas as their occlusion texture.
 
     Parameters
     ----------
@@ -156,6 +158,10 @@ def write_textured(
     base_color_png : bytes of a PNG or None; the baseColorTexture, on TEXCOORD_0,
       so it needs ``base_uv``
     base_color_factor : 4 floats in [0, 1] or None (white)
+    materials : several materials instead of ``base_color_png``/``base_color_factor``:
+      a list of {"name", "base_color_png", "base_color_factor"} (the latter two as above)
+    face_material : (f,) int index into ``materials`` of each face; the mesh gets
+      one primitive per material that has faces (the vertex attributes are shared)
 
     The occlusion texture samples with linear filtering and no mipmaps (mips
     would average texels of unrelated charts) and clamps to the edge; the base
@@ -169,17 +175,35 @@ def write_textured(
     occlusion_png = _check_png("occlusion_png", occlusion_png)
     if base_uv is not None:
         base_uv = _check_uv("base_uv", base_uv, n)
-    if base_color_png is not None:
-        if base_uv is None:
-            raise ValueError("base_color_png needs base_uv (the UVs it is mapped with)")
-        base_color_png = _check_png("base_color_png", base_color_png)
-    factor = [1.0, 1.0, 1.0, 1.0]
-    if base_color_factor is not None:
-        factor = [float(c) for c in np.asarray(base_color_factor, dtype=np.float64).reshape(-1)]
-        if len(factor) != 4 or not all(0.0 <= c <= 1.0 for c in factor):
-            raise ValueError(
-                f"base_color_factor must be 4 floats in [0, 1], got {base_color_factor}"
-            )
+    if materials is None:
+        if face_material is not None:
+            raise ValueError("face_material needs materials")
+        materials = [{"name": GENERATOR, "base_color_png": base_color_png,
+                      "base_color_factor": base_color_factor}]
+        face_material = np.zeros(len(faces), dtype=np.int64)
+    else:
+        if base_color_png is not None or base_color_factor is not None:
+            raise ValueError("give either materials or base_color_png/base_color_factor")
+        if not len(materials):
+            raise ValueError("materials must not be empty")
+        face_material = np.asarray(face_material if face_material is not None
+                                   else np.zeros(len(faces)), dtype=np.int64)
+        if face_material.shape != (len(faces),) or (len(materials) and (
+                face_material.min() < 0 or face_material.max() >= len(materials))):
+            raise ValueError(f"face_material must be ({len(faces)},) indices into {len(materials)} materials")
+    checked = []
+    for material in materials:
+        png, factor = material.get("base_color_png"), material.get("base_color_factor")
+        if png is not None:
+            if base_uv is None:
+                raise ValueError("base_color_png needs base_uv (the UVs it is mapped with)")
+            png = _check_png("base_color_png", png)
+        rgba = [1.0, 1.0, 1.0, 1.0]
+        if factor is not None:
+            rgba = [float(c) for c in np.asarray(factor, dtype=np.float64).reshape(-1)]
+            if len(rgba) != 4 or not all(0.0 <= c <= 1.0 for c in rgba):
+                raise ValueError(f"base_color_factor must be 4 floats in [0, 1], got {factor}")
+        checked.append((str(material.get("name") or GENERATOR), png, rgba))
 
     gltf = _new_gltf(metadata)
     blob = bytearray()
@@ -187,21 +211,22 @@ def write_textured(
     uv_sets = [atlas_uv] if base_uv is None else [base_uv, atlas_uv]
     for i, uv in enumerate(uv_sets):
         attributes[f"TEXCOORD_{i}"] = _add_accessor(gltf, blob, _flip_v(uv), _ARRAY_BUFFER)
-
-    pbr = _white_pbr()
-    pbr["baseColorFactor"] = factor
-    material = {
-        "name": GENERATOR,
-        "occlusionTexture": {
-            "index": _add_texture(gltf, blob, occlusion_png, _CLAMP_TO_EDGE, "occlusion"),
-            "texCoord": len(uv_sets) - 1,
-        },
-        "pbrMetallicRoughness": pbr,
-    }
-    if base_color_png is not None:
-        index = _add_texture(gltf, blob, base_color_png, _REPEAT, "base_color")
-        pbr["baseColorTexture"] = {"index": index, "texCoord": 0}
-    _add_mesh(gltf, blob, attributes, faces, material)
+    occlusion = _add_texture(gltf, blob, occlusion_png, _CLAMP_TO_EDGE, "occlusion")
+    parts = []
+    for index in np.unique(face_material):  # materials without faces are not written
+        name, png, rgba = checked[index]
+        pbr = _white_pbr()
+        pbr["baseColorFactor"] = rgba
+        material = {
+            "name": name,
+            "occlusionTexture": {"index": occlusion, "texCoord": len(uv_sets) - 1},
+            "pbrMetallicRoughness": pbr,
+        }
+        if png is not None:
+            pbr["baseColorTexture"] = {"index": _add_texture(gltf, blob, png, _REPEAT, "base_color"),
+                                       "texCoord": 0}
+        parts.append((faces[face_material == index], material))
+    _add_mesh(gltf, blob, attributes, parts)
     _write_glb(path, gltf, blob)
     log.debug("wrote %s: %d vertices, %d faces, textured", path, n, len(faces))
 
@@ -418,19 +443,20 @@ def _add_texture(gltf: dict, blob: bytearray, png: bytes, wrap: int, name: str) 
     return len(textures) - 1
 
 
-def _add_mesh(
-    gltf: dict, blob: bytearray, attributes: dict, faces: np.ndarray, material: dict
-) -> None:
-    """Add the indices, the material, the one mesh, its node and the scene."""
-    indices = _add_accessor(gltf, blob, faces.reshape(-1), _ELEMENT_ARRAY_BUFFER, _UNSIGNED_INT)
-    gltf["materials"] = [material]
-    primitive = {
-        "attributes": attributes,
-        "indices": indices,
-        "material": 0,
-        "mode": _MODE_TRIANGLES,
-    }
-    gltf["meshes"] = [{"name": GENERATOR, "primitives": [primitive]}]
+def _add_mesh(gltf: dict, blob: bytearray, attributes: dict, parts) -> None:
+    """Add one mesh with a primitive per (faces (k, 3), material) part, sharing
+    ``attributes``; its materials, node and scene."""
+    gltf["materials"], primitives = [], []
+    for faces, material in parts:
+        indices = _add_accessor(gltf, blob, faces.reshape(-1), _ELEMENT_ARRAY_BUFFER, _UNSIGNED_INT)
+        gltf["materials"].append(material)
+        primitives.append({
+            "attributes": attributes,
+            "indices": indices,
+            "material": len(gltf["materials"]) - 1,
+            "mode": _MODE_TRIANGLES,
+        })
+    gltf["meshes"] = [{"name": GENERATOR, "primitives": primitives}]
     gltf["nodes"] = [{"name": GENERATOR, "mesh": 0}]
     gltf["scenes"] = [{"nodes": [0]}]
     gltf["scene"] = 0

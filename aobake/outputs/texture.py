@@ -79,7 +79,8 @@ def write_atlas_mesh(path, result, metadata: dict) -> None:
 
 
 def _write_glb(path, result, value, metadata: dict) -> None:
-    """The atlas mesh with the AO map as occlusionTexture, keeping the input's base colour.
+    """The atlas mesh with the AO map as occlusionTexture, keeping the input's materials
+    (one primitive per material, each with its base colour and the shared AO texture).
 
     With the mesh's own UVs the base colour and the AO share them (TEXCOORD_0 and an
     identical TEXCOORD_1); with a new atlas the input UVs stay in TEXCOORD_0 and the
@@ -88,14 +89,13 @@ def _write_glb(path, result, value, metadata: dict) -> None:
     from aobake.outputs import glb, image
 
     atlas = result.atlas
-    material = atlas.material or {}
-    base_png, factor = material.get("base_color_png"), material.get("base_color_factor")
     base_uv = atlas.base_uv
-    if base_uv is None and base_png is not None:
-        base_uv = atlas.uv  # own UVs: the base colour texture uses the same coordinates
+    textured = any(m["base_color_png"] is not None for m in atlas.materials or [])
+    if base_uv is None and textured:
+        base_uv = atlas.uv  # own UVs: the base colour textures use the same coordinates
     # glTF reads occlusion from R; the gutters are already dilated, so alpha
     # (coverage) is not needed by viewers and is left opaque.
     png = image.png_bytes(value, np.ones_like(value), bit_depth=8, r_only=True)
     glb.write_textured(path, atlas.positions, atlas.faces, atlas.normals, atlas.uv, png,
-                       metadata, base_uv=base_uv, base_color_png=base_png,
-                       base_color_factor=factor)
+                       metadata, base_uv=base_uv, materials=atlas.materials,
+                       face_material=atlas.face_material)
