@@ -480,17 +480,31 @@ def _split_corners(*corner_indices):
     return keys, inverse.reshape(-1, 3)
 
 
-def _make_atlas(scene: Scene, unwrap: str, width: int, height: int, padding: int, warnings: list):
-    """Choose the UVs to bake into: the mesh's own when valid, else a fresh xatlas atlas.
+def _make_atlas(scene: Scene, unwrap: str, width: int, height: int, padding: int,
+                texel_samples: int, seed: int, threads: int, warnings: list, timings: dict):
+    """Choose the UVs to bake into (the mesh's own when valid, else a fresh xatlas atlas)
+    and rasterise them.
 
-    Returns (atlas, bake_uv (t, 2), bake_faces_uv (f, 3), uv_check or None).
+    Returns (atlas, bake_uv (t, 2), bake_faces_uv (f, 3), uv_check or None, samples).
+    Fills ``timings`` with uv_check_s, unwrap_s and raster_s.
     """
     from aobake.errors import InputError
-    from aobake.targets.texels import check_uvs, unwrap as xatlas_unwrap
+    from aobake.targets.texels import check_uvs, rasterize, unwrap as xatlas_unwrap
 
-    check = None
+    def raster(uv, faces_uv):
+        clock = time.perf_counter()
+        samples = rasterize(uv, faces_uv, width, height, texel_samples, seed, threads=threads)
+        timings["raster_s"] = time.perf_counter() - clock
+        return samples
+
+    check = samples = None
+    timings.update(uv_check_s=0.0, unwrap_s=0.0)
     if scene.faces_uv is not None:
-        check = check_uvs(scene.uv, scene.faces_uv, width, height)
+        # The bake's own rasterisation gives the overlap count too (texel-centre coverage).
+        samples = raster(scene.uv, scene.faces_uv)
+        clock = time.perf_counter()
+        check = check_uvs(scene.uv, scene.faces_uv, width, height, shared=samples.shared)
+        timings["uv_check_s"] = time.perf_counter() - clock
     if unwrap == "never":
         if scene.faces_uv is None:
             raise InputError(f"{scene.source}: mesh has no UVs and --no-unwrap was given")
@@ -502,14 +516,18 @@ def _make_atlas(scene: Scene, unwrap: str, width: int, height: int, padding: int
         atlas = Atlas(scene.vertices[keys[:, 0]], scene.vertex_normals[keys[:, 0]], faces,
                       scene.uv[keys[:, 1]], None, keys[:, 0], new=False, materials=scene.materials,
                       face_material=scene.face_material)
-        return atlas, scene.uv, scene.faces_uv, check
+        return atlas, scene.uv, scene.faces_uv, check, samples
     if scene.faces_uv is not None and unwrap == "auto":
         warnings.append(f"{scene.source}: the mesh's UVs cannot be baked ({check.message}); "
                         "made a new atlas with xatlas")
+    if samples is not None:  # rasterising the rejected own UVs was part of checking them
+        timings["uv_check_s"] += timings.pop("raster_s")
     if width != height:
         raise ValueError(f"a new atlas needs a square resolution (xatlas packs squares), got "
                          f"{width}x{height}; use the mesh's own UVs (--no-unwrap) or N")
+    clock = time.perf_counter()
     unwrapped = xatlas_unwrap(scene.vertices, scene.faces, width, padding)
+    timings["unwrap_s"] = time.perf_counter() - clock
     if not np.array_equal(unwrapped.vmapping[unwrapped.faces], scene.faces):
         raise RuntimeError("xatlas changed the face order")  # the texel->face mapping relies on it
     if scene.faces_uv is not None:
@@ -523,7 +541,7 @@ def _make_atlas(scene: Scene, unwrap: str, width: int, height: int, padding: int
                   unwrapped.uv[keys[:, 0]], base_uv, source, new=True,
                   materials=scene.materials if base_uv is not None else None,
                   face_material=scene.face_material if base_uv is not None else None)
-    return atlas, unwrapped.uv, unwrapped.faces, check
+    return atlas, unwrapped.uv, unwrapped.faces, check, raster(unwrapped.uv, unwrapped.faces)
 
 
 def bake_texels(
@@ -550,7 +568,7 @@ def bake_texels(
     ``options`` are BakeConfig fields, as for :func:`bake`.
     """
     from aobake.post import dilate
-    from aobake.targets.texels import rasterize, splat, surface_points
+    from aobake.targets.texels import splat, surface_points
 
     config = _config(config, options)
     width, height = parse_resolution(resolution)
@@ -573,15 +591,16 @@ def bake_texels(
     timings["load_s"] = time.perf_counter() - clock
 
     warnings: list = []
+    phases: dict = {}
+    atlas, bake_uv, bake_faces_uv, check, samples = _make_atlas(
+        scene, unwrap, width, height, padding, texel_samples, config.seed,
+        threads or default_threads(), warnings, phases)
+    timings["uv_check_s"] = phases["uv_check_s"]
+    timings["unwrap_s"] = phases["unwrap_s"]
     clock = time.perf_counter()
-    atlas, bake_uv, bake_faces_uv, check = _make_atlas(scene, unwrap, width, height, padding, warnings)
-    timings["unwrap_s"] = time.perf_counter() - clock if atlas.new else 0.0
-
-    clock = time.perf_counter()
-    samples = rasterize(bake_uv, bake_faces_uv, width, height, texel_samples, config.seed,
-                        threads=threads or default_threads())
     points, normals, _ = surface_points(scene.vertices, scene.vertex_normals, scene.faces, samples)
-    timings["rasterize_s"] = time.perf_counter() - clock
+    # Rasterising the UVs baked into (a rejected own-UV pass is in uv_check_s) + surface points.
+    timings["rasterize_s"] = phases["raster_s"] + time.perf_counter() - clock
 
     clock = time.perf_counter()
     # Point ids: position in the (texel, sample, face)-sorted sample list, a pure

@@ -192,12 +192,15 @@ def _signed_uv_area(uv: np.ndarray, faces: np.ndarray) -> np.ndarray:
 # --- UV checking -----------------------------------------------------------
 
 
-def check_uvs(uv, faces, width: int, height: int) -> UVCheck:
+def check_uvs(uv, faces, width: int, height: int, shared: np.ndarray | None = None) -> UVCheck:
     """Check whether a mesh's own UVs can be baked into a width x height image.
 
     uv : (n, 2) float, OBJ convention; faces : (f, 3) int.
     Overlap is measured by rasterising the texel centres (K = 1) with the
     module's coverage rule, so it is exactly the overlap the bake would see.
+    shared : (height, width) int, ``TexelSamples.shared`` of a rasterisation of
+        these UVs that was already made (any K: the centre counts do not depend
+        on it), which saves rasterising again.
     """
     uv, faces = _check_uv_faces(uv, faces, width, height)
     corners = uv[faces]  # (f, 3, 2)
@@ -212,8 +215,11 @@ def check_uvs(uv, faces, width: int, height: int) -> UVCheck:
     # Which orientation is "mirrored" is only defined relative to the majority.
     mirrored = min(n_pos, n_neg)
 
-    samples = rasterize(uv, faces, width, height, texel_samples=1)
-    overlapping = int(np.count_nonzero(samples.shared > 1))
+    if shared is None:
+        shared = rasterize(uv, faces, width, height, texel_samples=1).shared
+    elif np.shape(shared) != (height, width):
+        raise ValueError(f"shared must be ({height}, {width}), got {np.shape(shared)}")
+    overlapping = int(np.count_nonzero(np.asarray(shared) > 1))
 
     valid = out_of_range == 0 and overlapping == 0
     parts = []
