@@ -1,4 +1,5 @@
-/* aobake._kernels: the per-ray part of ray generation, compiled.
+/* aobake._kernels: the per-ray part of ray generation, the AO escape counts and
+ * the lightmap rasteriser's per-pair tests, compiled.
  *
  * numpy builds each chunk's rays at 10-40 Mrays/s per thread; Embree traces at
  * 3-5 Mrays/s per thread, so numpy ray generation costs 10-25% of the bake.
@@ -185,10 +186,162 @@ done:
     return result;
 }
 
+/* raster_pairs(ax, ay, dx, dy, owner, corner, vmax, t, row, col, width, n_sub, seed_key, q, g,
+ *              out_centre, out_open, out_ins, out_bary)
+ *
+ * The per-pair tests of aobake.targets.texels._raster_chunk for n candidate
+ * (triangle, texel) pairs, operation for operation (see there for the maths):
+ *
+ * ax, ay, dx, dy (f, 3) float64  oriented edge functions E = dx (y - ay) - dy (x - ax)
+ * owner (f, 3) bool, corner (f, 3) int64, vmax (f, 2) float64
+ * t, row, col (n,) int64          the pairs; width: texels per row (texel = row * width + col)
+ * n_sub                          K sub-positions per texel
+ * seed_key uint64                _mix64(seed ^ _SEED_SALT) of the jitter hash
+ * q, g                           q * q == K: jittered q x q grid; else rank-1 lattice with g
+ * out_centre (n,) bool           the texel centre is on the triangle (coverage rule)
+ * out_open (n,) bool             the triangle overlaps the open texel square
+ * out_ins (K, n) bool            sub-position k landed on the triangle
+ * out_bary (K, n, 3) float64     its barycentrics in face-corner order (0 where not landed)
+ *
+ * With K = 1 the only sub-position is the centre.  With K > 1 pairs failing the
+ * closed-overlap pre-filter get no landed sub-position, exactly as the numpy path,
+ * which drops them before testing sub-positions.
+ */
+static inline double edge_value(const double *ax, const double *ay, const double *dx,
+                                const double *dy, int e, double x, double y)
+{
+    return dx[e] * (y - ay[e]) - dy[e] * (x - ax[e]);
+}
+
+static inline int on_triangle(const double *e, const uint8_t *own)
+{
+    for (int i = 0; i < 3; ++i)
+        if (!(e[i] > 0 || (e[i] == 0 && own[i])))
+            return 0;
+    return 1;
+}
+
+static inline double jitter(uint64_t seed_key, uint64_t texel, uint64_t k, uint64_t dim)
+{
+    const uint64_t golden = 0x9E3779B97F4A7C15ULL;
+    const uint64_t key = texel * 0x100000ULL + (k * 4 + dim);
+    const uint64_t h = mix(mix(key * golden + seed_key) + golden);
+    return (double)(h >> 11) * (1.0 / 9007199254740992.0);
+}
+
+static PyObject *raster_pairs(PyObject *self, PyObject *args)
+{
+    Py_buffer bax = {0}, bay = {0}, bdx = {0}, bdy = {0}, bown = {0}, bcor = {0}, bvm = {0};
+    Py_buffer bt = {0}, brow = {0}, bcol = {0}, bc = {0}, bo = {0}, bi = {0}, bb = {0};
+    Py_ssize_t width, n_sub, q, g;
+    unsigned long long seed_key;
+    PyObject *result = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*nnKnnw*w*w*w*", &bax, &bay, &bdx, &bdy,
+                          &bown, &bcor, &bvm, &bt, &brow, &bcol, &width, &n_sub, &seed_key, &q, &g,
+                          &bc, &bo, &bi, &bb))
+        return NULL;
+    {
+        const Py_ssize_t f3 = bax.len / 8, n = bt.len / 8;
+        if (n_sub < 1 || q < 1 || g < 0 || width < 1 || f3 % 3) {
+            PyErr_SetString(PyExc_ValueError, "bad sizes");
+            goto done;
+        }
+        if (check(&bax, "ax", 8, f3) || check(&bay, "ay", 8, f3) || check(&bdx, "dx", 8, f3) ||
+            check(&bdy, "dy", 8, f3) || check(&bown, "owner", 1, f3) || check(&bcor, "corner", 8, f3) ||
+            check(&bvm, "vmax", 8, f3 / 3 * 2) || check(&bt, "t", 8, n) || check(&brow, "row", 8, n) ||
+            check(&bcol, "col", 8, n) || check(&bc, "out_centre", 1, n) || check(&bo, "out_open", 1, n) ||
+            check(&bi, "out_ins", 1, n_sub * n) || check(&bb, "out_bary", 8, n_sub * n * 3))
+            goto done;
+        const double *AX = bax.buf, *AY = bay.buf, *DX = bdx.buf, *DY = bdy.buf, *VM = bvm.buf;
+        const uint8_t *OWN = bown.buf;
+        const int64_t *COR = bcor.buf, *T = bt.buf, *ROW = brow.buf, *COL = bcol.buf;
+        uint8_t *centre = bc.buf, *open = bo.buf, *ins = bi.buf;
+        double *bary = bb.buf;
+        const int64_t faces = f3 / 3;
+        for (Py_ssize_t i = 0; i < n; ++i)
+            if (T[i] < 0 || T[i] >= faces) {
+                PyErr_SetString(PyExc_IndexError, "triangle index out of range");
+                goto done;
+            }
+        const double margin = 1.0 + 1e-9;
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t i = 0; i < n; ++i) {
+            const int64_t tri = T[i];
+            const double *ax = AX + 3 * tri, *ay = AY + 3 * tri, *dx = DX + 3 * tri, *dy = DY + 3 * tri;
+            const uint8_t *own = OWN + 3 * tri;
+            const int64_t *cor = COR + 3 * tri;
+            const double fx = (double)COL[i], fy = (double)ROW[i];
+            const double cx = fx + 0.5, cy = fy + 0.5;
+            double ec[3];
+            int touch = 1, opened = 1;
+            for (int e = 0; e < 3; ++e) {
+                ec[e] = edge_value(ax, ay, dx, dy, e, cx, cy);
+                const double half = 0.5 * (fabs(dx[e]) + fabs(dy[e]));
+                touch &= ec[e] + half * margin >= 0;
+                opened &= ec[e] + half > 0;
+            }
+            opened &= (VM[2 * tri] > fx) & (VM[2 * tri + 1] > fy);
+            centre[i] = (uint8_t)on_triangle(ec, own);
+            open[i] = (uint8_t)opened;
+            const uint64_t texel = (uint64_t)(ROW[i] * (int64_t)width + COL[i]);
+            for (Py_ssize_t k = 0; k < n_sub; ++k) {
+                double e[3];
+                int landed;
+                if (n_sub == 1) {
+                    e[0] = ec[0], e[1] = ec[1], e[2] = ec[2];
+                    landed = centre[i];
+                } else if (!touch) {
+                    landed = 0;
+                } else {
+                    const double ux = jitter(seed_key, texel, (uint64_t)k, 0);
+                    const double uy = jitter(seed_key, texel, (uint64_t)k, 1);
+                    double ox, oy;
+                    if (q * q == n_sub) {
+                        ox = ((double)(k % q) + ux) / (double)q;
+                        oy = ((double)(k / q) + uy) / (double)q;
+                    } else {
+                        ox = ((double)k + ux) / (double)n_sub;
+                        oy = ((double)((k * g) % n_sub) + uy) / (double)n_sub;
+                    }
+                    const double x = fx + ox, y = fy + oy;
+                    for (int j = 0; j < 3; ++j)
+                        e[j] = edge_value(ax, ay, dx, dy, j, x, y);
+                    landed = on_triangle(e, own);
+                }
+                ins[k * n + i] = (uint8_t)landed;
+                double *out = bary + 3 * (k * n + i);
+                if (landed) {
+                    /* Edge j is opposite oriented vertex j + 2: weights (E1, E2, E0). */
+                    const double w[3] = {e[1], e[2], e[0]};
+                    const double sum = (w[0] + w[1]) + w[2];
+                    for (int j = 0; j < 3; ++j)
+                        out[cor[j]] = w[j] / sum;
+                } else {
+                    out[0] = out[1] = out[2] = 0.0;
+                }
+            }
+        }
+        Py_END_ALLOW_THREADS
+    }
+    Py_INCREF(Py_None);
+    result = Py_None;
+
+done:
+    PyBuffer_Release(&bax); PyBuffer_Release(&bay); PyBuffer_Release(&bdx); PyBuffer_Release(&bdy);
+    PyBuffer_Release(&bown); PyBuffer_Release(&bcor); PyBuffer_Release(&bvm); PyBuffer_Release(&bt);
+    PyBuffer_Release(&brow); PyBuffer_Release(&bcol); PyBuffer_Release(&bc); PyBuffer_Release(&bo);
+    PyBuffer_Release(&bi); PyBuffer_Release(&bb);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"fill_rays", fill_rays, METH_VARARGS,
      "fill_rays(origins, normals, ids, key, dim_salt, local, k, R, m, out_origins, "
      "out_directions): write point-major ray origins and directions."},
+    {"raster_pairs", raster_pairs, METH_VARARGS,
+     "raster_pairs(ax, ay, dx, dy, owner, corner, vmax, t, row, col, width, n_sub, seed_key, q, g, "
+     "out_centre, out_open, out_ins, out_bary): per-pair rasteriser tests."},
     {"row_counts", row_counts, METH_VARARGS,
      "row_counts(flags, rows, m, out): nonzero flags per row of m."},
     {NULL, NULL, 0, NULL},

@@ -475,3 +475,25 @@ def test_tangents_on_unwrapped_sphere_are_perpendicular_and_unit():
     np.testing.assert_allclose(np.linalg.norm(t[:, :3], axis=1), 1.0)
     assert np.max(np.abs(np.sum(t[:, :3] * nrm, axis=1))) < 1e-9
     assert set(np.unique(t[:, 3])) <= {-1.0, 1.0}
+
+
+def test_compiled_rasteriser_equals_numpy_rasteriser_bit_for_bit():
+    """aobake._kernels.raster_pairs does _raster_chunk's tests operation for operation."""
+    from aobake import rays
+
+    if rays.KERNEL != "compiled":
+        pytest.fail("aobake._kernels was not built")
+    rng = np.random.default_rng(9)
+    fields = ("texel", "face", "bary", "sample", "is_fallback", "coverage", "shared")
+    for trial in range(40):
+        n = int(rng.integers(3, 60))
+        uv = rng.random((n, 2)) * rng.choice([1.0, 1.3])
+        if trial % 4 == 0:
+            uv = np.round(uv * 8) / 8  # vertices and edges exactly on texel boundaries
+        faces = rng.integers(0, n, (int(rng.integers(1, 70)), 3))
+        k = int(rng.integers(1, 10))  # squares (grid) and non-squares (lattice)
+        w, h = (int(x) for x in rng.integers(1, 40, 2))
+        a = rasterize(uv, faces, w, h, k, trial, compiled=True, chunk_pairs=int(rng.integers(7, 500)))
+        b = rasterize(uv, faces, w, h, k, trial, compiled=False)
+        for name in fields:
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=f"{trial} {name}")

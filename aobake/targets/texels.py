@@ -43,6 +43,11 @@ import numpy as np
 
 from aobake.errors import InputError
 
+try:  # built by setup.py; optional
+    from aobake import _kernels
+except ImportError:  # pragma: no cover
+    _kernels = None
+
 log = logging.getLogger(__name__)
 
 #: A UV triangle with |area| below this (in uv units, i.e. as a fraction of the
@@ -768,6 +773,48 @@ def _candidate_chunks(band_tri, band_c0, band_bw, band_r0, band_rows, budget):
         lo = hi
 
 
+class _CompiledEdges(NamedTuple):
+    """_Edges as C-contiguous buffers for aobake._kernels.raster_pairs."""
+
+    ax: np.ndarray
+    ay: np.ndarray
+    dx: np.ndarray
+    dy: np.ndarray
+    owner: np.ndarray
+    corner: np.ndarray
+    vmax: np.ndarray
+
+    @classmethod
+    def of(cls, ed: _Edges, vmax: np.ndarray) -> "_CompiledEdges":
+        c = np.ascontiguousarray
+        return cls(c(ed.ax, dtype=np.float64), c(ed.ay, dtype=np.float64),
+                   c(ed.dx, dtype=np.float64), c(ed.dy, dtype=np.float64),
+                   c(ed.owner, dtype=bool), c(ed.corner, dtype=np.int64), c(vmax, dtype=np.float64))
+
+
+def _raster_chunk_compiled(ce: _CompiledEdges, t, row, col, width: int, n_sub: int, seed: int):
+    """_raster_chunk through the compiled kernel: the same tests in the same floating-point
+    operations (tested bit for bit), without the (m, 3) temporaries."""
+    n = len(t)
+    t, row, col = (np.ascontiguousarray(a, dtype=np.int64) for a in (t, row, col))
+    centre = np.empty(n, dtype=bool)
+    opened = np.empty(n, dtype=bool)
+    ins = np.empty((n_sub, n), dtype=bool)
+    bary = np.empty((n_sub, n, 3), dtype=np.float64)
+    q = int(round(np.sqrt(n_sub)))
+    g = 0 if q * q == n_sub else _lattice_generator(n_sub)
+    seed_key = int(_mix64(np.array([seed & 0xFFFFFFFFFFFFFFFF], dtype=np.uint64) ^ _SEED_SALT)[0])
+    _kernels.raster_pairs(*ce, t, row, col, int(width), int(n_sub), seed_key, q, g,
+                          centre, opened, ins, bary)
+    texel = row * width + col
+    out_texel = [texel[ins[k]] for k in range(n_sub)]
+    counts = [len(x) for x in out_texel]
+    return (np.concatenate(out_texel), np.concatenate([t[ins[k]] for k in range(n_sub)]),
+            np.concatenate([bary[k][ins[k]] for k in range(n_sub)]),
+            np.repeat(np.arange(n_sub, dtype=np.int64), counts), texel[centre],
+            texel[opened & ~ins.any(axis=0)], t[opened & ~ins.any(axis=0)])
+
+
 def _raster_chunk(ed: _Edges, vmax, t, row, col, width: int, n_sub: int, seed: int):
     """One batch of (triangle, texel) candidate pairs -> the rasteriser's per-batch parts:
     (texel, face, bary, k) of landed sub-positions, texels whose centre a triangle covers,
@@ -839,6 +886,7 @@ def rasterize(
     *,
     chunk_pairs: int = CHUNK_PAIRS,
     threads: int = 1,
+    compiled: bool | None = None,
 ) -> TexelSamples:
     """Find the surface sample points of every texel of a width x height atlas.
 
@@ -849,6 +897,8 @@ def rasterize(
     chunk_pairs : memory knob (candidate pairs per batch); does not change the
         result.
     threads : batches processed at once; does not change the result.
+    compiled : per-pair tests in the compiled kernel (default: when it was built) or in
+        numpy (the reference); the samples are identical.
 
     Texels that a triangle overlaps (open intersection with the texel square)
     but where no sub-position landed on any triangle get one fallback sample:
@@ -872,8 +922,16 @@ def rasterize(
     tri_ids = np.flatnonzero(keep)
     bands = _bands(tri_ids, c0[keep], c1[keep], r0[keep], r1[keep], max(1, int(chunk_pairs)))
 
-    def work(chunk):
-        return _raster_chunk(ed, vmax, *chunk, width, n_sub, seed)
+    if compiled is None:
+        compiled = _kernels is not None
+    if compiled:
+        ce = _CompiledEdges.of(ed, vmax)
+
+        def work(chunk):
+            return _raster_chunk_compiled(ce, *chunk, width, n_sub, seed)
+    else:
+        def work(chunk):
+            return _raster_chunk(ed, vmax, *chunk, width, n_sub, seed)
 
     chunks = _candidate_chunks(*bands, max(1, int(chunk_pairs)))
     if threads > 1:
