@@ -1033,34 +1033,51 @@ def surface_points(positions, normals, faces, samples: TexelSamples):
     faces = np.asarray(faces, dtype=np.int64)
     if positions.ndim != 2 or positions.shape[1] != 3:
         raise ValueError(f"positions must be (n, 3), got {positions.shape}")
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float64)
+        if normals.shape != positions.shape:
+            raise ValueError(f"normals must be {positions.shape}, got {normals.shape}")
     # Face normals once per face (not per sample): np.cross on millions of rows is slow.
     ftri = positions[faces]
     fn = np.cross(ftri[:, 1] - ftri[:, 0], ftri[:, 2] - ftri[:, 0])
     fn_len = np.linalg.norm(fn, axis=1, keepdims=True)
     unit = np.divide(fn, fn_len, out=np.zeros_like(fn), where=fn_len > 0)
-    face_normals = unit[samples.face]
-    has_face = fn_len[samples.face, 0] > 0
-    corners = faces[samples.face]  # (s, 3)
-    bary = samples.bary
+    s = samples.n_samples
+    points, shading, face_normals = np.empty((s, 3)), np.empty((s, 3)), np.empty((s, 3))
+    n_bad = 0
+    # In blocks: row-wise arithmetic, so the result is the same, but the temporaries
+    # stay small (whole-array temporaries of millions of rows cost more in page
+    # faults than in arithmetic).
+    for lo in range(0, s, _SURFACE_BLOCK):
+        hi = min(s, lo + _SURFACE_BLOCK)
+        face = samples.face[lo:hi]
+        bary = samples.bary[lo:hi]
+        corners = faces[face]  # (b, 3)
 
-    def interpolate(values):
-        return (bary[:, 0, None] * values[corners[:, 0]] + bary[:, 1, None] * values[corners[:, 1]]
-                + bary[:, 2, None] * values[corners[:, 2]])
+        def interpolate(values):
+            return (bary[:, 0, None] * values[corners[:, 0]] + bary[:, 1, None] * values[corners[:, 1]]
+                    + bary[:, 2, None] * values[corners[:, 2]])
 
-    points = interpolate(positions)
-    if normals is None:
-        return points, face_normals.copy(), face_normals
-    normals = np.asarray(normals, dtype=np.float64)
-    if normals.shape != positions.shape:
-        raise ValueError(f"normals must be {positions.shape}, got {normals.shape}")
-    n = interpolate(normals)
-    n_len = np.linalg.norm(n, axis=1, keepdims=True)
-    n = np.divide(n, n_len, out=np.zeros_like(n), where=n_len > 0)
-    bad = has_face & ((n_len[:, 0] == 0) | (np.einsum("ij,ij->i", n, face_normals) <= 0))
-    n[bad] = face_normals[bad]
-    if bad.any():
-        log.debug("%d samples use the face normal (vertex normal zero or flipped)", int(bad.sum()))
-    return points, n, face_normals
+        fnorm = face_normals[lo:hi] = unit[face]
+        points[lo:hi] = interpolate(positions)
+        if normals is None:
+            shading[lo:hi] = fnorm
+            continue
+        n = interpolate(normals)
+        n_len = np.linalg.norm(n, axis=1, keepdims=True)
+        n = np.divide(n, n_len, out=np.zeros_like(n), where=n_len > 0)
+        has_face = fn_len[face, 0] > 0
+        bad = has_face & ((n_len[:, 0] == 0) | (np.einsum("ij,ij->i", n, fnorm) <= 0))
+        n[bad] = fnorm[bad]
+        n_bad += int(bad.sum())
+        shading[lo:hi] = n
+    if n_bad:
+        log.debug("%d samples use the face normal (vertex normal zero or flipped)", n_bad)
+    return points, shading, face_normals
+
+
+#: samples interpolated at once by :func:`surface_points` (memory, not results)
+_SURFACE_BLOCK = 1 << 16
 
 
 def splat_count(samples: TexelSamples, width: int | None = None, height: int | None = None) -> np.ndarray:
