@@ -499,7 +499,11 @@ def _make_atlas(scene: Scene, unwrap: str, width: int, height: int, padding: int
 
     check = samples = None
     timings.update(uv_check_s=0.0, unwrap_s=0.0)
-    if scene.faces_uv is not None:
+    if scene.faces_uv is not None and unwrap == "always":
+        clock = time.perf_counter()  # reported only: a texel-centre (K = 1) pass is enough
+        check = check_uvs(scene.uv, scene.faces_uv, width, height)
+        timings["uv_check_s"] = time.perf_counter() - clock
+    elif scene.faces_uv is not None:
         # The bake's own rasterisation gives the overlap count too (texel-centre coverage).
         samples = raster(scene.uv, scene.faces_uv)
         clock = time.perf_counter()
