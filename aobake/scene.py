@@ -273,9 +273,13 @@ def _obj_materials(path: Path, data) -> tuple[list | None, np.ndarray | None]:
     found = {}
     for lib in data.mtllibs:
         mtl = path.parent / lib
-        if mtl.is_file():
-            for name, values in _read_mtl(mtl, data.materials).items():
-                found.setdefault(name, values)
+        try:
+            defined = _read_mtl(mtl, data.materials) if mtl.is_file() else {}
+        except OSError as exc:
+            log.warning("%s: material library %s not read (%s)", path, lib, exc)
+            defined = {}
+        for name, values in defined.items():
+            found.setdefault(name, values)
     materials = []
     for name in data.materials:
         material = _white(name)
