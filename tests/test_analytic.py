@@ -155,3 +155,11 @@ def test_bent_normal_beside_wall_tilts_by_atan_2_over_pi():
     k = z_bound(1, n - 1)
     assert abs(angle.mean() - math.atan(2 / math.pi)) <= k * stderr_mean
     assert abs(np.mean(res.bent_normal[:, 1])) <= k * res.bent_normal[:, 1].std(ddof=1) / math.sqrt(n)
+    # Per point, against the reported angular error: the error is a 2-D angle whose squared
+    # length has expectation stderr^2; the 1-D normal bound is the conservative one.
+    tilt = math.atan(2 / math.pi)
+    exact = np.array([math.sin(tilt), 0.0, math.cos(tilt)])
+    error = np.arccos(np.clip(res.bent_normal @ exact, -1.0, 1.0))
+    assert np.all(error <= z_bound(n, None) * res.bent_normal_stderr)
+    # (The points share elevation samples, so their errors are correlated: the calibration
+    # of the angular error over independent seeds is in test_calibration.)
