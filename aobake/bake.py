@@ -527,10 +527,11 @@ def _make_atlas(scene: Scene, unwrap: str, width: int, height: int, padding: int
     if samples is not None:  # rasterising the rejected own UVs was part of checking them
         timings["uv_check_s"] += timings.pop("raster_s")
     if width != height:
-        raise ValueError(f"a new atlas needs a square resolution (xatlas packs squares), got "
-                         f"{width}x{height}; use the mesh's own UVs (--no-unwrap) or N")
+        warnings.append(f"{scene.source}: xatlas packs square layouts: the new atlas uses the "
+                        f"top-left {min(width, height)}x{min(width, height)} of the "
+                        f"{width}x{height} image")
     clock = time.perf_counter()
-    unwrapped = xatlas_unwrap(scene.vertices, scene.faces, width, padding)
+    unwrapped = xatlas_unwrap(scene.vertices, scene.faces, (width, height), padding)
     timings["unwrap_s"] = time.perf_counter() - clock
     if not np.array_equal(unwrapped.vmapping[unwrapped.faces], scene.faces):
         raise RuntimeError("xatlas changed the face order")  # the texel->face mapping relies on it

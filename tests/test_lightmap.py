@@ -407,3 +407,19 @@ def test_glb_keeps_every_material_of_a_multi_material_obj(tmp_path):
     assert white[0]["pbrMetallicRoughness"]["baseColorFactor"] == [1.0, 1.0, 1.0, 1.0]
     loaded = trimesh.load(out)  # a viewer-grade loader reads all three
     assert len(loaded.geometry) == 3
+
+
+def test_new_atlas_in_a_non_square_image(tmp_path):
+    out = tmp_path / "ao.exr"
+    rep = tmp_path / "r.json"
+    mesh = trimesh.creation.box()
+    mesh.export(tmp_path / "box.ply")
+    res = run(tmp_path / "box.ply", "--out", out, "--resolution", "64x32", "--padding", 1,
+              "--rays", 4, "--report", rep)
+    assert res.exit_code == 0, res.output
+    pixels, names, _ = read_image(out)
+    assert pixels.shape[:2] == (32, 64)
+    coverage = pixels[..., names.index("coverage")]
+    assert coverage[:, 32:].max() == 0 and coverage[:, :32].max() > 0  # the top-left 32 x 32
+    report = json.loads(rep.read_text())
+    assert any("top-left 32x32" in w for w in report["warnings"])

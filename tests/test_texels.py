@@ -272,6 +272,21 @@ def test_unwrap_icosphere():
     assert_valid_atlas(mesh.vertices, mesh.faces, unwrap(mesh.vertices, mesh.faces, res, pad), res, pad)
 
 
+def test_unwrap_into_a_non_square_image():
+    """xatlas packs square layouts: a W x H atlas uses the top-left min(W, H) square, on the
+    texel grid of the W x H image, with the usual padding."""
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    w, h, pad = 96, 48, 2
+    un = unwrap(mesh.vertices, mesh.faces, (w, h), pad)
+    chk = check_uvs(un.uv, un.faces, w, h)
+    assert chk.valid and chk.overlapping_texels == 0
+    s = rasterize(un.uv, un.faces, w, h)
+    rows, cols = np.divmod(s.texel, w)
+    assert cols.max() < h  # inside the 48 x 48 square
+    assert rows.max() >= 0.8 * h and cols.max() >= 0.8 * h
+    np.testing.assert_array_equal(mesh.vertices[un.vmapping][un.faces], mesh.vertices[mesh.faces])
+
+
 def test_unwrap_large_mesh_in_parts():
     """Above texels.PART_FACES triangles the mesh is charted in spatial parts with capped
     chart areas: still one valid, padded, deterministic atlas that uses the image."""

@@ -301,15 +301,20 @@ def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False):
        the core count) added as separate meshes.  The first pack only has to
        produce charts, so it is cheap (no padding, no bilinear, small scale).
     2. The scale for the final pack is predicted from the padded chart areas.
-    3. The charts are repacked with no fixed resolution (one atlas of W x H) at
+    3. The charts are repacked with no fixed resolution (one atlas of w x h) at
        that scale, corrected by a secant step on the measured side, keeping the
-       largest scale whose layout fits in R x R (typically 1-2 repacks).  That
-       layout is placed in the top-left corner of the R x R image: the charts
-       stay on the texel grid with exactly ``padding`` texels around them.
+       largest scale whose layout fits in R x R, R = min(width, height)
+       (typically 1-2 repacks).  That layout is placed in the top-left corner of
+       the width x height image: the charts stay on the texel grid with exactly
+       ``padding`` texels around them.  xatlas packs square-ish layouts, so a
+       non-square image leaves the part beyond R unused.
+
+    ``resolution`` : N or (width, height).
     """
     import xatlas
 
-    R, P = int(resolution), int(padding)
+    W, H = (int(resolution), int(resolution)) if np.ndim(resolution) == 0 else map(int, resolution)
+    R, P = min(W, H), int(padding)
     V = np.asarray(positions, dtype=np.float64)
     F = np.asarray(faces, dtype=np.int64)
     e1, e2 = V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]
@@ -404,20 +409,20 @@ def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False):
         if atlas.atlas_count == 1 and max(atlas.width, atlas.height) <= R:
             best = (scale, atlas)
     if best is None:
-        raise InputError(f"xatlas could not pack the charts into one {R}x{R} atlas with {P} texels "
+        raise InputError(f"xatlas could not pack the charts into one {W}x{H} atlas with {P} texels "
                          "of padding: raise --resolution or lower --padding")
     scale, atlas = best
     w, h = atlas.width, atlas.height
     vm_b, faces_b, uv_b = atlas[0]
-    # embed the w x h layout in the top-left corner of the R x R image (xatlas orientation)
-    uv_out = uv_b.astype(np.float64) * [w / R, h / R]
+    # embed the w x h layout in the top-left corner of the W x H image (xatlas orientation)
+    uv_out = uv_b.astype(np.float64) * [w / W, h / H]
     image = None
     if chart_image:
-        image = np.zeros((R, R, 3), np.uint8)
+        image = np.zeros((H, W, 3), np.uint8)
         image[:h, :w] = atlas.get_chart_image(0)
-    utilization = float(atlas.utilization) * w * h / (R * R)
+    utilization = float(atlas.utilization) * w * h / (W * H)
     log.debug("xatlas: %d repacks %s, final %dx%d in %dx%d, utilisation %.3f",
-              len(tried), tried, w, h, R, R, utilization)
+              len(tried), tried, w, h, W, H, utilization)
     info = {"charts": int(atlas.chart_count), "utilization": utilization}
     return vm_a[vm_b.astype(np.int64)], faces_b.astype(np.int64), uv_out, image, info
 
@@ -435,7 +440,8 @@ def _unwrap_worker(argv: list[str]) -> None:
     """Entry point of the isolated xatlas process: ``in.npz out.npz``."""
     with np.load(argv[0]) as data:
         result, info = _unwrap_in_process(
-            data["positions"], data["faces"], int(data["resolution"]), int(data["padding"])
+            data["positions"], data["faces"], tuple(int(x) for x in data["resolution"]),
+            int(data["padding"])
         )
     np.savez(argv[1], vmapping=result.vmapping, faces=result.faces, uv=result.uv,
              charts=info["charts"], utilization=info["utilization"])
@@ -497,11 +503,12 @@ def _unwrap_isolated(positions, faces, resolution, padding) -> tuple[Unwrapped, 
             return Unwrapped(data["vmapping"], data["faces"], data["uv"]), info
 
 
-def unwrap(positions, faces, resolution: int, padding: int, *, isolate: bool = True) -> Unwrapped:
+def unwrap(positions, faces, resolution, padding: int, *, isolate: bool = True) -> Unwrapped:
     """Make a fresh, non-overlapping UV atlas with xatlas.
 
     positions : (n, 3) float; faces : (f, 3) int.
-    resolution : side of the square target image in texels.
+    resolution : N (square) or (width, height) of the target image in texels; the
+        charts are packed into the top-left min(width, height) square.
     padding : empty texels kept around each chart (xatlas ``padding``, with
         ``bilinear=True``).  Two charts' covered texels end up at least
         ``2 * padding`` empty texels apart, so dilating each chart by
@@ -524,17 +531,19 @@ def unwrap(positions, faces, resolution: int, padding: int, *, isolate: bool = T
         raise InputError("cannot unwrap a mesh without triangles")
     if faces.min() < 0 or faces.max() >= len(positions):
         raise ValueError(f"faces index vertices outside 0..{len(positions) - 1}")
-    if int(resolution) != resolution or resolution < 1:
-        raise ValueError(f"resolution must be a positive integer, got {resolution}")
+    size = (resolution, resolution) if np.ndim(resolution) == 0 else tuple(resolution)
+    if len(size) != 2 or any(int(x) != x or x < 1 for x in size):
+        raise ValueError(f"resolution must be a positive integer or two, got {resolution}")
+    width, height = (int(x) for x in size)
     if int(padding) != padding or padding < 0:
         raise ValueError(f"padding must be a non-negative integer, got {padding}")
     start = time.perf_counter()
     run = _unwrap_isolated if isolate else _unwrap_in_process
-    result, info = run(positions, faces.astype(np.int64), int(resolution), int(padding))
+    result, info = run(positions, faces.astype(np.int64), (width, height), int(padding))
     log.info(
         "unwrapped %d triangles into %dx%d texels in %.1f s: %d charts covering %.0f%%, "
         "%d -> %d vertices",
-        len(faces), resolution, resolution, time.perf_counter() - start, info["charts"],
+        len(faces), width, height, time.perf_counter() - start, info["charts"],
         100 * info["utilization"], len(positions), len(result.vmapping),
     )
     return result
