@@ -72,3 +72,34 @@ def test_morton_order_matches_bitwise_interleave():
     np.testing.assert_array_equal(order, np.argsort(code, kind="stable"))
     assert morton_order(np.zeros((0, 3))).shape == (0,)
     np.testing.assert_array_equal(morton_order(np.ones((4, 3))), np.arange(4))
+
+
+def test_bakes_do_not_depend_on_the_compiled_kernel(monkeypatch):
+    """Without aobake._kernels (no compiler at install) every bake gives the same bits."""
+    import trimesh
+
+    import aobake
+    from aobake import estimators, rays
+    from aobake.targets import texels
+
+    if rays.KERNEL != "compiled":
+        pytest.fail("aobake._kernels was not built")
+    mesh = trimesh.creation.torus(major_radius=1.0, minor_radius=0.4, major_sections=24,
+                                  minor_sections=12)
+    quantities = ("ao", "obscurance", "bent-normal")
+
+    def run():
+        vertex = aobake.bake(mesh, quantities=quantities, rays=48, sampler="sobol", threads=2)
+        texel = aobake.bake_texels(mesh, quantities=("ao", "bent-normal"), rays=16, resolution=32,
+                                   padding=1, threads=2)
+        return vertex, texel
+
+    compiled = run()
+    for module in (rays, estimators, texels):
+        monkeypatch.setattr(module, "_kernels", None)
+    reference = run()
+    for name, array in compiled[0].fields().items():
+        np.testing.assert_array_equal(array, getattr(reference[0], name), err_msg=name)
+    assert compiled[1].channels.keys() == reference[1].channels.keys()
+    for name, image in compiled[1].channels.items():
+        np.testing.assert_array_equal(image, reference[1].channels[name], err_msg=name)
