@@ -272,6 +272,22 @@ def test_unwrap_icosphere():
     assert_valid_atlas(mesh.vertices, mesh.faces, unwrap(mesh.vertices, mesh.faces, res, pad), res, pad)
 
 
+def test_unwrap_does_not_depend_on_scale_or_position():
+    """xatlas works in float32 with absolute tolerances; unwrap normalises the mesh first, so
+    a mesh 1e-4 across or 1e5 from the origin gets the atlas of the same mesh at unit size
+    (before: a division by zero, and 2204 collapsed UV triangles)."""
+    mesh = trimesh.creation.torus(major_radius=1.0, minor_radius=0.4, major_sections=48,
+                                  minor_sections=24)
+    ref = unwrap(mesh.vertices, mesh.faces, 128, 2)
+    for scale, shift in ((1e-4, 0.0), (1e4, 0.0), (1.0, 1e5)):
+        vertices = mesh.vertices * scale + shift
+        un = unwrap(vertices, mesh.faces, 128, 2)
+        chk = check_uvs(un.uv, un.faces, 128, 128)
+        assert chk.valid and chk.degenerate_faces == 0, (scale, shift, chk.message)
+        np.testing.assert_array_equal(un.faces, ref.faces)
+        np.testing.assert_allclose(un.uv, ref.uv, atol=1e-6, err_msg=f"{scale} {shift}")
+
+
 def test_unwrap_into_a_non_square_image():
     """xatlas packs square layouts: a W x H atlas uses the top-left min(W, H) square, on the
     texel grid of the W x H image, with the usual padding."""

@@ -315,8 +315,16 @@ def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False):
 
     W, H = (int(resolution), int(resolution)) if np.ndim(resolution) == 0 else map(int, resolution)
     R, P = min(W, H), int(padding)
-    V = np.asarray(positions, dtype=np.float64)
     F = np.asarray(faces, dtype=np.int64)
+    # xatlas works in float32 with absolute tolerances: recentre on the used vertices'
+    # bounding box and scale it to unit diagonal, so the atlas does not depend on where
+    # the mesh sits or its units (a mesh 1e5 from the origin, or 1e-4 across, charts
+    # like the same mesh at unit size).
+    V = np.asarray(positions, dtype=np.float64)
+    used_v = V[np.unique(F)]
+    lo, hi = used_v.min(axis=0), used_v.max(axis=0)
+    diagonal = float(np.linalg.norm(hi - lo))
+    V = (V - 0.5 * (lo + hi)) / (diagonal if diagonal > 0 else 1.0)
     e1, e2 = V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]
     area = float(0.5 * np.linalg.norm(np.cross(e1, e2), axis=1).sum())
     if not area > 0:
