@@ -35,6 +35,29 @@ def test_scaled_and_translated_scene_gives_same_ao(scale, shift):
         base.report["parameters"]["ray_offset"] * scale)
 
 
+@pytest.mark.parametrize("scale, shift", [(1e-4, 0.0), (1.0, 1e5)])
+def test_scaled_and_translated_lightmap_gives_same_texels(scale, shift):
+    """A fresh atlas and its texels do not depend on units or position: the same texels are
+    covered and every texel's AO agrees within the two reported errors."""
+    torus = trimesh.creation.torus(major_radius=1.0, minor_radius=0.4, major_sections=32,
+                                   minor_sections=16)
+    floor = trimesh.creation.box(extents=[4, 4, 0.1])
+    floor.apply_translation([0, 0, -0.45])
+    scene = trimesh.util.concatenate([torus, floor])
+    opts = dict(rays=32, resolution=64, padding=1, sampler="random")
+    base = aobake.bake_texels(scene, **opts)
+    moved = scene.copy()
+    moved.vertices = moved.vertices * scale + shift
+    res = aobake.bake_texels(moved, **opts)
+    np.testing.assert_array_equal(res.covered, base.covered)
+    both = res.covered
+    se = np.hypot(res.channels["ao_stderr"], base.channels["ao_stderr"])[both]
+    diff = np.abs(res.channels["ao"] - base.channels["ao"])[both]
+    # (where both errors are 0 -- every ray of the texel hit, or every one escaped -- allow
+    # the change one ray can make: 1 / rays per texel)
+    assert np.all(diff <= np.maximum(z_bound(int(both.sum()), None) * se, 1.0 / opts["rays"]))
+
+
 def test_thin_gap_neither_leaks_nor_self_shadows():
     size, gap = 1.0, 1e-3  # gap is 1e-3 of the scene size
     thickness = 0.01
