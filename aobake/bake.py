@@ -25,7 +25,6 @@ from aobake.rays import RayGenerator
 from aobake.samplers import sample_set
 from aobake.scene import Scene, load_scene
 from aobake.trace import default_threads, run_chunks
-from aobake.warp import WEIGHTINGS
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +32,7 @@ log = logging.getLogger(__name__)
 #: and larger chunks amortise the per-chunk numpy work (measured: 64k 6.8, 128k 7.3 Mrays/s).
 DEFAULT_CHUNK_RAYS = 131072
 
-#: conventions written into every output's metadata.
+#: conventions written into every output's metadata (``conventions(weighting)``).
 CONVENTIONS = {
     "ao": "cosine-weighted visibility (1/pi) int V(w) cos dw: 1 = fully open, 0 = fully occluded",
     "max_distance": "a hit beyond the max distance is a miss",
@@ -43,6 +42,20 @@ CONVENTIONS = {
                           "pi/2 when nothing escapes or there is no spread to measure",
     "stderr": "one standard error of the Monte-Carlo estimate",
 }
+
+#: what changes with ``--weighting uniform`` (libigl's and xNormal's convention)
+_UNIFORM = {
+    "ao": "uniform-weighted visibility (1/2pi) int V(w) dw (the open fraction of the "
+          "hemisphere's solid angle): 1 = fully open, 0 = fully occluded",
+    "obscurance": "(1/2pi) int rho(L) dw with rho(L) = 1 - exp(-tau L); a miss counts rho = 1",
+    "bent_normal": "normalised uniform-measure mean of the unoccluded directions; the surface "
+                   "normal if none",
+}
+
+
+def conventions(weighting: str = "cosine") -> dict:
+    """The conventions of a bake with this weighting (cosine: CONVENTIONS)."""
+    return {**CONVENTIONS, **(_UNIFORM if weighting == "uniform" else {})}
 
 
 @dataclass
@@ -124,7 +137,6 @@ class Tracer:
         self.tau = config.resolve_tau(diagonal)
         self.samples = sample_set(config.sampler, config.rays, config.seed)
         self.generator = RayGenerator(self.samples, config.weighting, config.seed)
-        self.max_weight = WEIGHTINGS[config.weighting][2]
         self.need_distance = "obscurance" in config.quantities
         self.occluders = [EmbreeOccluder(scene.vertices, scene.faces, scene.face_normals,
                                          self.center, step=self.offset)]
@@ -176,10 +188,10 @@ class Tracer:
         k, groups, m, _ = rays.directions.shape
         occluded, distance = self._trace(rays.origins, rays.directions.reshape(-1, 3))
         shape = (k, groups, m)
-        return estimate(self.config.quantities, rays.directions, rays.weight,
+        return estimate(self.config.quantities, rays.directions,
                         occluded.reshape(shape),
                         None if distance is None else distance.reshape(shape),
-                        self.samples, self.tau, self.max_weight, normals)
+                        self.samples, self.tau, normals)
 
     def estimate(
         self,
@@ -201,7 +213,7 @@ class Tracer:
         order = valid[morton_order(points[valid])]
         per_chunk = max(1, int(chunk_rays) // self.samples.rays)
         n_chunks = -(-len(order) // per_chunk)
-        out = no_information(self.config.quantities, normals, self.max_weight)
+        out = no_information(self.config.quantities, normals)
         rays = np.zeros(n, dtype=np.int32)
         rays[valid] = self.samples.rays
 
@@ -275,7 +287,7 @@ def _report(kind, scene, tracer, config, n_points, rays, values, wall, threads, 
         "aobake_report": 1,
         "target": kind,
         "config": config.to_dict(),
-        "conventions": CONVENTIONS,
+        "conventions": conventions(config.weighting),
         "scene": scene.stats(),
         "parameters": tracer.parameters(),
         "points": int(n_points),

@@ -27,7 +27,8 @@ Conventions (also written into every output's metadata):
   A hit beyond --max-distance is a miss.  Obscurance uses rho(L) = 1 - exp(-tau L)
   and counts a miss as rho = 1.  The bent normal is the normalised mean of the
   unoccluded sample directions (the surface normal when no ray escapes).
-  Every value comes with its standard error (*_stderr).
+  Every value comes with its standard error (*_stderr).  --weighting uniform bakes
+  the libigl/xNormal convention instead: (1/2pi) int V dw, the open solid angle.
 """
 
 
@@ -104,8 +105,9 @@ def _progress_bar(quiet: bool):
                    "All randomised, all unbiased.")
 @click.option("--weighting", default="cosine", show_default=True,
               type=click.Choice(sorted(WEIGHTINGS)),
-              help="Hemisphere sampling: cosine (importance-sampled) or uniform "
-                   "(libigl/xNormal convention); both estimate the same AO.")
+              help="What AO averages over: cosine ((1/pi) int V cos, the default) or "
+                   "uniform ((1/2pi) int V: libigl's and xNormal's convention, a different "
+                   "number).")
 @click.option("--normals", default="file", show_default=True, type=click.Choice(NORMALS),
               help="Vertex normals: the file's (angle-weighted where it has none), or computed.")
 @click.option("--ground-plane", is_flag=True,
@@ -184,7 +186,7 @@ def _check_outputs(mesh: Path, out: Path, target: str, *extra: Path | None):
 
 
 def _run(mesh, out, target, config, texture, files, threads, report_path, quiet):
-    from aobake.bake import CONVENTIONS, bake, bake_texels, parse_resolution
+    from aobake.bake import bake, bake_texels, parse_resolution
     from aobake.outputs.report import write_report
 
     mesh_out = files["mesh_out"]
@@ -206,7 +208,7 @@ def _run(mesh, out, target, config, texture, files, threads, report_path, quiet)
     finally:
         finish()
     report = result.report
-    metadata = {"conventions": CONVENTIONS, "config": report["config"],
+    metadata = {"conventions": report["conventions"], "config": report["config"],
                 "parameters": report["parameters"], "versions": report["versions"]}
     written = [out]
     if target == "vertices":

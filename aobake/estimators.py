@@ -1,11 +1,12 @@
 """Per-point estimates from traced rays: AO, Zhukov obscurance, bent normal.
 
 Every estimate carries its standard error and the rays used (no bare means).
-Contributions per ray, with w = cos(theta) / (pi pdf) from ``warp`` (1 for the
-cosine weighting):
+Directions are drawn from the weighting's own measure (``warp``: cosine, or
+uniform over the hemisphere), so contributions per ray are plain:
 
-* AO          f = w * [ray escapes]            A = (1/pi) int V cos dw;  1 = open, 0 = occluded
-* obscurance  f = w * rho(L), rho = 1 - exp(-tau L) for a hit at distance L,
+* AO          f = [ray escapes]          A = (1/pi) int V cos dw (cosine) or
+                                         (1/2pi) int V dw (uniform); 1 = open, 0 = occluded
+* obscurance  f = rho(L), rho = 1 - exp(-tau L) for a hit at distance L,
               rho = 1 for a miss (nothing within the max distance);  1 = open, 0 = occluded
 * bent normal normalise(sum of the escaping sample directions); the surface
               normal when no ray escapes.  Unit vector; its error is an angle
@@ -14,9 +15,9 @@ cosine weighting):
 Standard error: the spread of i.i.d. per-ray contributions (``random``) or of
 the replicate means (randomised QMC samplers), see ``samplers``.  With a single
 ray or a single replicate there is no spread to measure; the error reported
-then is the worst case for a contribution in [0, w_max]: w_max / (2 sqrt(n)).
-A point with no rays (no defined normal) gets the no-information answer: the
-midpoint w_max / 2 with error w_max / 2.
+then is the worst case for a contribution in [0, 1]: 1 / (2 sqrt(n)).  A point
+with no rays (no defined normal) gets the no-information answer: the midpoint
+1/2 with error 1/2.
 """
 
 from __future__ import annotations
@@ -29,21 +30,21 @@ except ImportError:  # pragma: no cover
     _kernels = None
 
 
-def mean_and_stderr(f: np.ndarray, iid: bool, max_weight: float):
-    """f (k, R, m) per-ray contributions -> (mean (k,), stderr (k,)) float64."""
+def mean_and_stderr(f: np.ndarray, iid: bool):
+    """f (k, R, m) per-ray contributions in [0, 1] -> (mean (k,), stderr (k,)) float64."""
     k, groups, m = f.shape
     n = groups * m
     if iid:
         flat = f.reshape(k, n).astype(np.float64)
         mean = flat.sum(axis=1) / n
         if n < 2:
-            return mean, np.full(k, max_weight / (2.0 * np.sqrt(n)))
+            return mean, np.full(k, 1.0 / (2.0 * np.sqrt(n)))
         var = np.square(flat - mean[:, None]).sum(axis=1) / (n - 1)
         return mean, np.sqrt(var / n)
     group_means = f.astype(np.float64).sum(axis=2) / m  # (k, R)
     mean = group_means.sum(axis=1) / groups
     if groups < 2:
-        return mean, np.full(k, max_weight / (2.0 * np.sqrt(n)))
+        return mean, np.full(k, 1.0 / (2.0 * np.sqrt(n)))
     var = np.square(group_means - mean[:, None]).sum(axis=1) / (groups - 1)
     return mean, np.sqrt(var / groups)
 
@@ -59,7 +60,7 @@ def _escape_counts(occluded: np.ndarray) -> np.ndarray:
     return (m - blocked).reshape(k, groups).astype(np.float64)
 
 
-def _binary_mean_and_stderr(occluded: np.ndarray, iid: bool, max_weight: float):
+def _binary_mean_and_stderr(occluded: np.ndarray, iid: bool):
     """mean_and_stderr for 0/1 contributions (1 = escaped) from (k, R, m) bool ``occluded``,
     from exact counts."""
     k, groups, m = occluded.shape
@@ -69,12 +70,12 @@ def _binary_mean_and_stderr(occluded: np.ndarray, iid: bool, max_weight: float):
         # i.i.d. 0/1 samples: sample variance = n/(n-1) p (1 - p).
         mean = counts.sum(axis=1) / n
         if n < 2:
-            return mean, np.full(k, max_weight / (2.0 * np.sqrt(n)))
+            return mean, np.full(k, 1.0 / (2.0 * np.sqrt(n)))
         return mean, np.sqrt(mean * (1.0 - mean) / (n - 1))
     group_means = counts / m
     mean = group_means.sum(axis=1) / groups
     if groups < 2:
-        return mean, np.full(k, max_weight / (2.0 * np.sqrt(n)))
+        return mean, np.full(k, 1.0 / (2.0 * np.sqrt(n)))
     var = np.square(group_means - mean[:, None]).sum(axis=1) / (groups - 1)
     return mean, np.sqrt(var / groups)
 
@@ -94,26 +95,20 @@ def rho(distance: np.ndarray, tau: float) -> np.ndarray:
     return np.where(miss, np.float32(1.0), value)
 
 
-def estimate(quantities, directions, weight, occluded, distance, samples, tau, max_weight, normals):
+def estimate(quantities, directions, occluded, distance, samples, tau, normals):
     """Estimates for k points.
 
-    directions : (k, R, m, 3) float32, weight : (k, R, m) float32 | None,
+    directions : (k, R, m, 3) float32,
     occluded : (k, R, m) bool, distance : (k, R, m) float32 (inf on miss) | None,
     normals : (k, 3) float64.  Returns a dict of (k,) / (k, 3) float64 arrays for
     the quantities asked ("ao", "obscurance", "bent-normal").
     """
     out = {}
     if "ao" in quantities:
-        if weight is None:
-            # Contributions are 0/1: escape counts are exact and cheaper than float sums.
-            out["ao"], out["ao_stderr"] = _binary_mean_and_stderr(occluded, samples.iid, max_weight)
-        else:
-            out["ao"], out["ao_stderr"] = mean_and_stderr(~occluded * weight, samples.iid, max_weight)
+        # Contributions are 0/1: escape counts are exact and cheaper than float sums.
+        out["ao"], out["ao_stderr"] = _binary_mean_and_stderr(occluded, samples.iid)
     if "obscurance" in quantities:
-        f = rho(distance, tau)
-        if weight is not None:
-            f *= weight
-        out["obscurance"], out["obscurance_stderr"] = mean_and_stderr(f, samples.iid, max_weight)
+        out["obscurance"], out["obscurance_stderr"] = mean_and_stderr(rho(distance, tau), samples.iid)
     if "bent-normal" in quantities:
         out["bent_normal"], out["bent_normal_stderr"] = bent_normal_and_stderr(
             directions, occluded, samples.iid, normals)
@@ -166,14 +161,14 @@ def bent_normal_and_stderr(directions, occluded, iid: bool, normals):
     return bent, stderr
 
 
-def no_information(quantities, normals: np.ndarray, max_weight: float) -> dict:
+def no_information(quantities, normals: np.ndarray) -> dict:
     """Estimates for points that cast no rays: midpoint value, worst-case error."""
     k = len(normals)
     out = {}
     for name in ("ao", "obscurance"):
         if name in quantities:
-            out[name] = np.full(k, max_weight / 2.0)
-            out[name + "_stderr"] = np.full(k, max_weight / 2.0)
+            out[name] = np.full(k, 0.5)
+            out[name + "_stderr"] = np.full(k, 0.5)
     if "bent-normal" in quantities:
         out["bent_normal"] = normals.copy()
         out["bent_normal_stderr"] = np.full(k, NO_INFORMATION_ANGLE)

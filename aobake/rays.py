@@ -46,13 +46,10 @@ class Rays:
 
     origins : (k * R * m, 3) float32  the origin of every ray (its point's, offset and rebased)
     directions : (k, R, m, 3) float32  unit directions in scene axes (C-contiguous)
-    weight : (R, m) float32 | None  cos(theta) / (pi pdf) per sample (same for every
-             point); None means 1 for every ray
     """
 
     origins: np.ndarray
     directions: np.ndarray
-    weight: np.ndarray | None
 
 
 class RayGenerator:
@@ -64,11 +61,10 @@ class RayGenerator:
         base = samples.base
         u0 = (base[None, :, 0] + elevation_shifts(seed, samples.groups)[:, None]) % 1.0  # (R, m)
         u0 = np.minimum(u0, 1.0 - 2.0**-53)  # keep cos(theta) > 0
-        r, z, weight = WEIGHTINGS[weighting][0](u0)
+        r, z = WEIGHTINGS[weighting][0](u0)
         phi = 2.0 * np.pi * base[:, 1]
         local = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)  # (R, m, 3)
         self.local = local.astype(np.float32)
-        self.weight = None if weight is None else weight.astype(np.float32)
 
     def rays(self, origins: np.ndarray, normals: np.ndarray, point_ids: np.ndarray,
              compiled: bool | None = None) -> Rays:
@@ -88,7 +84,7 @@ class RayGenerator:
                                np.ascontiguousarray(point_ids, dtype=np.int64),
                                shift_key(self.seed), dim_salt(1), self.local,
                                k, groups, m, flat_origins, directions)
-            return Rays(flat_origins, directions, self.weight)
+            return Rays(flat_origins, directions)
         # Reference formulation (and the fallback).  cos/sin through math, i.e. the C
         # library the kernel calls: numpy's own float64 cos may use other code (SVML).
         azimuth = 2.0 * np.pi * shifts(self.seed, point_ids, groups)[..., 1]  # (k, R)
@@ -105,4 +101,4 @@ class RayGenerator:
         # d = x T' + y B' + z N, summed left to right in float32: (k, R, m, 3).
         x, y, z = (self.local[None, :, :, i:i + 1] for i in range(3))
         directions = x * rows[0][:, :, None, :] + y * rows[1][:, :, None, :] + z * rows[2][:, :, None, :]
-        return Rays(np.repeat(origins32, groups * m, axis=0), directions, self.weight)
+        return Rays(np.repeat(origins32, groups * m, axis=0), directions)

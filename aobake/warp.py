@@ -1,15 +1,18 @@
 """Warp u in [0,1)^2 to hemisphere directions, and build frames around normals.
 
 Each weighting maps (u0, u1) to a local direction (x, y, z) with z = cos(theta)
-along the normal and phi = 2*pi*u1, and knows its pdf.  The AO estimator is
-``f = V * cos(theta) / (pi * pdf)``; each weighting returns that factor in closed
-form (``weight``) so no division by a pdf is done per ray:
+along the normal and phi = 2*pi*u1, and knows its pdf.  A weighting is the
+measure AO averages visibility over, and directions are drawn from exactly that
+measure, so every estimate is a plain mean over rays (AO = fraction of escaping
+rays; contributions in [0, 1]):
 
-* ``cosine``: pdf = cos(theta) / pi, so weight = 1 (AO is the fraction of
-  escaping rays).  Cosine-weighted visibility is the definition aobake bakes.
-* ``uniform``: pdf = 1 / (2 pi), weight = 2 cos(theta).  Same integral, the
-  sampling convention of libigl and xNormal's default, kept for producing
-  reference data in their conventions.
+* ``cosine`` (default): pdf = cos(theta) / pi;
+  AO = (1/pi) int V cos dw, the definition of ambient occlusion aobake bakes.
+* ``uniform``: pdf = 1 / (2 pi); AO = (1/2pi) int V dw, the fraction of the
+  hemisphere's solid angle that is open: the convention of libigl's
+  ``ambient_occlusion`` (which reports 1 minus it) and xNormal's default, so
+  aobake can produce reference data for them.  It is a different quantity:
+  under a disc of half-angle a it is cos(a), where cosine AO is cos^2(a).
 """
 
 from __future__ import annotations
@@ -18,11 +21,11 @@ import numpy as np
 
 
 def cosine_sample(u0: np.ndarray):
-    """Elevation part of the cosine warp: u0 -> (sin_theta, cos_theta, weight or None).
+    """Elevation part of the cosine warp: u0 -> (sin_theta, cos_theta).
 
     r = sqrt(u0) (disc radius = sin theta), z = sqrt(1 - u0); pdf = z / pi.
     """
-    return np.sqrt(u0), np.sqrt(1.0 - u0), None
+    return np.sqrt(u0), np.sqrt(1.0 - u0)
 
 
 def cosine_pdf(z: np.ndarray) -> np.ndarray:
@@ -32,24 +35,24 @@ def cosine_pdf(z: np.ndarray) -> np.ndarray:
 def uniform_sample(u0: np.ndarray):
     """Elevation part of the uniform warp: z = 1 - u0 (in (0, 1]), r = sqrt(1 - z^2); pdf = 1/(2 pi)."""
     z = 1.0 - u0
-    return np.sqrt(u0 * (2.0 - u0)), z, 2.0 * z
+    return np.sqrt(u0 * (2.0 - u0)), z
 
 
 def uniform_pdf(z: np.ndarray) -> np.ndarray:
     return np.full_like(z, 1.0 / (2.0 * np.pi))
 
 
-#: weighting name -> (elevation warp, pdf, largest weight: contributions lie in [0, max])
+#: weighting name -> (elevation warp, pdf)
 WEIGHTINGS = {
-    "cosine": (cosine_sample, cosine_pdf, 1.0),
-    "uniform": (uniform_sample, uniform_pdf, 2.0),
+    "cosine": (cosine_sample, cosine_pdf),
+    "uniform": (uniform_sample, uniform_pdf),
 }
 
 
 def warp(u: np.ndarray, weighting: str = "cosine") -> np.ndarray:
     """(n, 2) u -> (n, 3) float64 local unit directions (z along the normal).  For tests and docs."""
     sample = WEIGHTINGS[weighting][0]
-    r, z, _ = sample(u[:, 0])
+    r, z = sample(u[:, 0])
     phi = 2.0 * np.pi * u[:, 1]
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 

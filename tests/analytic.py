@@ -6,6 +6,8 @@ needs no external assets.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import trimesh
 from scipy import special, stats
@@ -54,12 +56,29 @@ def polygon_form_factor(point, normal, corners) -> float:
     return abs(total) / (2 * np.pi)
 
 
-def ceiling_obscurance(h, d, tau) -> float:
+def ceiling_obscurance(h, d, tau, weighting="cosine") -> float:
     """Obscurance of a floor point under an infinite ceiling at height h, max distance d > h.
 
-    W = 1 - 2 E3(tau h) + 2 (h/d)^2 E3(tau d)  (E3: exponential integral of order 3).
+    cosine:  W = 1 - 2 E3(tau h) + 2 (h/d)^2 E3(tau d)  (En: exponential integral of order n);
+    uniform: W = 1 - E2(tau h) + (h/d) E2(tau d)  (cos(theta) is uniform on [0, 1], L = h / cos).
     """
+    if weighting == "uniform":
+        return 1 - special.expn(2, tau * h) + (h / d) * special.expn(2, tau * d)
     return 1 - 2 * special.expn(3, tau * h) + 2 * (h / d) ** 2 * special.expn(3, tau * d)
+
+
+def solid_angle(p, corners) -> float:
+    """Solid angle of a convex polygon (corners (n, 3)) seen from point p, by fanning it into
+    triangles (Van Oosterom and Strackee 1983)."""
+    total = 0.0
+    a = np.asarray(corners[0], float) - p
+    for i in range(1, len(corners) - 1):
+        b, c = np.asarray(corners[i], float) - p, np.asarray(corners[i + 1], float) - p
+        la, lb, lc = np.linalg.norm(a), np.linalg.norm(b), np.linalg.norm(c)
+        num = abs(np.dot(a, np.cross(b, c)))
+        den = la * lb * lc + np.dot(a, b) * lc + np.dot(a, c) * lb + np.dot(b, c) * la
+        total += 2.0 * math.atan2(num, den)
+    return total
 
 
 def z_bound(n_tests: int, dof: float | None, alpha: float = 1e-4) -> float:

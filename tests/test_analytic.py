@@ -22,7 +22,7 @@ import pytest
 
 import aobake
 from analytic import (ceiling_obscurance, combine, dof_for, polygon, polygon_form_factor, quad,
-                      z_bound)
+                      solid_angle, z_bound)
 
 SAMPLERS = ["random", "stratified", "sobol"]
 
@@ -90,10 +90,15 @@ def test_inside_closed_box_is_fully_occluded(sampler):
 @pytest.mark.parametrize("sampler", SAMPLERS)
 @pytest.mark.parametrize("weighting", ["cosine", "uniform"])
 def test_floor_under_ceiling_with_max_distance(sampler, weighting):
-    # h/d is not a multiple of a power of 1/2: the Sobol net would integrate the
-    # indicator exactly (zero spread) and the test could not see the stderr.
-    h, d = 1.0, 2.3
-    exact = (h / d) ** 2
+    # The escape indicator is a step in the elevation sample; a Sobol replicate of 32
+    # rays counts floor or ceil of 32 x (escape fraction) escapes.  d is chosen so that
+    # 32 (h/d) = 14.5 and 32 (h/d)^2 = 6.6 are far from integers: the replicates then
+    # differ and the test sees a stderr (at an integer the net integrates the step
+    # exactly, with zero spread).
+    h, d = 1.0, 2.2
+    # A ray at cos(theta) = c reaches the ceiling at h / c: it escapes iff c < h / d.
+    # Cosine measure: P(c < h/d) = (h/d)^2; uniform (c uniform on [0, 1]): h / d.
+    exact = (h / d) ** 2 if weighting == "cosine" else h / d
     # The ceiling covers every direction with L <= d from the sampled floor region.
     reach = math.sqrt(d * d - h * h) + 1.0
     mesh = combine(quad([0, 0, 0], reach + 1, reach + 1), quad([0, 0, h], reach + 1, reach + 1))
@@ -123,16 +128,36 @@ def test_floor_under_tessellated_disc(sampler):
     assert exact[0] >= h**2 / (h**2 + radius**2)
 
 
+@pytest.mark.parametrize("sampler", SAMPLERS)
+def test_uniform_weighting_is_the_open_solid_angle(sampler):
+    """--weighting uniform (libigl's and xNormal's convention) estimates (1/2pi) int V dw: under a
+    polygon that is 1 - solid angle / 2pi (cosine AO would be 1 - form factor)."""
+    h, radius, sides = 0.7, 1.3, 24
+    disc = polygon([0, 0, h], radius, sides)
+    corners = disc.vertices[1:]
+    pts = np.zeros((16, 3))
+    pts[1:, :2] = np.random.default_rng(4).uniform(-1.5, 1.5, size=(15, 2))
+    nrm = np.tile([0, 0, 1.0], (len(pts), 1))
+    res = aobake.bake_points(disc, pts, nrm, rays=512, sampler=sampler, weighting="uniform")
+    exact = np.array([1 - solid_angle(p, corners) / (2 * math.pi) for p in pts])
+    check(res.ao - exact, res.ao_stderr, 0.0, sampler, 512)
+    cosine = np.array([1 - polygon_form_factor(p, [0, 0, 1], corners) for p in pts])
+    # A different quantity, not a resampling: under the centre, cos(a) against cos^2(a).
+    assert exact[0] - cosine[0] > 0.2
+    assert res.report["conventions"]["ao"].startswith("uniform-weighted visibility")
+
+
+@pytest.mark.parametrize("weighting", ["cosine", "uniform"])
 @pytest.mark.parametrize("tau", [0.5, 3.0])
-def test_obscurance_under_ceiling_exponential_integrals(tau):
+def test_obscurance_under_ceiling_exponential_integrals(tau, weighting):
     h, d = 0.5, 1.5
     reach = math.sqrt(d * d - h * h) + 1.0
     mesh = combine(quad([0, 0, 0], reach + 1, reach + 1), quad([0, 0, h], reach + 1, reach + 1))
     pts, nrm = floor_points(32, 0.5)
     res = aobake.bake_points(mesh, pts, nrm, rays=256, max_distance=d, tau=tau,
-                             quantities=("obscurance",), sampler="random")
+                             quantities=("obscurance",), sampler="random", weighting=weighting)
     assert res.ao is None and res.bent_normal is None  # only what was asked
-    exact = ceiling_obscurance(h, d, tau)
+    exact = ceiling_obscurance(h, d, tau, weighting)
     assert_within(res.obscurance, res.obscurance_stderr, exact, z_bound(len(pts), None))
 
 

@@ -94,7 +94,7 @@ def test_warp_chi_square_against_pdf(weighting):
 
 @pytest.mark.parametrize("weighting", sorted(WEIGHTINGS))
 def test_warp_pdf_integrates_to_one(weighting):
-    _, pdf, _ = WEIGHTINGS[weighting]
+    _, pdf = WEIGHTINGS[weighting]
     # int pdf dw over the hemisphere = 2 pi int_0^1 pdf(z) dz
     z = np.linspace(0, 1, 100001)
     assert abs(2 * np.pi * np.trapezoid(pdf(z), z) - 1) < 1e-6
