@@ -501,7 +501,8 @@ def _make_atlas(scene: Scene, unwrap: str, width: int, height: int, padding: int
     Fills ``timings`` with uv_check_s, unwrap_s and raster_s.
     """
     from aobake.errors import InputError
-    from aobake.targets.texels import check_uvs, rasterize, unwrap as xatlas_unwrap
+    from aobake.targets.texels import check_uvs, rasterize
+    from aobake.targets.unwrap import unwrap as xatlas_unwrap
 
     def raster(uv, faces_uv):
         clock = time.perf_counter()

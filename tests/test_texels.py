@@ -14,7 +14,9 @@ from scipy.spatial import Delaunay
 from aobake import post, tangents
 from aobake.errors import InputError
 from aobake.targets import texels
-from aobake.targets.texels import check_uvs, rasterize, splat, splat_count, surface_points, unwrap
+from aobake.targets import unwrap as unwrapping
+from aobake.targets.texels import check_uvs, rasterize, splat, splat_count, surface_points
+from aobake.targets.unwrap import unwrap
 
 QUAD_UV = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
 QUAD_FACES = np.array([[0, 1, 2], [0, 2, 3]])
@@ -304,15 +306,13 @@ def test_unwrap_into_a_non_square_image():
 
 
 def test_unwrap_large_mesh_in_parts():
-    """Above texels.PART_FACES triangles the mesh is charted in spatial parts with capped
+    """Above unwrap.PART_FACES triangles the mesh is charted in spatial parts with capped
     chart areas: still one valid, padded, deterministic atlas that uses the image."""
-    from aobake.targets import texels
-
     mesh = trimesh.creation.torus(major_radius=1.0, minor_radius=0.35, major_sections=180,
                                   minor_sections=130)
     rng = np.random.default_rng(5)
     vertices = mesh.vertices + rng.normal(scale=2e-3, size=mesh.vertices.shape)  # not too regular
-    assert len(mesh.faces) > 2 * texels.PART_FACES
+    assert len(mesh.faces) > 2 * unwrapping.PART_FACES
     res, pad = 512, 2
     un = unwrap(vertices, mesh.faces, res, pad)
     s = assert_valid_atlas(vertices, mesh.faces, un, res, pad)
@@ -328,7 +328,7 @@ def test_unwrap_v_orientation_matches_xatlas_chart_image():
     # xatlas's v runs down its chart image (row 0 first); unwrap flips it to
     # OBJ's v-up so that our row r is xatlas's row r.
     mesh = trimesh.creation.icosphere(subdivisions=2)
-    # xatlas runs in child processes only (see texels._unwrap_isolated: its thread
+    # xatlas runs in child processes only (see unwrap._unwrap_isolated: its thread
     # pool can deadlock; a child can be timed out, this test process cannot).
     f, uv_x, image = _xatlas_chart_image_in_child(mesh.vertices, mesh.faces, 64, 1)
     un = unwrap(mesh.vertices, mesh.faces, 64, 1)
@@ -341,14 +341,14 @@ def test_unwrap_v_orientation_matches_xatlas_chart_image():
 
 
 def _xatlas_chart_image_in_child(positions, faces, resolution, padding):
-    """texels._xatlas_atlas(..., chart_image=True) in a child process with a time limit."""
+    """unwrap._xatlas_atlas(..., chart_image=True) in a child process with a time limit."""
     import subprocess
     import sys
     import tempfile
     from pathlib import Path
 
-    code = ("import sys, numpy as np; from aobake.targets import texels; d = np.load(sys.argv[1]);"
-            "vm, f, uv, img, _ = texels._xatlas_atlas(d['p'], d['f'], int(d['r']), int(d['pad']),"
+    code = ("import sys, numpy as np; from aobake.targets import unwrap; d = np.load(sys.argv[1]);"
+            "vm, f, uv, img, _ = unwrap._xatlas_atlas(d['p'], d['f'], int(d['r']), int(d['pad']),"
             " chart_image=True); np.savez(sys.argv[2], f=f, uv=uv, img=img)")
     root = Path(__file__).resolve().parents[1]
     with tempfile.TemporaryDirectory() as tmp:
@@ -374,16 +374,16 @@ def test_unwrap_is_deterministic():
 
 
 def test_unwrap_timeout_retries_then_fails(monkeypatch):
-    monkeypatch.setattr(texels, "_WORKER_CODE", "import time; time.sleep(30)")
-    monkeypatch.setattr(texels, "XATLAS_TIMEOUT_BASE_S", 0.5)
-    monkeypatch.setattr(texels, "XATLAS_TIMEOUT_PER_FACE_S", 0.0)
+    monkeypatch.setattr(unwrapping, "_WORKER_CODE", "import time; time.sleep(30)")
+    monkeypatch.setattr(unwrapping, "XATLAS_TIMEOUT_BASE_S", 0.5)
+    monkeypatch.setattr(unwrapping, "XATLAS_TIMEOUT_PER_FACE_S", 0.0)
     mesh = trimesh.creation.box()
     with pytest.raises(InputError, match="did not finish"):
         unwrap(mesh.vertices, mesh.faces, 64, 1)
 
 
 def test_unwrap_crash_becomes_input_error(monkeypatch):
-    monkeypatch.setattr(texels, "_WORKER_CODE", "import os, signal; os.kill(os.getpid(), signal.SIGSEGV)")
+    monkeypatch.setattr(unwrapping, "_WORKER_CODE", "import os, signal; os.kill(os.getpid(), signal.SIGSEGV)")
     mesh = trimesh.creation.box()
     with pytest.raises(InputError, match="SIGSEGV"):
         unwrap(mesh.vertices, mesh.faces, 32, 1)
