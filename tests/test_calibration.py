@@ -30,21 +30,24 @@ def assert_calibrated(observed: float, stderr2: np.ndarray, label) -> None:
     assert lo / (1 + 4 * rel) <= ratio <= hi * (1 + 4 * rel), (label, ratio)
 
 
-@pytest.mark.parametrize("sampler", ["random", "stratified", "sobol"])
-@pytest.mark.parametrize("quantity", ["ao", "obscurance"])
-def test_stderr_matches_spread_over_seeds(sampler, quantity):
-    # A point under a tilted disc: a visibility boundary that no grid aligns with.
+def bakes_over_seeds(sampler: str, quantity: str) -> list:
+    """K bakes (seeds 0..K-1) of two floor points under a tilted disc: a visibility
+    boundary that no grid aligns with."""
     mesh = combine(polygon([0.2, 0.1, 0.8], 1.0, 17), quad([0, 0, 0], 3, 3))
     pts = np.array([[0.0, 0.0, 1e-6], [0.9, -0.4, 1e-6]])
     nrm = np.tile([0, 0, 1.0], (2, 1))
-    est, var = [], []
-    for seed in range(K):
-        res = aobake.bake_points(mesh, pts, nrm, rays=64, seed=seed, sampler=sampler,
-                                 quantities=(quantity,), max_distance=2.0, tau=1.5, threads=1)
-        est.append(getattr(res, quantity))
-        var.append(getattr(res, quantity + "_stderr") ** 2)
-    est, var = np.array(est), np.array(var)
-    for p in range(len(pts)):
+    return [aobake.bake_points(mesh, pts, nrm, rays=64, seed=seed, sampler=sampler,
+                               quantities=(quantity,), max_distance=2.0, tau=1.5, threads=1)
+            for seed in range(K)]
+
+
+@pytest.mark.parametrize("sampler", ["random", "stratified", "sobol"])
+@pytest.mark.parametrize("quantity", ["ao", "obscurance"])
+def test_stderr_matches_spread_over_seeds(sampler, quantity):
+    results = bakes_over_seeds(sampler, quantity)
+    est = np.array([getattr(res, quantity) for res in results])
+    var = np.array([getattr(res, quantity + "_stderr") ** 2 for res in results])
+    for p in range(est.shape[1]):
         assert_calibrated(est[:, p].var(ddof=1), var[:, p], (sampler, quantity, p))
 
 
@@ -57,18 +60,11 @@ def test_bent_normal_angular_stderr_matches_spread_over_seeds(sampler):
     squared angle / sigma^2 has between K - 1 and 2 (K - 1) degrees of freedom depending
     on how round the error ellipse is; the test uses the wider chi2(K - 1) interval.
     """
-    mesh = combine(polygon([0.2, 0.1, 0.8], 1.0, 17), quad([0, 0, 0], 3, 3))
-    pts = np.array([[0.0, 0.0, 1e-6], [0.9, -0.4, 1e-6]])
-    nrm = np.tile([0, 0, 1.0], (2, 1))
-    bent, var = [], []
-    for seed in range(K):
-        res = aobake.bake_points(mesh, pts, nrm, rays=64, seed=seed, sampler=sampler,
-                                 quantities=("bent-normal",), max_distance=2.0, threads=1)
-        bent.append(res.bent_normal)
-        var.append(res.bent_normal_stderr ** 2)
-    bent, var = np.array(bent), np.array(var)  # (K, 2, 3), (K, 2)
+    results = bakes_over_seeds(sampler, "bent-normal")
+    bent = np.array([res.bent_normal for res in results])  # (K, 2, 3)
+    var = np.array([res.bent_normal_stderr ** 2 for res in results])  # (K, 2)
     assert np.all(var > 0) and np.all(var < (np.pi / 2) ** 2)
-    for p in range(len(pts)):
+    for p in range(bent.shape[1]):
         mean = bent[:, p].mean(axis=0)
         mean /= np.linalg.norm(mean)
         perp = bent[:, p] - np.outer(bent[:, p] @ mean, mean)  # ~ angle vectors, radians
