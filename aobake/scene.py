@@ -313,12 +313,17 @@ def _trimesh_material(mesh, index: int) -> dict:
     if texture is None:
         texture = getattr(material, "image", None)
     factor = getattr(material, "baseColorFactor", None)
-    if texture is not None:
-        out["base_color_png"] = _png_bytes(texture)
-    if factor is not None:
-        factor = np.asarray(factor, dtype=np.float64)
-        out["base_color_factor"] = np.clip(factor / 255.0 if factor.max() > 1 else factor,
-                                           0.0, 1.0).tolist()
+    try:
+        if texture is not None:
+            out["base_color_png"] = _png_bytes(texture)
+        if factor is not None:
+            factor = np.asarray(factor)
+            # trimesh stores colours as uint8 (0-255); floats are already in [0, 1].
+            scaled = factor / 255.0 if np.issubdtype(factor.dtype, np.integer) else factor
+            out["base_color_factor"] = np.clip(np.asarray(scaled, dtype=np.float64).reshape(-1)[:4],
+                                               0.0, 1.0).tolist()
+    except (OSError, ValueError, TypeError, AttributeError) as exc:
+        log.warning("base colour of material %r not kept (%s)", out["name"], exc)
     return out
 
 
