@@ -320,8 +320,8 @@ def _trimesh_material(mesh, index: int) -> dict:
             factor = np.asarray(factor)
             # trimesh stores colours as uint8 (0-255); floats are already in [0, 1].
             scaled = factor / 255.0 if np.issubdtype(factor.dtype, np.integer) else factor
-            out["base_color_factor"] = np.clip(np.asarray(scaled, dtype=np.float64).reshape(-1)[:4],
-                                               0.0, 1.0).tolist()
+            rgba = np.clip(np.asarray(scaled, dtype=np.float64).reshape(-1)[:4], 0.0, 1.0).tolist()
+            out["base_color_factor"] = (rgba + [1.0] * 4)[:4] if len(rgba) >= 3 else None
     except (OSError, ValueError, TypeError, AttributeError) as exc:
         log.warning("base colour of material %r not kept (%s)", out["name"], exc)
     return out
