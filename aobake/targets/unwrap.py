@@ -107,18 +107,22 @@ def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False):
     R, P = min(W, H), int(padding)
     F = np.asarray(faces, dtype=np.int64)
     # xatlas works in float32 with absolute tolerances: recentre on the used vertices'
-    # bounding box and scale it to unit diagonal, so the atlas does not depend on where
-    # the mesh sits or its units (a mesh 1e5 from the origin, or 1e-4 across, charts
-    # like the same mesh at unit size).
+    # bounding box and scale so the mean triangle area is 1, so the atlas depends on
+    # neither where the mesh sits nor its units (a mesh 1e5 from the origin, or 1e-4
+    # across, charts like the same mesh at unit size).  Per-triangle rather than
+    # whole-mesh scale: at unit diagonal the ogre's 124k triangles are so small that
+    # xatlas cut it into 2562 charts (981 at unit mean area), too many to pack.
     V = np.asarray(positions, dtype=np.float64)
     used_v = V[np.unique(F)]
     lo, hi = used_v.min(axis=0), used_v.max(axis=0)
-    diagonal = float(np.linalg.norm(hi - lo))
-    V = (V - 0.5 * (lo + hi)) / (diagonal if diagonal > 0 else 1.0)
+    V = V - 0.5 * (lo + hi)
     e1, e2 = V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]
     area = float(0.5 * np.linalg.norm(np.cross(e1, e2), axis=1).sum())
     if not area > 0:
         raise InputError("cannot unwrap a mesh whose triangles all have zero area")
+    unit = math.sqrt(area / len(F))
+    V /= unit
+    area /= unit * unit
 
     # 1. charts: capped chart area, big meshes in parallel parts, cheap first pack
     chart_options = xatlas.ChartOptions()
