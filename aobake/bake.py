@@ -512,15 +512,18 @@ def _make_atlas(scene: Scene, unwrap: str, width: int, height: int, padding: int
 
     check = samples = None
     timings.update(uv_check_s=0.0, unwrap_s=0.0)
-    if scene.faces_uv is not None and unwrap == "always":
-        clock = time.perf_counter()  # reported only: a texel-centre (K = 1) pass is enough
-        check = check_uvs(scene.uv, scene.faces_uv, width, height)
-        timings["uv_check_s"] = time.perf_counter() - clock
-    elif scene.faces_uv is not None:
-        # The bake's own rasterisation gives the overlap count too (texel-centre coverage).
-        samples = raster(scene.uv, scene.faces_uv)
-        clock = time.perf_counter()
-        check = check_uvs(scene.uv, scene.faces_uv, width, height, shared=samples.shared)
+    if scene.faces_uv is not None:
+        corners = scene.uv[scene.faces_uv]
+        in_range = bool(np.all((corners >= 0.0) & (corners <= 1.0)))
+        if unwrap == "never" or (unwrap == "auto" and in_range):
+            # Likely baked as they are: the bake's own rasterisation gives the overlap
+            # count too (texel-centre coverage), so the check costs no extra pass.
+            samples = raster(scene.uv, scene.faces_uv)
+            clock = time.perf_counter()
+            check = check_uvs(scene.uv, scene.faces_uv, width, height, shared=samples.shared)
+        else:  # not baked as they are: a texel-centre (K = 1) pass for the report is enough
+            clock = time.perf_counter()
+            check = check_uvs(scene.uv, scene.faces_uv, width, height)
         timings["uv_check_s"] = time.perf_counter() - clock
     if unwrap == "never":
         if scene.faces_uv is None:
