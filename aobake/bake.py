@@ -9,6 +9,7 @@ bit-identical for any thread count and chunk size.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
@@ -257,6 +258,11 @@ def _summary(values: dict, rays: np.ndarray) -> dict:
 
 def versions() -> dict:
     """Versions of aobake and the libraries whose behaviour decides the numbers."""
+    return dict(_versions())
+
+
+@functools.lru_cache(maxsize=1)
+def _versions() -> dict:
     from importlib.metadata import PackageNotFoundError, version
 
     out = {}

@@ -68,6 +68,8 @@ class Scene:
     materials: list | None = None
     #: (f,) int64 index into ``materials`` of each face (None with ``materials``)
     face_material: np.ndarray | None = None
+    #: (f,) float64 triangle areas (computed with the face normals; None: computed on demand)
+    face_areas: np.ndarray | None = field(default=None, repr=False)
 
     @cached_property
     def used(self) -> np.ndarray:
@@ -89,7 +91,7 @@ class Scene:
     def stats(self) -> dict:
         """Scene statistics for the report."""
         lo, hi = self.bounds
-        areas = _face_areas(self.vertices, self.faces)
+        areas = self.face_areas if self.face_areas is not None else _face_areas(self.vertices, self.faces)
         return {
             "source": self.source,
             "vertices": int(len(self.vertices)),
@@ -181,7 +183,10 @@ def make_scene(
     if bad.any():
         raise InputError(f"{source}: {int(bad.sum())} vertices have NaN or infinite coordinates")
     warnings = list(warnings or [])
-    fnormals = face_normals(vertices, faces)
+    tri = vertices[faces]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    fnormals = _normalize(cross)  # as face_normals(), sharing the cross product with the areas
+    areas = 0.5 * np.linalg.norm(cross, axis=1)
     n_degenerate = int(np.count_nonzero(~fnormals.any(axis=1)))
     if n_degenerate == len(faces):
         raise InputError(f"{source}: every face has zero area")
@@ -220,7 +225,7 @@ def make_scene(
     for message in warnings:
         log.warning(message)
     return Scene(vertices, faces, vnormals, fnormals, uv, faces_uv if uv is not None else None,
-                 source, mode, warnings, materials, face_material)
+                 source, mode, warnings, materials, face_material, areas)
 
 
 def _obj_normals(data) -> np.ndarray | None:
