@@ -264,6 +264,11 @@ static PyObject *raster_pairs(PyObject *self, PyObject *args)
                 PyErr_SetString(PyExc_IndexError, "triangle index out of range");
                 goto done;
             }
+        for (Py_ssize_t i = 0; i < f3; ++i)
+            if (COR[i] < 0 || COR[i] > 2) {
+                PyErr_SetString(PyExc_ValueError, "corner must be a permutation of 0, 1, 2");
+                goto done;
+            }
         const double margin = 1.0 + 1e-9;
         Py_BEGIN_ALLOW_THREADS
         for (Py_ssize_t i = 0; i < n; ++i) {
