@@ -420,7 +420,8 @@ class Atlas:
     source_vertex : (m,) int64 index of each vertex in the input scene,
     new : bool True when the atlas was made by xatlas (the mesh must be written out),
     materials : list | None the input's materials (see Scene.materials), kept in GLBs,
-    face_material : (f,) int64 | None each face's material.
+    face_material : (f,) int64 | None each face's material,
+    charts : int | None number of charts of a new atlas.
     """
 
     positions: np.ndarray
@@ -432,6 +433,7 @@ class Atlas:
     new: bool
     materials: list | None = None
     face_material: np.ndarray | None = None
+    charts: int | None = None
 
 
 @dataclass
@@ -567,7 +569,8 @@ def _make_atlas(scene: Scene, unwrap: str, width: int, height: int, padding: int
     atlas = Atlas(scene.vertices[source], scene.vertex_normals[source], faces,
                   unwrapped.uv[keys[:, 0]], base_uv, source, new=True,
                   materials=scene.materials if base_uv is not None else None,
-                  face_material=scene.face_material if base_uv is not None else None)
+                  face_material=scene.face_material if base_uv is not None else None,
+                  charts=unwrapped.charts)
     return atlas, unwrapped.uv, unwrapped.faces, check, raster(unwrapped.uv, unwrapped.faces)
 
 
@@ -724,6 +727,7 @@ def _texture_stats(channels, covered, filled, shared, width, height, padding, k,
         "texels_padded": int(np.count_nonzero(filled & ~covered)),
         "texels_shared": shared,
         "atlas": "xatlas" if atlas.new else "mesh UVs",
+        "charts": atlas.charts,
         "uv_check": None if check is None else {
             "valid": check.valid, "out_of_range_faces": check.out_of_range_faces,
             "overlapping_texels": check.overlapping_texels, "mirrored_faces": check.mirrored_faces,

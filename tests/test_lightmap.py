@@ -82,6 +82,7 @@ def test_floor_under_ceiling_texel_by_texel(ceiling_obj, sampler):
         assert abs(values.mean() - exact) <= k * errors.mean()
     assert res.report["texture"]["texels_shared"] == 0
     assert res.report["texture"]["atlas"] == "mesh UVs"
+    assert res.report["texture"]["charts"] is None  # only a new atlas has a chart count
 
 
 def test_vertex_and_texel_bakes_agree(tmp_path):
@@ -338,6 +339,7 @@ def test_glb_keeps_base_colour_and_uvs_with_new_atlas(tmp_path):
     assert res.exit_code == 0, res.output
     report = json.loads(rep.read_text())
     assert report["texture"]["uv_check"]["overlapping_texels"] > 0  # the overlap is reported
+    assert report["texture"]["atlas"] == "xatlas" and report["texture"]["charts"] >= 1
     assert any("cannot be baked" in w for w in report["warnings"])
     gltf, blob = read_glb(out)
     material = gltf["materials"][0]

@@ -33,11 +33,13 @@ class Unwrapped(NamedTuple):
     vmapping : (m,) int64   index into the input vertices of each new vertex
     faces : (f, 3) int64    triangles over the new vertices (same order as input)
     uv : (m, 2) float64     UVs in [0, 1], OBJ convention (v = 0 at the bottom)
+    charts : int            number of charts
     """
 
     vmapping: np.ndarray
     faces: np.ndarray
     uv: np.ndarray
+    charts: int = 0
 
 
 
@@ -348,4 +350,4 @@ def unwrap(positions, faces, resolution, padding: int, *, isolate: bool = True) 
         len(faces), width, height, time.perf_counter() - start, info["charts"],
         100 * info["utilization"], len(positions), len(result.vmapping),
     )
-    return result
+    return result._replace(charts=int(info["charts"]))
