@@ -58,6 +58,7 @@ class RayGenerator:
     def __init__(self, samples: SampleSet, weighting: str, seed: int):
         self.samples = samples
         self.seed = seed
+        self._shift_key, self._azimuth_salt = shift_key(seed), dim_salt(1)  # for the kernel
         base = samples.base
         u0 = (base[None, :, 0] + elevation_shifts(seed, samples.groups)[:, None]) % 1.0  # (R, m)
         u0 = np.minimum(u0, 1.0 - 2.0**-53)  # keep cos(theta) > 0
@@ -82,7 +83,7 @@ class RayGenerator:
             directions = np.empty((k, groups, m, 3), dtype=np.float32)
             _kernels.fill_rays(origins32, np.ascontiguousarray(normals, dtype=np.float64),
                                np.ascontiguousarray(point_ids, dtype=np.int64),
-                               shift_key(self.seed), dim_salt(1), self.local,
+                               self._shift_key, self._azimuth_salt, self.local,
                                k, groups, m, flat_origins, directions)
             return Rays(flat_origins, directions)
         # Reference formulation (and the fallback).  cos/sin through math, i.e. the C

@@ -495,10 +495,11 @@ def _raster_chunk_compiled(ce: _CompiledEdges, t, row, col, width: int, n_sub: i
     texel = row * width + col
     out_texel = [texel[ins[k]] for k in range(n_sub)]
     counts = [len(x) for x in out_texel]
+    candidate = opened & ~ins.any(axis=0)  # overlaps the texel, but no sub-position landed
     return (np.concatenate(out_texel), np.concatenate([t[ins[k]] for k in range(n_sub)]),
             np.concatenate([bary[k][ins[k]] for k in range(n_sub)]),
             np.repeat(np.arange(n_sub, dtype=np.int64), counts), texel[centre],
-            texel[opened & ~ins.any(axis=0)], t[opened & ~ins.any(axis=0)])
+            texel[candidate], t[candidate])
 
 
 def _raster_chunk(ed: _Edges, vmax, t, row, col, width: int, n_sub: int, seed: int):
