@@ -8,17 +8,22 @@ Python API::
 
     values = aobake.bake_points("mesh.obj", points, normals, rays=1024)
     lightmap = aobake.bake_texels("mesh.obj", resolution=1024)
+    aobake.write(lightmap, "ao.exr", report="report.json")   # exactly the CLI's files
 """
 
 import logging
 
-from aobake.bake import BakeResult, TexelResult, bake, bake_points, bake_texels
+from aobake import outputs
+from aobake.bake import bake, bake_points, bake_texels, run
 from aobake.config import BakeConfig
 from aobake.errors import AobakeError, InputError, OutputError
+from aobake.outputs import write
+from aobake.results import BakeResult, TexelResult
 from aobake.scene import Scene, load_scene
 
 __all__ = ["AobakeError", "BakeConfig", "BakeResult", "InputError", "OutputError", "Scene",
-           "TexelResult", "bake", "bake_points", "bake_texels", "load_scene"]
+           "TexelResult", "bake", "bake_points", "bake_texels", "load_scene", "outputs", "run",
+           "write"]
 __version__ = "0.1.0"
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())

@@ -9,20 +9,46 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, fields
 
+import numpy as np
+
+from aobake.backends import BACKENDS
+from aobake.quantities import QUANTITIES, canonical
 from aobake.samplers import SAMPLERS
 from aobake.warp import WEIGHTINGS
 
-#: quantities a bake can compute; CLI choices come from here.
-QUANTITIES = ("ao", "obscurance", "bent-normal")
 NORMALS = ("file", "angle", "area")
 BACKFACES = ("occlude", "ignore")
 AXES = ("x", "y", "z")
+UNWRAP = ("auto", "always", "never")
+BENT_SPACES = ("object", "tangent")
 
 #: default ray offset, as a fraction of the bounding-box diagonal: ~300 float32
 #: ulps of the rebased coordinates (no self-hits) yet 1% of a 1e-3 gap (no leaks).
 DEFAULT_RAY_OFFSET = 1e-5
 #: default tau for obscurance, in units of 1 / diagonal: rho reaches 1 - 1/e at a tenth of the scene size.
 DEFAULT_TAU_DIAGONALS = 10.0
+
+
+def parse_resolution(value) -> tuple[int, int]:
+    """'N' or 'WxH' (or an int / pair) -> (width, height); ValueError on nonsense."""
+    if isinstance(value, str):
+        parts = value.lower().split("x")
+        if len(parts) not in (1, 2) or not all(p.strip().isdigit() for p in parts):
+            raise ValueError(f"resolution must be N or WxH, got {value!r}")
+        dims = [int(p) for p in parts]
+    elif isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        dims = [int(value)]
+    else:
+        try:
+            dims = [int(v) for v in value]
+        except (TypeError, ValueError):
+            raise ValueError(f"resolution must be N or WxH, got {value!r}") from None
+    if len(dims) not in (1, 2):
+        raise ValueError(f"resolution must be N or WxH, got {value!r}")
+    width, height = (dims[0], dims[0]) if len(dims) == 1 else dims
+    if width < 1 or height < 1:
+        raise ValueError(f"resolution must be at least 1x1, got {width}x{height}")
+    return width, height
 
 
 def parse_distance(value) -> float | str:
@@ -46,14 +72,23 @@ def parse_distance(value) -> float | str:
 
 @dataclass(frozen=True)
 class BakeConfig:
-    """Everything that decides a bake's numbers (threads and chunking do not).
+    """Everything that decides a bake's numbers (threads and chunking do not); the one
+    source of every default (the CLI reads them from here).
 
     quantities   subset of QUANTITIES, in canonical order
-    rays         rays per point requested (the report also gives rays actually cast)
+    rays         rays per point (vertex, query point) or per texel, requested (the
+                 report also gives rays actually cast)
     max_distance float in scene units (inf = unlimited) or 'P%' of the diagonal
     tau          obscurance decay per scene unit; None = DEFAULT_TAU_DIAGONALS / diagonal
     seed, sampler, weighting, normals, ground_plane, up_axis, backfaces: see the CLI help
     ray_offset   origin offset along the normal, as a fraction of the diagonal
+    backend      tracing backend (BACKENDS): embree, or the slow float64 reference
+    Lightmaps only (ignored per vertex):
+    resolution   (width, height) texels
+    padding      texels of gutter dilation
+    texel_samples surface positions per texel; ``rays`` is split over them
+    unwrap       auto (own UVs when valid, else xatlas) | always | never
+    bent_space   object | tangent
     """
 
     quantities: tuple = ("ao",)
@@ -68,17 +103,24 @@ class BakeConfig:
     up_axis: str = "y"
     backfaces: str = "occlude"
     ray_offset: float = DEFAULT_RAY_OFFSET
+    backend: str = "embree"
+    resolution: tuple = (1024, 1024)
+    padding: int = 8
+    texel_samples: int = 4
+    unwrap: str = "auto"
+    bent_space: str = "object"
 
     def __post_init__(self):
-        quantities = (self.quantities,) if isinstance(self.quantities, str) else tuple(self.quantities)
-        unknown = [q for q in quantities if q not in QUANTITIES]
-        if unknown or not quantities:
-            raise ValueError(f"quantities must be some of {QUANTITIES}, got {quantities}")
-        object.__setattr__(self, "quantities", tuple(q for q in QUANTITIES if q in quantities))
-        if isinstance(self.rays, bool) or int(self.rays) != self.rays or self.rays < 1:
-            raise ValueError(f"rays must be a positive integer, got {self.rays}")
-        object.__setattr__(self, "rays", int(self.rays))
+        object.__setattr__(self, "quantities", canonical(self.quantities))
+        for name, low in (("rays", 1), ("padding", 0), ("texel_samples", 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer, float)) \
+                    or int(value) != value or value < low:
+                what = "a positive" if low else "a non-negative"
+                raise ValueError(f"{name.replace('_', ' ')} must be {what} integer, got {value}")
+            object.__setattr__(self, name, int(value))
         object.__setattr__(self, "max_distance", parse_distance(self.max_distance))
+        object.__setattr__(self, "resolution", parse_resolution(self.resolution))
         if self.tau is not None:
             tau = float(self.tau)
             if math.isnan(tau) or tau < 0:
@@ -86,13 +128,15 @@ class BakeConfig:
             object.__setattr__(self, "tau", tau)
         if int(self.seed) != self.seed or not 0 <= self.seed < 2**63:
             raise ValueError(f"seed must be an integer in [0, 2^63), got {self.seed}")
-        for name, allowed in (("sampler", tuple(SAMPLERS)), ("weighting", tuple(WEIGHTINGS)),
-                              ("normals", NORMALS), ("up_axis", AXES), ("backfaces", BACKFACES)):
+        object.__setattr__(self, "seed", int(self.seed))
+        for name, allowed in CHOICES.items():
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {sorted(allowed)}, got {getattr(self, name)!r}")
         offset = float(self.ray_offset)
         if not (math.isfinite(offset) and 0 < offset < 0.1):
             raise ValueError(f"ray_offset must be in (0, 0.1) of the diagonal, got {self.ray_offset}")
+        object.__setattr__(self, "ray_offset", offset)
+        object.__setattr__(self, "ground_plane", bool(self.ground_plane))
 
     def resolve_max_distance(self, diagonal: float) -> float:
         """Max distance in scene units."""
@@ -105,11 +149,37 @@ class BakeConfig:
         return DEFAULT_TAU_DIAGONALS / diagonal if self.tau is None else self.tau
 
     def to_dict(self) -> dict:
+        """Plain JSON types; ``from_dict(to_dict())`` gives an equal config."""
         out = asdict(self)
         out["quantities"] = list(self.quantities)
+        out["resolution"] = list(self.resolution)
         return out
 
     @classmethod
     def from_dict(cls, data: dict) -> "BakeConfig":
+        """A config from ``to_dict()`` or a report's ``config`` (non-finite floats may be
+        the strings 'inf'/'nan' of strict JSON); unknown keys are an error."""
         names = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in data.items() if k in names})
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise ValueError(f"unknown configuration keys {unknown}")
+        data = dict(data)
+        if isinstance(data.get("ray_offset"), str):
+            data["ray_offset"] = float(data["ray_offset"])
+        if isinstance(data.get("tau"), str):
+            data["tau"] = float(data["tau"])
+        return cls(**data)
+
+
+#: field -> allowed values (the CLI's choices come from the same registries)
+CHOICES = {
+    "sampler": tuple(SAMPLERS), "weighting": tuple(WEIGHTINGS), "normals": NORMALS,
+    "up_axis": AXES, "backfaces": BACKFACES, "backend": tuple(BACKENDS), "unwrap": UNWRAP,
+    "bent_space": BENT_SPACES,
+}
+
+#: the defaults, by field name (``BakeConfig().to_dict()``)
+DEFAULTS = {f.name: f.default for f in fields(BakeConfig)}
+
+__all__ = ["AXES", "BACKFACES", "BENT_SPACES", "BakeConfig", "CHOICES", "DEFAULTS", "NORMALS",
+           "QUANTITIES", "UNWRAP", "parse_distance", "parse_resolution"]

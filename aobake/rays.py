@@ -18,7 +18,7 @@ The per-point and per-ray work (azimuth hash, cos/sin, frame, the 3x3 product
 and repeating each origin for its rays) runs in the compiled ``aobake._kernels``
 when it was built, otherwise in numpy.  Both do the same IEEE operations in the
 same order and precision (cos/sin from the C library in both), so they give
-bit-identical rays; ``KERNEL`` says which one runs.
+bit-identical rays; ``RayGenerator.compiled`` says which one runs.
 """
 
 from __future__ import annotations
@@ -28,16 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aobake.samplers import SampleSet, dim_salt, elevation_shifts, shift_key, shifts
+from aobake import _native
+from aobake.rng import dim_salt
+from aobake.samplers import SampleSet, elevation_shifts, shift_key, shifts
 from aobake.warp import WEIGHTINGS, frames
-
-try:  # built by setup.py; optional (see there)
-    from aobake import _kernels
-except ImportError:  # pragma: no cover - exercised only where no C compiler was available
-    _kernels = None
-
-#: "compiled" or "numpy": which implementation builds the rays (recorded in reports).
-KERNEL = "numpy" if _kernels is None else "compiled"
 
 
 @dataclass(frozen=True)
@@ -55,33 +49,33 @@ class Rays:
 class RayGenerator:
     """Warps the base set once; :meth:`rays` builds one chunk."""
 
-    def __init__(self, samples: SampleSet, weighting: str, seed: int):
+    def __init__(self, samples: SampleSet, weighting: str, seed: int, compiled: bool | None = None):
+        """``compiled``: use the compiled kernel (default: when built and not forced off)."""
+        self._kernels = _native.kernels() if compiled in (None, True) else None
+        if compiled and self._kernels is None:
+            raise RuntimeError("aobake._kernels was not built")
+        #: True when the compiled kernel builds the rays (recorded in reports)
+        self.compiled = self._kernels is not None
         self.samples = samples
         self.seed = seed
         self._shift_key, self._azimuth_salt = shift_key(seed), dim_salt(1)  # for the kernel
         base = samples.base
         u0 = (base[None, :, 0] + elevation_shifts(seed, samples.groups)[:, None]) % 1.0  # (R, m)
         u0 = np.minimum(u0, 1.0 - 2.0**-53)  # keep cos(theta) > 0
-        r, z = WEIGHTINGS[weighting][0](u0)
+        r, z = WEIGHTINGS[weighting](u0)
         phi = 2.0 * np.pi * base[:, 1]
         local = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)  # (R, m, 3)
         self.local = local.astype(np.float32)
 
-    def rays(self, origins: np.ndarray, normals: np.ndarray, point_ids: np.ndarray,
-             compiled: bool | None = None) -> Rays:
-        """origins (k, 3) float64 (offset, rebased), normals (k, 3) float64 unit, point_ids (k,) int64.
-
-        ``compiled`` picks the implementation (default: the compiled kernel when built).
-        """
+    def rays(self, origins: np.ndarray, normals: np.ndarray, point_ids: np.ndarray) -> Rays:
+        """origins (k, 3) float64 (offset, rebased), normals (k, 3) float64 unit, point_ids (k,) int64."""
         groups, m = self.samples.groups, self.local.shape[1]
         k = len(normals)
         origins32 = np.ascontiguousarray(origins, dtype=np.float32)
-        if compiled is None:
-            compiled = _kernels is not None
-        if compiled:
+        if self.compiled:
             flat_origins = np.empty((k * groups * m, 3), dtype=np.float32)
             directions = np.empty((k, groups, m, 3), dtype=np.float32)
-            _kernels.fill_rays(origins32, np.ascontiguousarray(normals, dtype=np.float64),
+            self._kernels.fill_rays(origins32, np.ascontiguousarray(normals, dtype=np.float64),
                                np.ascontiguousarray(point_ids, dtype=np.int64),
                                self._shift_key, self._azimuth_salt, self.local,
                                k, groups, m, flat_origins, directions)

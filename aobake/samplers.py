@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from aobake.rng import hash_key, hash_uniform
+
 #: replicates for the randomised-QMC samplers' standard error.
 REPLICATES = 8
 
@@ -36,46 +38,11 @@ REPLICATES = 8
 _STREAM_BASE = 0x5EED_0001
 _STREAM_SHIFT = 0x5EED_0002
 _STREAM_ELEVATION = 0x5EED_0003
-_TWO_POW_M53 = 2.0**-53
-
-
-def _mix(x: np.ndarray) -> np.ndarray:
-    """splitmix64 finaliser on a uint64 array (wrapping arithmetic)."""
-    x = x ^ (x >> np.uint64(30))
-    x = x * np.uint64(0xBF58476D1CE4E5B9)
-    x = x ^ (x >> np.uint64(27))
-    x = x * np.uint64(0x94D049BB133111EB)
-    return x ^ (x >> np.uint64(31))
-
-
-def hash_key(seed: int, stream: int) -> int:
-    """The uint64 key of one (seed, stream): the first half of :func:`hash_uniform`."""
-    with np.errstate(over="ignore"):
-        key = _mix(np.asarray([(seed * 0x9E3779B97F4A7C15 + stream) & 0xFFFFFFFFFFFFFFFF],
-                              dtype=np.uint64))
-    return int(key[0])
-
-
-def dim_salt(dim: int) -> int:
-    """The uint64 added for dimension ``dim`` in :func:`hash_uniform`."""
-    return (dim + 1) * 0x632BE59BD9B4E019 & 0xFFFFFFFFFFFFFFFF
 
 
 def shift_key(seed: int) -> int:
     """hash_key of the Cranley-Patterson shift stream (see :func:`shifts`)."""
     return hash_key(seed, _STREAM_SHIFT)
-
-
-def hash_uniform(seed: int, stream: int, index, dim: int) -> np.ndarray:
-    """Uniform float64 in [0,1) as a pure function of (seed, stream, index, dim).
-
-    index : (n,) integer array (or scalar); returns (n,) float64.
-    (aobake/_kernels.c computes the azimuth shifts with the same arithmetic.)
-    """
-    with np.errstate(over="ignore"):
-        x = _mix(np.uint64(hash_key(seed, stream)) ^ np.asarray(index, dtype=np.uint64))
-        x = _mix(x + np.uint64(dim_salt(dim)))
-    return (x >> np.uint64(11)).astype(np.float64) * _TWO_POW_M53
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ occluded: at a concave crease that is what the geometry says (the corner is
 darker); at a convex crease no hemisphere direction enters the solid, so nothing
 is lost.  A vertex whose normal is undefined (unreferenced, or touching only
 zero-area faces) is not sampled: it gets 0 rays and the no-information estimate
-(see ``estimators``), and the report counts it.
+(see ``aobake.quantities``), and the report counts it.
 """
 
 from __future__ import annotations

@@ -28,30 +28,23 @@ def cosine_sample(u0: np.ndarray):
     return np.sqrt(u0), np.sqrt(1.0 - u0)
 
 
-def cosine_pdf(z: np.ndarray) -> np.ndarray:
-    return z / np.pi
-
-
 def uniform_sample(u0: np.ndarray):
     """Elevation part of the uniform warp: z = 1 - u0 (in (0, 1]), r = sqrt(1 - z^2); pdf = 1/(2 pi)."""
     z = 1.0 - u0
     return np.sqrt(u0 * (2.0 - u0)), z
 
 
-def uniform_pdf(z: np.ndarray) -> np.ndarray:
-    return np.full_like(z, 1.0 / (2.0 * np.pi))
-
-
-#: weighting name -> (elevation warp, pdf)
+#: weighting name -> elevation warp u0 -> (sin theta, cos theta).  No estimator needs the pdf:
+#: directions are drawn from the weighting's own measure, so each ray counts 1/n.
 WEIGHTINGS = {
-    "cosine": (cosine_sample, cosine_pdf),
-    "uniform": (uniform_sample, uniform_pdf),
+    "cosine": cosine_sample,
+    "uniform": uniform_sample,
 }
 
 
 def warp(u: np.ndarray, weighting: str = "cosine") -> np.ndarray:
     """(n, 2) u -> (n, 3) float64 local unit directions (z along the normal).  For tests and docs."""
-    sample = WEIGHTINGS[weighting][0]
+    sample = WEIGHTINGS[weighting]
     r, z = sample(u[:, 0])
     phi = 2.0 * np.pi * u[:, 1]
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)

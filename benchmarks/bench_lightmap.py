@@ -13,7 +13,6 @@ import argparse
 import sys
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,11 +22,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_throughput import bare_loop  # noqa: E402
 
-from aobake.bake import DEFAULT_CHUNK_RAYS, Tracer, bake_texels  # noqa: E402
+from aobake.bake import bake_texels  # noqa: E402
 from aobake.config import BakeConfig  # noqa: E402
 from aobake.outputs.texture import write_texture  # noqa: E402
 from aobake.scene import load_scene  # noqa: E402
-from aobake.targets.texels import rasterize, surface_points  # noqa: E402
+from aobake.targets.texels.raster import rasterize  # noqa: E402
+from aobake.targets.texels.surface import surface_points  # noqa: E402
+from aobake.trace import DEFAULT_CHUNK_RAYS, Tracer  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "meshes"
 
@@ -47,7 +48,7 @@ def case(path: Path, unwrap: str, args):
     # The same rays through a bare embreex loop: rebuild the same sample points.
     scene = load_scene(path)
     k = args.texel_samples
-    tracer = Tracer(scene, replace(config, rays=-(-config.rays // k)))
+    tracer = Tracer(scene, config, rays=-(-config.rays // k))
     atlas = result.atlas
     # Atlas UVs per face corner (the atlas faces follow the scene's face order).
     samples = rasterize(atlas.uv, atlas.faces, args.resolution, args.resolution, k, config.seed)

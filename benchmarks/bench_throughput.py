@@ -35,8 +35,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import aobake  # noqa: E402
-from aobake.bake import DEFAULT_CHUNK_RAYS, Tracer, morton_order  # noqa: E402
-from aobake.rays import KERNEL as RAY_KERNEL  # noqa: E402
+from aobake.trace import DEFAULT_CHUNK_RAYS, Tracer, morton_order  # noqa: E402
 from aobake.config import BakeConfig  # noqa: E402
 from aobake.scene import load_scene, make_scene  # noqa: E402
 
@@ -113,7 +112,7 @@ def main():
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"mesh: {scene.source}  vertices: {len(scene.vertices)}  triangles: {len(scene.faces)}")
     print(f"rays/point: {config.rays}  sampler: {args.sampler}  threads: {args.threads}  "
-          f"chunk: {DEFAULT_CHUNK_RAYS} rays  rays: {cast}  ray kernel: {RAY_KERNEL}  "
+          f"chunk: {DEFAULT_CHUNK_RAYS} rays  rays: {cast}  ray kernel: {result.report['parameters']['kernels']['ray_generation']}  "
           f"mean AO stderr: {result.report['error']['ao']['stderr_mean']:.4f}")
     print()
     print("| run | aobake s | bare build s | bare trace s | aobake Mrays/s | bare Mrays/s "

@@ -1,5 +1,56 @@
+"""Shared fixtures and helpers of the test suite.
+
+- ``tests/`` is importable (``analytic``, ``readers``);
+- ``cli(*args)`` runs the command line through click's CliRunner;
+- ``box_ply`` writes a unit box as PLY (a mesh without UVs);
+- ``backend`` runs a test once per tracing backend (the registry's);
+- ``kernel`` skips a test where ``aobake._kernels`` was not built (``.ci/run``
+  asserts separately that CI built it).
+"""
+
 import sys
 from pathlib import Path
 
-# Make the test helpers (analytic.py) importable as plain modules.
+import pytest
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from click.testing import CliRunner  # noqa: E402
+
+from aobake import _native  # noqa: E402
+from aobake.backends import BACKENDS  # noqa: E402
+
+
+def run_cli(*args):
+    """Invoke ``aobake`` with ``args`` (anything str() takes); returns click's Result."""
+    from aobake.cli import main
+
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+@pytest.fixture
+def cli():
+    return run_cli
+
+
+@pytest.fixture
+def box_ply(tmp_path):
+    import trimesh
+
+    path = tmp_path / "box.ply"
+    trimesh.creation.box().export(path)
+    return path
+
+
+@pytest.fixture(params=sorted(BACKENDS))
+def backend(request):
+    """Each registered backend's name (the closed-form tests run on every one)."""
+    return request.param
+
+
+@pytest.fixture
+def kernel():
+    """The compiled module; skips the test where it was not built."""
+    if not _native.built():
+        pytest.skip("aobake._kernels was not built (no C compiler at install)")
+    return _native.kernels()

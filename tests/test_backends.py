@@ -5,7 +5,8 @@ import trimesh
 
 import aobake
 from aobake.backends import reference
-from aobake.backends.embree import EmbreeOccluder, PlaneOccluder
+from aobake.backends.embree import EmbreeBackend
+from aobake.backends.plane import PlaneOccluder
 from aobake.scene import face_normals
 
 
@@ -30,7 +31,7 @@ def test_embree_matches_reference_distances_and_occlusion():
     for seed in range(3):
         mesh = _scene(seed)
         v, f = mesh.vertices, mesh.faces.astype(np.int64)
-        occ = EmbreeOccluder(v, f, face_normals(v, f), np.zeros(3), step=1e-5)
+        occ = EmbreeBackend(v, f, face_normals(v, f), np.zeros(3), step=1e-5)
         o, d = _rays(seed)
         o32, d32 = o.astype(np.float32), d.astype(np.float32)
         for tmax in (np.inf, 0.7):
@@ -46,7 +47,7 @@ def test_backface_ignoring_matches_reference_front_hits():
     mesh = _scene(7)
     v, f = mesh.vertices, mesh.faces.astype(np.int64)
     fn = face_normals(v, f)
-    occ = EmbreeOccluder(v, f, fn, np.zeros(3), step=1e-5)
+    occ = EmbreeBackend(v, f, fn, np.zeros(3), step=1e-5)
     o, d = _rays(7)
     o32, d32 = o.astype(np.float32), d.astype(np.float32)
     got = occ.front_distance(o32, d32, np.float32(np.inf))

@@ -8,7 +8,7 @@ import trimesh
 from click.testing import CliRunner
 
 from aobake.cli import main
-from aobake.outputs.glb import read_glb
+from readers import read_glb
 
 
 @pytest.fixture

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from aobake.errors import OutputError
-from aobake.outputs.image import png_bytes, quantize, read_image, write_exr, write_ldr
+from aobake.outputs.image import png_bytes, quantize, write_exr, write_ldr
+from readers import read_image
 
 H, W = 5, 7
 

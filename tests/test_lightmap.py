@@ -10,8 +10,8 @@ from click.testing import CliRunner
 
 from aobake.bake import bake, bake_texels
 from aobake.cli import main
-from aobake.outputs.glb import read_accessor, read_glb
-from aobake.outputs.image import read_image
+from readers import read_accessor, read_glb
+from readers import read_image
 from analytic import dof_for, z_bound
 
 

@@ -18,7 +18,9 @@ import pytest
 import trimesh
 
 from aobake.errors import OutputError
-from aobake.outputs import VERTEX_WRITERS, glb, npz, ply, write_vertices
+from aobake.outputs import glb, npz, ply, write_vertices
+from aobake.outputs.registry import suffixes
+from readers import read_accessor, read_glb, read_ply, read_view
 from aobake.outputs.report import to_jsonable, write_report
 
 # float32 storage of values in [-2, 2]: half an ulp is 1.2e-7
@@ -158,7 +160,7 @@ def test_ply_own_parse(tmp_path, mesh):
     (comment,) = [line for line in header if line.startswith("comment aobake-metadata ")]
     assert len(comment.split()) == 3
 
-    vertex, faces, metadata = ply.read(path)
+    vertex, faces, metadata = read_ply(path)
     assert metadata == METADATA_JSON
     np.testing.assert_array_equal(faces, mesh.faces)
     positions = np.column_stack([vertex[a] for a in "xyz"])
@@ -180,7 +182,7 @@ def test_ply_colour_mapping_edges(tmp_path):
     positions = np.column_stack([np.arange(n), np.zeros(n), np.zeros(n)]).astype(float)
     path = tmp_path / "edges.ply"
     ply.write(path, positions, np.zeros((0, 3), dtype=np.int64), {"ao": ao}, {})
-    vertex, faces, _ = ply.read(path)
+    vertex, faces, _ = read_ply(path)
     assert faces.shape == (0, 3)
     # linear grey, no sRGB curve; 127.5 rounds half to even; NaN -> 0
     np.testing.assert_array_equal(vertex["red"], [0, 128, 255, 0, 255, 0, 64, 1])
@@ -190,11 +192,11 @@ def test_ply_colour_source(tmp_path, mesh):
     fields = make_fields(mesh)
     path = tmp_path / "obscurance.ply"
     ply.write(path, mesh.vertices, mesh.faces, {"obscurance": fields["obscurance"]}, {})
-    vertex, _, _ = ply.read(path)
+    vertex, _, _ = read_ply(path)
     np.testing.assert_array_equal(vertex["green"], expected_grey(fields["obscurance"]))
 
     ply.write(path, mesh.vertices, mesh.faces, {"rays": fields["rays"]}, {})
-    vertex, _, _ = ply.read(path)
+    vertex, _, _ = read_ply(path)
     assert (vertex["blue"] == 255).all()
     assert "ao" not in vertex.dtype.names
 
@@ -228,7 +230,7 @@ def check_glb_layout(path: Path) -> tuple[dict, bytes]:
     bin_length, bin_type = struct.unpack_from("<II", data, bin_start)
     assert bin_type == 0x004E4942 and bin_length % 4 == 0
     assert bin_start + 8 + bin_length == length
-    gltf, binary = glb.read_glb(path)
+    gltf, binary = read_glb(path)
     assert len(binary) == bin_length
     (buffer,) = gltf["buffers"]
     assert "uri" not in buffer and buffer["byteLength"] <= bin_length
@@ -245,7 +247,7 @@ def check_glb_layout(path: Path) -> tuple[dict, bytes]:
 
 def attribute(gltf, binary, name):
     (primitive,) = gltf["meshes"][0]["primitives"]
-    return glb.read_accessor(gltf, binary, primitive["attributes"][name])
+    return read_accessor(gltf, binary, primitive["attributes"][name])
 
 
 def test_glb_round_trip(tmp_path, mesh):
@@ -276,7 +278,7 @@ def test_glb_round_trip(tmp_path, mesh):
     assert accessor["min"] == position.min(axis=0).tolist()
     assert accessor["max"] == position.max(axis=0).tolist()
 
-    indices = glb.read_accessor(gltf, binary, primitive["indices"])
+    indices = read_accessor(gltf, binary, primitive["indices"])
     assert gltf["accessors"][primitive["indices"]]["componentType"] == 5125
     np.testing.assert_array_equal(indices.reshape(-1, 3), mesh.faces)
 
@@ -374,7 +376,7 @@ def test_textured_glb_atlas_only(tmp_path, mesh, atlas):
     texture = gltf["textures"][occlusion["index"]]
     image = gltf["images"][texture["source"]]
     assert image["mimeType"] == "image/png"
-    assert glb.read_view(gltf, binary, image["bufferView"]) == atlas["occlusion_png"]
+    assert read_view(gltf, binary, image["bufferView"]) == atlas["occlusion_png"]
     sampler = gltf["samplers"][texture["sampler"]]
     assert sampler == {"magFilter": 9729, "minFilter": 9729, "wrapS": 33071, "wrapT": 33071}
     assert "baseColorTexture" not in material["pbrMetallicRoughness"]
@@ -408,11 +410,11 @@ def test_textured_glb_keeps_base_uv(tmp_path, mesh, atlas):
     assert pbr["baseColorTexture"]["texCoord"] == 0
     base_texture = gltf["textures"][pbr["baseColorTexture"]["index"]]
     base_image = gltf["images"][base_texture["source"]]
-    assert glb.read_view(gltf, binary, base_image["bufferView"]) == atlas["base_color_png"]
+    assert read_view(gltf, binary, base_image["bufferView"]) == atlas["base_color_png"]
     assert gltf["samplers"][base_texture["sampler"]]["wrapS"] == 10497  # base UVs may tile
     occlusion_texture = gltf["textures"][material["occlusionTexture"]["index"]]
     occlusion_image = gltf["images"][occlusion_texture["source"]]
-    assert glb.read_view(gltf, binary, occlusion_image["bufferView"]) == atlas["occlusion_png"]
+    assert read_view(gltf, binary, occlusion_image["bufferView"]) == atlas["occlusion_png"]
 
     for name, uv in (("TEXCOORD_0", atlas["base_uv"]), ("TEXCOORD_1", atlas["atlas_uv"])):
         stored = attribute(gltf, binary, name)
@@ -478,7 +480,7 @@ def test_textured_glb_one_primitive_per_material(tmp_path, mesh, atlas):
     primitives = gltf["meshes"][0]["primitives"]
     assert [gltf["materials"][p["material"]]["name"] for p in primitives] == ["plain", "textured"]
     for k, prim in enumerate(primitives):
-        indices = glb.read_accessor(gltf, binary, prim["indices"]).reshape(-1, 3)
+        indices = read_accessor(gltf, binary, prim["indices"]).reshape(-1, 3)
         np.testing.assert_array_equal(indices, mesh.faces[half == k])
         assert prim["attributes"] == primitives[0]["attributes"]  # shared vertex data
     assert len(trimesh.load(path).geometry) == 2
@@ -487,7 +489,7 @@ def test_textured_glb_one_primitive_per_material(tmp_path, mesh, atlas):
 # --------------------------------------------------------- validation and atomicity
 
 
-@pytest.mark.parametrize("suffix", sorted(VERTEX_WRITERS))
+@pytest.mark.parametrize("suffix", sorted(suffixes("vertices")))
 def test_wrong_shape_leaves_no_file(tmp_path, mesh, suffix):
     fields = make_fields(mesh)
     fields["ao"] = fields["ao"][:-1]
@@ -496,7 +498,7 @@ def test_wrong_shape_leaves_no_file(tmp_path, mesh, suffix):
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("suffix", sorted(VERTEX_WRITERS))
+@pytest.mark.parametrize("suffix", sorted(suffixes("vertices")))
 def test_failure_half_way_keeps_old_file_and_no_temp(tmp_path, mesh, monkeypatch, suffix):
     path = tmp_path / f"bake{suffix}"
     path.write_bytes(b"previous")
@@ -556,8 +558,8 @@ def test_validation_messages(tmp_path, mesh):
 
 
 def test_unsupported_extension(tmp_path, mesh):
-    with pytest.raises(OutputError, match=r"bake\.obj: unsupported output extension '\.obj'; "
-                       r"use one of \.glb, \.npz, \.ply"):  # fmt: skip
+    with pytest.raises(OutputError, match=r"bake\.obj: unsupported output format '\.obj' for a vertex "
+                       r"bake \(--target vertices\); use one of \.npz, \.ply, \.glb"):  # fmt: skip
         write_vertices(tmp_path / "bake.obj", mesh.vertices, mesh.faces, {}, {})
     with pytest.raises(OutputError, match="'\\(none\\)'"):
         write_vertices(tmp_path / "bake", mesh.vertices, mesh.faces, {}, {})

@@ -56,7 +56,7 @@ def test_vertices_split_at_seams_get_identical_values():
 
 def test_morton_order_matches_bitwise_interleave():
     """The bit-spreading Morton sort equals a literal per-bit interleave, ties in input order."""
-    from aobake.bake import morton_order
+    from aobake.trace import morton_order
 
     rng = np.random.default_rng(3)
     points = rng.random((5000, 3)) * [1e-4, 1.0, 1e5] + [0.0, -3.0, 1e5]
@@ -74,16 +74,13 @@ def test_morton_order_matches_bitwise_interleave():
     np.testing.assert_array_equal(morton_order(np.ones((4, 3))), np.arange(4))
 
 
-def test_bakes_do_not_depend_on_the_compiled_kernel(monkeypatch):
-    """Without aobake._kernels (no compiler at install) every bake gives the same bits."""
+def test_bakes_do_not_depend_on_the_compiled_kernel(kernel):
+    """Without aobake._kernels (no compiler at install) every bake gives the same bits,
+    and the report says which implementation ran."""
     import trimesh
 
     import aobake
-    from aobake import estimators, rays
-    from aobake.targets import texels
-
-    if rays.KERNEL != "compiled":
-        pytest.fail("aobake._kernels was not built")
+    from aobake import _native
     mesh = trimesh.creation.torus(major_radius=1.0, minor_radius=0.4, major_sections=24,
                                   minor_sections=12)
     quantities = ("ao", "obscurance", "bent-normal")
@@ -95,9 +92,15 @@ def test_bakes_do_not_depend_on_the_compiled_kernel(monkeypatch):
         return vertex, texel
 
     compiled = run()
-    for module in (rays, estimators, texels):
-        monkeypatch.setattr(module, "_kernels", None)
-    reference = run()
+    with _native.numpy_only():
+        reference = run()
+    everything = {"ray_generation": "compiled", "escape_counts": "compiled",
+                  "rasterizer": "not used"}
+    assert compiled[0].report["parameters"]["kernels"] == everything
+    assert compiled[1].report["parameters"]["kernels"] == dict(everything, rasterizer="compiled")
+    assert reference[0].report["parameters"]["kernels"] == {
+        "ray_generation": "numpy", "escape_counts": "numpy", "rasterizer": "not used"}
+    assert set(reference[1].report["parameters"]["kernels"].values()) == {"numpy"}
     for name, array in compiled[0].fields().items():
         np.testing.assert_array_equal(array, getattr(reference[0], name), err_msg=name)
     assert compiled[1].channels.keys() == reference[1].channels.keys()

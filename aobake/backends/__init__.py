@@ -1,0 +1,10 @@
+"""Tracing backends: name -> class (see ``aobake.backends.base`` for the protocol).
+
+The CLI's ``--backend`` choices come from ``BACKENDS``.
+"""
+
+from aobake.backends.embree import EmbreeBackend
+from aobake.backends.reference import ReferenceBackend
+
+#: backend name -> class built as cls(vertices, faces, face_normals, center, step)
+BACKENDS = {"embree": EmbreeBackend, "reference": ReferenceBackend}

@@ -1,4 +1,5 @@
-"""Slow, exact ray/triangle intersection in pure numpy: the test oracle for the Embree backend.
+"""Slow, exact ray/triangle intersection in pure numpy: the test oracle for the Embree backend,
+and a bake backend of its own (:class:`ReferenceBackend`, ``--backend reference``).
 
 Every ray is tested against every triangle with the Moller-Trumbore algorithm, in float64,
 in blocks of (rays x faces) pairs so that memory stays bounded whatever the scene size.
@@ -26,6 +27,8 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+
+from aobake.backends.base import TriangleBackend
 
 log = logging.getLogger(__name__)
 
@@ -249,3 +252,34 @@ def _intersect_block(origins, directions, max_distance, v0, e1, e2, usable):
     hit &= (t <= max_distance[:, None]) & np.isfinite(t)
     t[~hit] = np.inf
     return t
+
+
+class ReferenceBackend(TriangleBackend):
+    """The float64 numpy intersector as a bake backend (``--backend reference``).
+
+    Slow (every ray against every triangle), for validating the Embree backend on
+    small scenes: the geometry is rebased on ``center`` in float64 and the float32
+    rays are widened to float64, so the only float32 rounding left is the rays'.
+    """
+
+    name = "reference"
+
+    def __init__(self, vertices, faces, face_normals, center, step):
+        super().__init__(face_normals, step)
+        self._vertices = np.asarray(vertices, dtype=np.float64) - center
+        self._faces = np.asarray(faces, dtype=np.int64)
+
+    def _first_hit(self, origins, directions, tmax):
+        tmax = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (len(origins),))
+        return first_hit(self._vertices, self._faces, origins.astype(np.float64),
+                         directions.astype(np.float64), tmax)
+
+    def occluded(self, origins, directions, tmax) -> np.ndarray:
+        return self._first_hit(origins, directions, tmax)[1] >= 0
+
+    def distance(self, origins, directions, tmax) -> np.ndarray:
+        return self._first_hit(origins, directions, tmax)[0].astype(np.float32)
+
+    def intersect(self, origins, directions, tmax):
+        t, face = self._first_hit(origins, directions, tmax)
+        return t.astype(np.float32), face

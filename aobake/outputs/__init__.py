@@ -1,49 +1,119 @@
-"""Output writers, chosen by file extension.
+"""Writing a bake's files: ``write(result, path, ...)`` gives a Python user exactly the
+files the CLI writes (the CLI calls it for every output).
 
-Every per-vertex writer has the signature
-``write(path, positions, faces, fields, metadata) -> None`` (see
-``aobake.outputs.npz`` for the fields, their shapes and dtypes) and writes
-atomically: on failure no file, complete or partial, is left at ``path``.
+The format is chosen by extension from ``aobake.outputs.registry.WRITERS``.
+Every output carries the conventions and configuration in its metadata, and is
+written atomically (temporary file + rename).
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from aobake.errors import OutputError
-from aobake.outputs import glb, npz, ply
+from aobake.outputs.registry import MESH_OUTPUTS, WRITERS, WriteOptions, default_target, writer_for
 
-#: lower-case suffix -> per-vertex writer
-VERTEX_WRITERS = {".npz": npz.write, ".ply": ply.write, ".glb": glb.write}
+__all__ = ["MESH_OUTPUTS", "Outputs", "WRITERS", "WriteOptions", "default_target", "metadata",
+           "plan", "write", "write_vertices"]
 
 
-def write_vertices(
-    path: str | os.PathLike,
-    positions: np.ndarray,
-    faces: np.ndarray,
-    fields: Mapping[str, np.ndarray],
-    metadata: Mapping | None,
-) -> None:
-    """Write a vertex bake with the writer for ``path``'s (case-insensitive) suffix.
+@dataclass(frozen=True)
+class Outputs:
+    """The files one bake will write: out, mesh_out (lightmaps with a new atlas, or when
+    asked) and report (or None), checked before any work."""
 
-    Parameters
-    ----------
-    positions : (n, 3) float
-    faces : (f, 3) int
-    fields : dict of per-vertex arrays, any of ``npz.VERTEX_FIELDS``
-    metadata : JSON-serialisable dict
+    out: Path
+    target: str
+    mesh_out: Path | None
+    mesh_out_given: bool
+    report: Path | None
 
+
+def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=None) -> Outputs:
+    """Resolve and check a bake's output paths before baking (fail before any work).
+
+    target : 'vertices' | 'texels' | None (from the extension); mesh : the input path, which
+    no output may overwrite.  Raises OutputError naming the path and the problem.
+    """
+    out = Path(out)
+    target = target or default_target(out)
+    writer_for(out, target)  # the format exists for this target
+    given = mesh_out is not None
+    if target == "texels":
+        if given and Path(mesh_out).suffix.lower() not in MESH_OUTPUTS:
+            raise OutputError(f"{mesh_out}: unsupported --mesh-out format; use "
+                              f"{' or '.join(MESH_OUTPUTS)}")
+        if mesh_out is None and out.suffix.lower() != ".glb":
+            mesh_out = out.with_suffix(".obj")  # beside --out, as <stem>.obj
+    else:
+        mesh_out = None
+    mesh_out = None if mesh_out is None else Path(mesh_out)
+    report = None if report is None else Path(report)
+    mesh = None if mesh is None or not isinstance(mesh, (str, os.PathLike)) else Path(mesh)
+    for path in (out, mesh_out, report):
+        if path is None:
+            continue
+        if mesh is not None and mesh.exists() and path.exists() and path.resolve() == mesh.resolve():
+            raise OutputError(f"{path}: refusing to overwrite the input mesh")
+        if not path.parent.resolve().is_dir():
+            raise OutputError(f"{path}: directory {path.parent} does not exist")
+    return Outputs(out, target, mesh_out, given, report)
+
+
+def metadata(result) -> dict:
+    """The metadata every output of ``result`` carries: conventions, config, parameters,
+    versions (and the texture statistics of a lightmap)."""
+    report = result.report
+    meta = {"conventions": report["conventions"], "config": report["config"],
+            "parameters": report["parameters"], "versions": report["versions"]}
+    if "texture" in report:
+        meta["texture"] = report["texture"]
+    return meta
+
+
+def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_depth: int = 8,
+          r_only: bool = False, mesh=None) -> list[Path]:
+    """Write ``result`` (BakeResult or TexelResult) to ``out``, as the CLI does.
+
+    mesh_out : where the mesh of a lightmap's new atlas goes (.obj or .glb; default
+    ``<out>.obj`` when the atlas is new; given explicitly it is always written);
+    report : path of the JSON report (with the list of files written); half, bit_depth,
+    r_only : see :class:`WriteOptions`; mesh : the input path (never overwritten).
+    Returns the paths written, ``out`` first.
+    """
+    from aobake.outputs.report import write_report
+    from aobake.outputs.texture import write_atlas_mesh
+
+    target = "texels" if hasattr(result, "channels") else "vertices"
+    where = plan(out, target, mesh=mesh, mesh_out=mesh_out, report=report)
+    options = WriteOptions(half=half, bit_depth=int(bit_depth), r_only=r_only)
+    meta = metadata(result)
+    writer_for(where.out, target).write(where.out, result, meta, options)
+    written = [where.out]
+    if where.mesh_out is not None and (result.atlas.new or where.mesh_out_given):
+        write_atlas_mesh(where.mesh_out, result, meta)
+        written.append(where.mesh_out)
+    if where.report is not None:
+        full = dict(result.report, outputs=[str(p) for p in written])
+        write_report(where.report, full)
+    return written
+
+
+def write_vertices(path: str | os.PathLike, positions: np.ndarray, faces: np.ndarray,
+                   fields: Mapping[str, np.ndarray], metadata: Mapping | None) -> None:
+    """Write per-vertex arrays with the writer for ``path``'s suffix (no result needed).
+
+    positions : (n, 3) float, faces : (f, 3) int, fields : per-vertex arrays named as in
+    ``aobake.quantities.FIELDS``, metadata : JSON-serialisable dict.
     Raises ``OutputError`` for an unsupported suffix, ``ValueError`` for bad arrays.
     """
-    suffix = Path(path).suffix.lower()
-    writer = VERTEX_WRITERS.get(suffix)
-    if writer is None:
-        raise OutputError(
-            f"{path}: unsupported output extension {suffix or '(none)'!r}; "
-            f"use one of {', '.join(sorted(VERTEX_WRITERS))}"
-        )
-    writer(path, positions, faces, fields, metadata)
+    import importlib
+
+    suffix = writer_for(path, "vertices").suffix
+    module = importlib.import_module(f"aobake.outputs.{suffix[1:]}")
+    module.write(path, positions, faces, fields, metadata)

@@ -34,29 +34,21 @@ import logging
 import os
 import struct
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 
 import numpy as np
 
-from aobake.errors import InputError
 from aobake.outputs.atomic import atomic_path
 from aobake.outputs.npz import check_vertex_data
 from aobake.outputs.report import check_metadata, to_jsonable
+from aobake.quantities import FIELDS
 
 log = logging.getLogger(__name__)
 
 GENERATOR = "aobake"
 
-#: bake field -> glTF application-specific vertex attribute (names must start with "_")
-CUSTOM_ATTRIBUTES = {
-    "ao": "_AO",
-    "ao_stderr": "_AO_STDERR",
-    "obscurance": "_OBSCURANCE",
-    "obscurance_stderr": "_OBSCURANCE_STDERR",
-    "bent_normal": "_BENT_NORMAL",
-    "bent_normal_stderr": "_BENT_NORMAL_STDERR",
-    "rays": "_RAYS",
-}
+#: bake field -> glTF application-specific vertex attribute (names must start with "_"),
+#: from the registry (normals go to the standard NORMAL attribute)
+CUSTOM_ATTRIBUTES = {f.name: f.gltf for f in FIELDS.values() if f.gltf}
 
 # GLB container
 _MAGIC = b"glTF"
@@ -82,7 +74,6 @@ _COMPONENT_DTYPES = {
     5125: np.dtype("<u4"),
     5126: np.dtype("<f4"),
 }
-_TYPE_WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
@@ -229,88 +220,6 @@ def write_textured(
     _add_mesh(gltf, blob, attributes, parts)
     _write_glb(path, gltf, blob)
     log.debug("wrote %s: %d vertices, %d faces, textured", path, n, len(faces))
-
-
-def read_glb(path: str | os.PathLike) -> tuple[dict, bytes]:
-    """Read a GLB file.
-
-    Returns
-    -------
-    gltf : the JSON chunk, parsed
-    bin : bytes of the BIN chunk (including its padding), b"" if there is none
-
-    Raises ``InputError`` if the container is malformed.
-    """
-    data = Path(path).read_bytes()
-    if len(data) < 20:
-        raise InputError(f"{path}: too short to be a GLB file")
-    magic, version, length = struct.unpack_from("<4sII", data, 0)
-    if magic != _MAGIC or version != _VERSION:
-        raise InputError(f"{path}: not a glTF 2.0 binary file")
-    if length != len(data):
-        raise InputError(f"{path}: header says {length} bytes, file has {len(data)}")
-    chunks = []
-    offset = 12
-    while offset < length:
-        if offset + 8 > length:
-            raise InputError(f"{path}: truncated chunk header at byte {offset}")
-        size, kind = struct.unpack_from("<II", data, offset)
-        if offset + 8 + size > length:
-            raise InputError(f"{path}: chunk at byte {offset} runs past the end of the file")
-        chunks.append((kind, data[offset + 8 : offset + 8 + size]))
-        offset += 8 + size
-    if not chunks or chunks[0][0] != _CHUNK_JSON:
-        raise InputError(f"{path}: the first chunk is not JSON")
-    gltf = json.loads(chunks[0][1].decode("utf-8"))
-    binary = chunks[1][1] if len(chunks) > 1 and chunks[1][0] == _CHUNK_BIN else b""
-    return gltf, binary
-
-
-def read_view(gltf: dict, binary: bytes, index: int) -> bytes:
-    """Bytes of bufferView ``index`` (e.g. an embedded image) of a GLB's BIN chunk."""
-    view = gltf["bufferViews"][index]
-    if view.get("buffer", 0) != 0:
-        raise ValueError("only the GLB's own buffer (0) can be read")
-    start = view.get("byteOffset", 0)
-    end = start + view["byteLength"]
-    if end > len(binary):
-        raise ValueError(f"bufferView {index} ends at byte {end}, past the buffer ({len(binary)})")
-    return binary[start:end]
-
-
-def read_accessor(gltf: dict, binary: bytes, index: int) -> np.ndarray:
-    """Values of accessor ``index``, as stored (normalised integers are not rescaled).
-
-    Supports SCALAR and VEC2..VEC4 accessors, interleaved or not; not sparse ones.
-
-    Returns
-    -------
-    values : (count,) for SCALAR, else (count, k), with the accessor's component
-      dtype (float32, uint32 ...); a copy, safe to modify
-    """
-    accessor = gltf["accessors"][index]
-    if "sparse" in accessor:
-        raise ValueError(f"accessor {index}: sparse accessors are not supported")
-    if accessor["type"] not in _TYPE_WIDTHS:
-        raise ValueError(f"accessor {index}: type {accessor['type']} is not supported")
-    dtype = _COMPONENT_DTYPES[accessor["componentType"]]
-    width = _TYPE_WIDTHS[accessor["type"]]
-    count = accessor["count"]
-    shape = (count,) if width == 1 else (count, width)
-    if "bufferView" not in accessor:
-        # the spec: an accessor without a bufferView is all zeros
-        return np.zeros(shape, dtype=dtype)
-    view_index = accessor["bufferView"]
-    view = read_view(gltf, binary, view_index)
-    start = accessor.get("byteOffset", 0)
-    element = dtype.itemsize * width
-    stride = gltf["bufferViews"][view_index].get("byteStride", element)
-    if count and start + stride * (count - 1) + element > len(view):
-        raise ValueError(f"accessor {index} runs past the end of bufferView {view_index}")
-    values = np.ndarray(
-        (count, width), dtype=dtype, buffer=view, offset=start, strides=(stride, dtype.itemsize)
-    )
-    return values.reshape(shape).copy()
 
 
 def _new_gltf(metadata: Mapping | None) -> dict:

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import tempfile
 from pathlib import Path
 from typing import Any, Mapping
@@ -43,6 +42,7 @@ import numpy as np
 
 from aobake.errors import OutputError
 from aobake.outputs.atomic import atomic_path
+from aobake.outputs.report import to_jsonable
 
 log = logging.getLogger(__name__)
 
@@ -57,23 +57,14 @@ def _oiio():
     return oiio
 
 
-def _json_default(value: Any):
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, os.PathLike):
-        return os.fspath(value)
-    raise TypeError(f"cannot store {type(value).__name__} in image metadata")
-
-
 def _metadata_attributes(metadata: Mapping[str, Any] | None) -> dict[str, str]:
     """'aobake:<key>' string attributes (non-strings as JSON) + 'aobake:metadata'."""
-    metadata = dict(metadata or {})
+    # The one strict JSON conversion every writer shares (non-finite floats as "inf"...).
+    metadata = to_jsonable(dict(metadata or {}))
     attrs = {}
     for key, value in metadata.items():
-        attrs[f"aobake:{key}"] = value if isinstance(value, str) else json.dumps(value, default=_json_default)
-    attrs["aobake:metadata"] = json.dumps(metadata, default=_json_default, sort_keys=True)
+        attrs[f"aobake:{key}"] = value if isinstance(value, str) else json.dumps(value, allow_nan=False)
+    attrs["aobake:metadata"] = json.dumps(metadata, sort_keys=True, allow_nan=False)
     return attrs
 
 
@@ -204,32 +195,3 @@ def png_bytes(value, coverage, bit_depth: int = 8, r_only: bool = True,
         return path.read_bytes()
 
 
-def read_image(path) -> tuple[np.ndarray, list[str], dict[str, Any]]:
-    """Read an image back (mainly for tests and inspection).
-
-    Returns (pixels (H, W, C) float32, channel_names, attributes).  Float files
-    come back as stored; integer files in OIIO's normalised scale, x / (2**bits
-    - 1), so ``np.rint(pixels * (2**bits - 1))`` recovers the stored integers
-    exactly ('oiio:BitsPerSample' or the format says how many bits).  Alpha is
-    read unassociated (colour is not multiplied by alpha).  attributes includes
-    'oiio:format' (e.g. 'uint8', 'half') and, for EXR, channel names in the
-    reader's order.
-    """
-    oiio = _oiio()
-    config = oiio.ImageSpec()
-    config.attribute("oiio:UnassociatedAlpha", 1)
-    inp = oiio.ImageInput.open(str(path), config)
-    if inp is None:
-        raise OutputError(f"{path}: {oiio.geterror() or 'cannot open for reading'}")
-    try:
-        spec = inp.spec()
-        pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
-        if pixels is None:
-            raise OutputError(f"{path}: {inp.geterror() or 'cannot read pixels'}")
-        attrs = {p.name: p.value for p in spec.extra_attribs}
-        attrs["oiio:format"] = str(spec.format)
-        names = list(spec.channelnames)
-    finally:
-        inp.close()
-    pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
-    return pixels, names, attrs

@@ -19,7 +19,8 @@ name                 shape        dtype     meaning
 ``metadata``         ()           str       JSON text: conventions and configuration
 ==================== ============ ========= =====================================
 
-Only the fields that were computed are present.  Geometry stays float64; the
+Only the fields that were computed are present (the table lists today's
+``aobake.quantities.FIELDS``, which is where the names come from).  Geometry stays float64; the
 estimates are float32, which is far finer than their standard errors.
 
 This module also holds the table of per-vertex fields (``VERTEX_FIELDS``) and
@@ -36,19 +37,13 @@ import numpy as np
 
 from aobake.outputs.atomic import atomic_path
 from aobake.outputs.report import metadata_json
+from aobake.quantities import FIELDS
 
 log = logging.getLogger(__name__)
 
-#: field name -> (per-vertex shape, dtype stored in the NPZ archive)
+#: field name -> (per-vertex shape, dtype stored in the NPZ archive), from the registry
 VERTEX_FIELDS: dict[str, tuple[tuple[int, ...], type]] = {
-    "normals": ((3,), np.float64),
-    "ao": ((), np.float32),
-    "ao_stderr": ((), np.float32),
-    "obscurance": ((), np.float32),
-    "obscurance_stderr": ((), np.float32),
-    "bent_normal": ((3,), np.float32),
-    "bent_normal_stderr": ((), np.float32),
-    "rays": ((), np.int32),
+    f.name: (() if f.width == 1 else (f.width,), f.dtype) for f in FIELDS.values()
 }
 
 

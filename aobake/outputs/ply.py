@@ -34,40 +34,25 @@ readers which split header lines on whitespace see it as one token.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 from collections.abc import Mapping
-from pathlib import Path
 
 import numpy as np
 
 from aobake.outputs.atomic import atomic_path
 from aobake.outputs.npz import check_vertex_data
 from aobake.outputs.report import metadata_json
+from aobake.quantities import FIELDS
 
 log = logging.getLogger(__name__)
 
 METADATA_COMMENT = "aobake-metadata"
 
-# field name -> PLY property names; the dtype is float32 ("float") except rays
-_PROPERTIES = {
-    "normals": ("nx", "ny", "nz"),
-    "ao": ("ao",),
-    "ao_stderr": ("ao_stderr",),
-    "obscurance": ("obscurance",),
-    "obscurance_stderr": ("obscurance_stderr",),
-    "bent_normal": ("bent_normal_x", "bent_normal_y", "bent_normal_z"),
-    "bent_normal_stderr": ("bent_normal_stderr",),
-    "rays": ("rays",),
-}
+# field name -> PLY property names (from the registry); float32 ("float") except integers
+_PROPERTIES = {f.name: f.ply for f in FIELDS.values()}
 _PLY_TYPES = {"<f8": "double", "<f4": "float", "<i4": "int", "|u1": "uchar"}
-_NUMPY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
-    "short": "<i2", "int16": "<i2", "ushort": "<u2", "uint16": "<u2",
-    "int": "<i4", "int32": "<i4", "uint": "<u4", "uint32": "<u4",
-    "float": "<f4", "float32": "<f4", "double": "<f8", "float64": "<f8",
-}  # fmt: skip
+
 
 
 def vertex_colors(fields: Mapping[str, np.ndarray], n: int) -> np.ndarray:
@@ -114,7 +99,7 @@ def write(
         (axis, "<f8", positions[:, i]) for i, axis in enumerate("xyz")
     ]
     for name, value in fields.items():
-        dtype = "<i4" if name == "rays" else "<f4"
+        dtype = "<i4" if np.issubdtype(FIELDS[name].dtype, np.integer) else "<f4"
         value = value.reshape(n, -1)
         columns += [(prop, dtype, value[:, i]) for i, prop in enumerate(_PROPERTIES[name])]
     grey = vertex_colors(fields, n)
@@ -145,49 +130,3 @@ def write(
     log.debug("wrote %s: %d vertices, %d faces, %s", path, n, len(faces), list(fields))
 
 
-def read(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Read a PLY file as ``write`` lays it out (binary little-endian, triangles).
-
-    Not a general PLY reader: it accepts scalar vertex properties of any type
-    and a face element whose only property is a ``list uchar int|uint`` of 3.
-
-    Returns
-    -------
-    vertex : (n,) structured array, one field per vertex property, in file order
-    faces : (f, 3) int64
-    metadata : dict from the ``comment aobake-metadata`` line, {} if none
-    """
-    data = Path(path).read_bytes()
-    end = data.find(b"end_header\n")
-    if not data.startswith(b"ply\n") or end < 0:
-        raise ValueError(f"{path}: not a PLY file with a header")
-    lines = data[:end].decode("ascii").splitlines()
-    if "format binary_little_endian 1.0" not in lines:
-        raise ValueError(f"{path}: only binary_little_endian PLY is supported")
-    metadata: dict = {}
-    elements: dict[str, list] = {}
-    counts: dict[str, int] = {}
-    current = None
-    for line in lines:
-        words = line.split()
-        if words[:2] == ["comment", METADATA_COMMENT]:
-            metadata = json.loads(line.split(None, 2)[2])
-        elif words[:1] == ["element"]:
-            current = words[1]
-            counts[current] = int(words[2])
-            elements[current] = []
-        elif words[:1] == ["property"]:
-            elements[current].append(words[1:])
-    vertex_dtype = [(p[1], _NUMPY_TYPES[p[0]]) for p in elements.get("vertex", [])]
-    face_props = elements.get("face", [])
-    if len(face_props) != 1 or face_props[0][:2] != ["list", "uchar"]:
-        raise ValueError(f"{path}: expected one face property 'list uchar int vertex_indices'")
-    face_dtype = [("count", "u1"), ("vertex_indices", _NUMPY_TYPES[face_props[0][2]], (3,))]
-
-    offset = end + len(b"end_header\n")
-    vertex = np.frombuffer(data, dtype=vertex_dtype, count=counts["vertex"], offset=offset)
-    offset += vertex.nbytes
-    face = np.frombuffer(data, dtype=face_dtype, count=counts["face"], offset=offset)
-    if (face["count"] != 3).any():
-        raise ValueError(f"{path}: only triangle faces are supported")
-    return vertex.copy(), face["vertex_indices"].astype(np.int64), metadata

@@ -14,12 +14,6 @@ from aobake.outputs.atomic import atomic_path
 
 log = logging.getLogger(__name__)
 
-#: lightmap output formats (by extension)
-TEXTURE_OUTPUTS = (".exr", ".png", ".tif", ".tiff", ".glb")
-#: formats the unwrapped mesh can be written in
-MESH_OUTPUTS = (".obj", ".glb")
-
-
 def _map(result):
     """(value, name): the map an 8/16-bit image or a glTF occlusion texture carries."""
     for name in ("ao", "obscurance"):
@@ -56,13 +50,10 @@ def write_texture(path, result, metadata: dict, *, half=False, bit_depth=8, r_on
     elif suffix == ".glb":
         _write_glb(path, result, _map(result)[0], metadata)
     else:
+        from aobake.outputs.registry import suffixes
+
         raise OutputError(f"{path}: unsupported lightmap format {suffix!r}; "
-                          f"use one of {', '.join(TEXTURE_OUTPUTS)}")
-
-
-def default_mesh_out(out: Path) -> Path:
-    """Where the unwrapped mesh goes by default: beside ``out``, as ``<stem>.obj``."""
-    return out.with_suffix(".obj")
+                          f"use one of {', '.join(suffixes('texels'))}")
 
 
 def write_atlas_mesh(path, result, metadata: dict) -> None:

@@ -259,7 +259,7 @@ XATLAS_TIMEOUT_PER_FACE_S = 2e-3
 
 # The child imports this module and runs the worker; kept as data so tests can
 # swap in a crashing stand-in.
-_WORKER_CODE = "import sys; from aobake.targets.unwrap import _unwrap_worker; _unwrap_worker(sys.argv[1:])"
+_WORKER_CODE = "import sys; from aobake.targets.texels.unwrap import _unwrap_worker; _unwrap_worker(sys.argv[1:])"
 
 
 def _unwrap_isolated(positions, faces, resolution, padding) -> tuple[Unwrapped, dict]:

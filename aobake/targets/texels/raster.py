@@ -1,4 +1,4 @@
-"""Texel targets: map between a UV atlas and sample points on the surface.
+"""The lightmap rasteriser: texels of a UV atlas -> sample points (triangle + barycentrics).
 
 Conventions (used by every function here and by ``aobake.outputs.image``):
 
@@ -34,17 +34,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-try:  # built by setup.py; optional
-    from aobake import _kernels
-except ImportError:  # pragma: no cover
-    _kernels = None
+from aobake import _native
+from aobake.rng import GOLDEN, mix, stable_argsort, to_unit
 
 log = logging.getLogger(__name__)
-
-#: A UV triangle with |area| below this (in uv units, i.e. as a fraction of the
-#: whole atlas) counts as degenerate.  At 16k x 16k one texel is ~3.7e-9, so
-#: this is about a millionth of a texel at any practical resolution.
-DEGENERATE_UV_AREA = 1e-15
 
 #: Coverage given to a texel that received only a fallback sample (no
 #: sub-position landed on the surface): half of one sub-position's share,
@@ -59,35 +52,6 @@ FALLBACK_COVERAGE_FRACTION = 0.5
 CHUNK_PAIRS = 1 << 16
 
 # --- results ---------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class UVCheck:
-    """Result of checking a mesh's own UVs for baking.
-
-    valid : bool
-        True when no face has a corner outside [0, 1]^2 and no texel centre is
-        covered by more than one triangle.
-    out_of_range_faces : int
-        Faces with any corner outside [0, 1]^2 (or non-finite).
-    overlapping_texels : int
-        Texels whose centre is covered by two or more triangles (overlapping or
-        mirrored-and-stacked shells).  Triangles sharing an edge never both
-        cover one centre (see the module's coverage rule).
-    mirrored_faces : int
-        Non-degenerate faces whose signed UV area has the minority sign.
-    degenerate_faces : int
-        Faces with |UV area| < DEGENERATE_UV_AREA; they receive no texels.
-    message : str
-        One human-readable line summarising the above.
-    """
-
-    valid: bool
-    out_of_range_faces: int
-    overlapping_texels: int
-    mirrored_faces: int
-    degenerate_faces: int
-    message: str
 
 
 @dataclass(frozen=True)
@@ -144,7 +108,7 @@ class TexelSamples:
         return np.divmod(self.texel, self.width)
 
 
-# --- validation helpers ----------------------------------------------------
+# --- validation ----------------------------------------------------------
 
 
 def _check_uv_faces(uv, faces, width, height) -> tuple[np.ndarray, np.ndarray]:
@@ -164,95 +128,22 @@ def _check_uv_faces(uv, faces, width, height) -> tuple[np.ndarray, np.ndarray]:
     return uv, faces
 
 
-def _signed_uv_area(uv: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(f,) float64 signed area in uv units; > 0 for counter-clockwise (v up)."""
-    t = uv[faces]
-    e1 = t[:, 1] - t[:, 0]
-    e2 = t[:, 2] - t[:, 0]
-    return 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
-
-
-# --- UV checking -----------------------------------------------------------
-
-
-def check_uvs(uv, faces, width: int, height: int, shared: np.ndarray | None = None) -> UVCheck:
-    """Check whether a mesh's own UVs can be baked into a width x height image.
-
-    uv : (n, 2) float, OBJ convention; faces : (f, 3) int.
-    Overlap is measured by rasterising the texel centres (K = 1) with the
-    module's coverage rule, so it is exactly the overlap the bake would see.
-    shared : (height, width) int, ``TexelSamples.shared`` of a rasterisation of
-        these UVs that was already made (any K: the centre counts do not depend
-        on it), which saves rasterising again.
-    """
-    uv, faces = _check_uv_faces(uv, faces, width, height)
-    corners = uv[faces]  # (f, 3, 2)
-    in_range = np.all(np.isfinite(corners) & (corners >= 0.0) & (corners <= 1.0), axis=(1, 2))
-    out_of_range = int(np.count_nonzero(~in_range))
-
-    area = _signed_uv_area(uv, faces)
-    finite = np.isfinite(area)
-    degenerate = ~finite | (np.abs(area) < DEGENERATE_UV_AREA)
-    n_pos = int(np.count_nonzero((area > 0) & ~degenerate))
-    n_neg = int(np.count_nonzero((area < 0) & ~degenerate))
-    # Which orientation is "mirrored" is only defined relative to the majority.
-    mirrored = min(n_pos, n_neg)
-
-    if shared is None:
-        shared = rasterize(uv, faces, width, height, texel_samples=1).shared
-    elif np.shape(shared) != (height, width):
-        raise ValueError(f"shared must be ({height}, {width}), got {np.shape(shared)}")
-    overlapping = int(np.count_nonzero(np.asarray(shared) > 1))
-
-    valid = out_of_range == 0 and overlapping == 0
-    parts = []
-    if out_of_range:
-        parts.append(f"{out_of_range} faces have UVs outside [0, 1]")
-    if overlapping:
-        parts.append(f"{overlapping} texels are covered by more than one face")
-    if mirrored:
-        parts.append(f"{mirrored} faces are mirrored in UV")
-    if int(degenerate.sum()):
-        parts.append(f"{int(degenerate.sum())} faces have zero UV area")
-    head = "UVs usable for baking" if valid else "UVs not usable for baking"
-    message = head + (": " + "; ".join(parts) if parts else "")
-    return UVCheck(
-        valid=valid,
-        out_of_range_faces=out_of_range,
-        overlapping_texels=overlapping,
-        mirrored_faces=mirrored,
-        degenerate_faces=int(degenerate.sum()),
-        message=message,
-    )
-
-
 # --- counter-based jitter ----------------------------------------------------
 
-_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
-_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
-_MIX2 = np.uint64(0x94D049BB133111EB)
+_GOLDEN = np.uint64(GOLDEN)
 _SEED_SALT = np.uint64(0x243F6A8885A308D3)  # digits of pi: any fixed odd constant
-
-
-def _mix64(x: np.ndarray) -> np.ndarray:
-    """SplitMix64 finaliser: a bijective avalanche on uint64 arrays."""
-    x = x ^ (x >> np.uint64(30))
-    x = x * _MIX1
-    x = x ^ (x >> np.uint64(27))
-    x = x * _MIX2
-    return x ^ (x >> np.uint64(31))
 
 
 def _uniform(seed: int, texel: np.ndarray, k: int, dim: int) -> np.ndarray:
     """(n,) float64 in [0, 1): a pure function of (seed, texel, k, dim)."""
     with np.errstate(over="ignore"):
-        s = _mix64(np.array([seed & 0xFFFFFFFFFFFFFFFF], dtype=np.uint64) ^ _SEED_SALT)
+        s = mix(np.array([seed & 0xFFFFFFFFFFFFFFFF], dtype=np.uint64) ^ _SEED_SALT)
         key = texel.astype(np.uint64) * np.uint64(0x100000) + np.uint64(k * 4 + dim)
         # key * odd constant is a bijection, so distinct keys stay distinct for
         # one seed; the seed enters through an independent mix (never xor-ed
         # against a value built the same way, which could cancel to zero).
-        h = _mix64(_mix64(key * _GOLDEN + s) + _GOLDEN)
-    return (h >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+        h = mix(mix(key * _GOLDEN + s) + _GOLDEN)
+    return to_unit(h)
 
 
 def _lattice_generator(k: int) -> int:
@@ -478,7 +369,7 @@ class _CompiledEdges(NamedTuple):
                    c(ed.owner, dtype=bool), c(ed.corner, dtype=np.int64), c(vmax, dtype=np.float64))
 
 
-def _raster_chunk_compiled(ce: _CompiledEdges, t, row, col, width: int, n_sub: int, seed: int):
+def _raster_chunk_compiled(kernels, ce: _CompiledEdges, t, row, col, width: int, n_sub: int, seed: int):
     """_raster_chunk through the compiled kernel: the same tests in the same floating-point
     operations (tested bit for bit), without the (m, 3) temporaries."""
     n = len(t)
@@ -489,8 +380,9 @@ def _raster_chunk_compiled(ce: _CompiledEdges, t, row, col, width: int, n_sub: i
     bary = np.empty((n_sub, n, 3), dtype=np.float64)
     q = int(round(np.sqrt(n_sub)))
     g = 0 if q * q == n_sub else _lattice_generator(n_sub)
-    seed_key = int(_mix64(np.array([seed & 0xFFFFFFFFFFFFFFFF], dtype=np.uint64) ^ _SEED_SALT)[0])
-    _kernels.raster_pairs(*ce, t, row, col, int(width), int(n_sub), seed_key, q, g,
+    with np.errstate(over="ignore"):
+        seed_key = int(mix(np.array([seed & 0xFFFFFFFFFFFFFFFF], dtype=np.uint64) ^ _SEED_SALT)[0])
+    kernels.raster_pairs(*ce, t, row, col, int(width), int(n_sub), seed_key, q, g,
                           centre, opened, ins, bary)
     texel = row * width + col
     out_texel = [texel[ins[k]] for k in range(n_sub)]
@@ -549,20 +441,6 @@ def _raster_chunk(ed: _Edges, vmax, t, row, col, width: int, n_sub: int, seed: i
             np.concatenate(out_k), centre_texels, texel[cand], t[cand])
 
 
-def _stable_argsort(key: np.ndarray, bound: int) -> np.ndarray:
-    """(n,) int64 stable argsort of non-negative integer keys below ``bound``.
-
-    Sorting (key << 32 | index) as one uint64 is a stable argsort at the cost of a
-    plain sort (several times cheaper for millions of samples).
-    """
-    n = len(key)
-    if n >= 2**32 or bound > 2**32:  # pragma: no cover - beyond any texture budget
-        return np.argsort(key, kind="stable")
-    packed = (key.astype(np.uint64) << np.uint64(32)) | np.arange(n, dtype=np.uint64)
-    packed.sort()
-    return (packed & np.uint64(0xFFFFFFFF)).astype(np.int64)
-
-
 def rasterize(
     uv,
     faces,
@@ -584,8 +462,9 @@ def rasterize(
     chunk_pairs : memory knob (candidate pairs per batch); does not change the
         result.
     threads : batches processed at once; does not change the result.
-    compiled : per-pair tests in the compiled kernel (default: when it was built) or in
-        numpy (the reference); the samples are identical.
+    compiled : per-pair tests in the compiled kernel (default: when it was built and not
+        forced off, see ``aobake._native``) or in numpy (the reference); the samples are
+        identical.
 
     Texels that a triangle overlaps (open intersection with the texel square)
     but where no sub-position landed on any triangle get one fallback sample:
@@ -609,13 +488,14 @@ def rasterize(
     tri_ids = np.flatnonzero(keep)
     bands = _bands(tri_ids, c0[keep], c1[keep], r0[keep], r1[keep], max(1, int(chunk_pairs)))
 
-    if compiled is None:
-        compiled = _kernels is not None
-    if compiled:
+    kernels = _native.kernels() if compiled in (None, True) else None
+    if compiled and kernels is None:
+        raise RuntimeError("aobake._kernels was not built")
+    if kernels is not None:
         ce = _CompiledEdges.of(ed, vmax)
 
         def work(chunk):
-            return _raster_chunk_compiled(ce, *chunk, width, n_sub, seed)
+            return _raster_chunk_compiled(kernels, ce, *chunk, width, n_sub, seed)
     else:
         def work(chunk):
             return _raster_chunk(ed, vmax, *chunk, width, n_sub, seed)
@@ -644,7 +524,7 @@ def rasterize(
     # triangle order and the sort is stable, so ties (stacked shells) end up
     # ordered by face: the result does not depend on chunking.
     key = texel * n_sub + sub
-    order = _stable_argsort(key, width * height * n_sub)
+    order = stable_argsort(key, width * height * n_sub)
     key, texel, face, bary, sub = key[order], texel[order], face[order], bary[order], sub[order]
     # Coverage counts distinct sub-positions, so stacked (overlapping) shells
     # do not push a texel above 1.
@@ -697,109 +577,3 @@ def rasterize(
         len(faces), width, height, n_sub, len(texel), len(fb_texel), time.perf_counter() - start_time,
     )
     return result
-
-
-# --- from samples to the surface and back ------------------------------------
-
-
-def surface_points(positions, normals, faces, samples: TexelSamples):
-    """Interpolate positions and shading normals at the samples.
-
-    positions : (n, 3) float; normals : (n, 3) float vertex normals, or None
-    for flat shading; faces : (f, 3) int, the faces the samples refer to.
-
-    Returns (points (s, 3) float64, normals (s, 3) float64 unit, face_normals
-    (s, 3) float64 unit).  The shading normal is the normalised interpolated
-    vertex normal, replaced by the face normal where it is zero or points
-    against the face (dot <= 0), since a ray hemisphere around it would dip
-    into the surface.  A face with zero 3D area has a zero face normal; its
-    shading normal is then the interpolated one, or zero if that is zero too
-    (such samples have no surface and should be dropped by the caller).
-    """
-    positions = np.asarray(positions, dtype=np.float64)
-    faces = np.asarray(faces, dtype=np.int64)
-    if positions.ndim != 2 or positions.shape[1] != 3:
-        raise ValueError(f"positions must be (n, 3), got {positions.shape}")
-    if normals is not None:
-        normals = np.asarray(normals, dtype=np.float64)
-        if normals.shape != positions.shape:
-            raise ValueError(f"normals must be {positions.shape}, got {normals.shape}")
-    # Face normals once per face (not per sample): np.cross on millions of rows is slow.
-    ftri = positions[faces]
-    fn = np.cross(ftri[:, 1] - ftri[:, 0], ftri[:, 2] - ftri[:, 0])
-    fn_len = np.linalg.norm(fn, axis=1, keepdims=True)
-    unit = np.divide(fn, fn_len, out=np.zeros_like(fn), where=fn_len > 0)
-    s = samples.n_samples
-    points, shading, face_normals = np.empty((s, 3)), np.empty((s, 3)), np.empty((s, 3))
-    n_bad = 0
-    # In blocks: row-wise arithmetic, so the result is the same, but the temporaries
-    # stay small (whole-array temporaries of millions of rows cost more in page
-    # faults than in arithmetic).
-    for lo in range(0, s, _SURFACE_BLOCK):
-        hi = min(s, lo + _SURFACE_BLOCK)
-        face = samples.face[lo:hi]
-        bary = samples.bary[lo:hi]
-        corners = faces[face]  # (b, 3)
-
-        def interpolate(values):
-            return (bary[:, 0, None] * values[corners[:, 0]] + bary[:, 1, None] * values[corners[:, 1]]
-                    + bary[:, 2, None] * values[corners[:, 2]])
-
-        fnorm = face_normals[lo:hi] = unit[face]
-        points[lo:hi] = interpolate(positions)
-        if normals is None:
-            shading[lo:hi] = fnorm
-            continue
-        n = interpolate(normals)
-        n_len = np.linalg.norm(n, axis=1, keepdims=True)
-        n = np.divide(n, n_len, out=np.zeros_like(n), where=n_len > 0)
-        has_face = fn_len[face, 0] > 0
-        bad = has_face & ((n_len[:, 0] == 0) | (np.einsum("ij,ij->i", n, fnorm) <= 0))
-        n[bad] = fnorm[bad]
-        n_bad += int(bad.sum())
-        shading[lo:hi] = n
-    if n_bad:
-        log.debug("%d samples use the face normal (vertex normal zero or flipped)", n_bad)
-    return points, shading, face_normals
-
-
-#: samples interpolated at once by :func:`surface_points` (memory, not results)
-_SURFACE_BLOCK = 1 << 16
-
-
-def splat_count(samples: TexelSamples, width: int | None = None, height: int | None = None) -> np.ndarray:
-    """(height, width) int64 number of samples in each texel."""
-    width, height = _size(samples, width, height)
-    return np.bincount(samples.texel, minlength=width * height).reshape(height, width)
-
-
-def splat(samples: TexelSamples, values, width: int | None = None, height: int | None = None) -> np.ndarray:
-    """Average per-sample values into texels.
-
-    values : (s,) or (s, c) float.  Returns (height, width, c) float64, the mean
-    of the samples in each texel (c = 1 for 1-D values); texels without samples
-    are 0 (use ``splat_count`` or ``samples.coverage`` as the mask).
-    """
-    width, height = _size(samples, width, height)
-    values = np.asarray(values, dtype=np.float64)
-    if values.ndim == 1:
-        values = values[:, None]
-    if values.ndim != 2 or values.shape[0] != samples.n_samples:
-        raise ValueError(f"values must be ({samples.n_samples},) or ({samples.n_samples}, c), got {values.shape}")
-    n = width * height
-    count = np.bincount(samples.texel, minlength=n).astype(np.float64)
-    out = np.empty((n, values.shape[1]))
-    for ch in range(values.shape[1]):
-        out[:, ch] = np.bincount(samples.texel, weights=values[:, ch], minlength=n)
-    np.divide(out, count[:, None], out=out, where=count[:, None] > 0)
-    return out.reshape(height, width, values.shape[1])
-
-
-def _size(samples: TexelSamples, width, height) -> tuple[int, int]:
-    width = samples.width if width is None else int(width)
-    height = samples.height if height is None else int(height)
-    if (width, height) != (samples.width, samples.height):
-        raise ValueError(
-            f"size {width}x{height} does not match the samples' {samples.width}x{samples.height}"
-        )
-    return width, height

@@ -1,0 +1,58 @@
+"""The compiled kernels (``aobake/_kernels.c``), loaded once, and which of them a bake ran.
+
+Each kernel has a numpy formulation that gives identical bits (tested); the
+kernel is only faster.  A stage asks :func:`kernels` once per bake and passes
+the answer down, and the report records that same answer per stage
+(:func:`used`), so ``parameters.kernels`` says truthfully what ran, also when
+:func:`numpy_only` forces the numpy path.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+from typing import Iterator
+
+try:  # built by setup.py; optional (a failed build leaves the numpy path)
+    from aobake import _kernels as _compiled
+except ImportError:  # pragma: no cover - exercised only where no C compiler was available
+    _compiled = None
+
+#: stage -> the kernel function it uses
+KERNELS = {"ray_generation": "fill_rays", "escape_counts": "row_counts",
+           "rasterizer": "raster_pairs"}
+
+_state = threading.local()
+
+
+def built() -> bool:
+    """True when ``aobake._kernels`` was compiled at install."""
+    return _compiled is not None
+
+
+def kernels():
+    """The compiled module, or None when it was not built or :func:`numpy_only` is active."""
+    if getattr(_state, "numpy_only", False):
+        return None
+    return _compiled
+
+
+@contextlib.contextmanager
+def numpy_only() -> Iterator[None]:
+    """Run bakes started on this thread inside the block on the numpy formulations."""
+    before = getattr(_state, "numpy_only", False)
+    _state.numpy_only = True
+    try:
+        yield
+    finally:
+        _state.numpy_only = before
+
+
+def label(compiled: bool) -> str:
+    return "compiled" if compiled else "numpy"
+
+
+def used(stages: dict) -> dict:
+    """stages: stage name -> bool compiled | None (stage not run) -> the report's ``kernels``."""
+    return {stage: ("not used" if stages.get(stage) is None else label(stages[stage]))
+            for stage in KERNELS}

@@ -1,0 +1,87 @@
+"""What a tracing backend is, and the registry the CLI's ``--backend`` reads.
+
+A backend is built once per bake from the scene's triangles, already rebased on
+``center`` (so far-from-origin scenes keep their float32 precision):
+
+    Backend(vertices (v, 3) float64, faces (f, 3) int64, face_normals (f, 3) float64 unit,
+            center (3,) float64, step float)
+
+and answers four queries, each on origins (n, 3) float32 (rebased), directions
+(n, 3) float32 unit and tmax (scalar or (n,) float32), returning (n,) arrays:
+
+* ``occluded`` : bool, any hit with t in (0, tmax] (AO and bent normals: the
+  cheapest query there is).
+* ``distance`` : float32 distance to the nearest hit, inf on a miss (obscurance).
+* ``front_occluded`` / ``front_distance`` : the same, but back-face hits (ray
+  travelling along the face normal) are stepped through by ``step`` and do not
+  count (``--backfaces ignore``).
+
+A backend implements ``occluded``, ``distance`` and ``intersect``;
+:class:`TriangleBackend` derives the front-face queries from ``intersect``.  A new
+backend is one module with such a class plus one line in ``BACKENDS``
+(``aobake/backends/__init__.py``).
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+#: back faces stepped through before a ray counts as blocked where it is
+MAX_BACKFACE_STEPS = 64
+
+
+class Backend(Protocol):
+    name: str
+
+    def occluded(self, origins, directions, tmax) -> np.ndarray: ...
+
+    def distance(self, origins, directions, tmax) -> np.ndarray: ...
+
+    def front_occluded(self, origins, directions, tmax) -> np.ndarray: ...
+
+    def front_distance(self, origins, directions, tmax) -> np.ndarray: ...
+
+
+class TriangleBackend:
+    """Front-face queries from a closest-hit ``intersect`` (subclasses provide it).
+
+    ``intersect(origins, directions, tmax (n,) float32) -> (t (n,) float32, prim (n,) int)``
+    with ``prim = -1`` where nothing is hit within tmax.
+    """
+
+    def __init__(self, face_normals: np.ndarray, step: float):
+        self._face_normals = np.asarray(face_normals).astype(np.float32)
+        self._step = np.float32(step)
+
+    def front_distance(self, origins, directions, tmax) -> np.ndarray:
+        """(n,) float32 distance to the nearest front-face hit; inf if none within tmax."""
+        n = len(origins)
+        result = np.full(n, np.inf, dtype=np.float32)
+        travelled = np.zeros(n, dtype=np.float32)
+        tmax = np.broadcast_to(np.asarray(tmax, dtype=np.float32), (n,))
+        active = np.arange(n)
+        org = origins.copy()
+        for _ in range(MAX_BACKFACE_STEPS):
+            if not len(active):
+                break
+            remaining = tmax[active] - travelled[active]
+            t, prim = self.intersect(org[active], directions[active], remaining)
+            hit = prim >= 0
+            facing = np.einsum("ij,ij->i", self._face_normals[np.maximum(prim, 0)],
+                               directions[active])
+            front = hit & (facing <= 0)
+            result[active[front]] = travelled[active[front]] + t[front]
+            back = hit & ~front
+            # Step just past the back face and continue the same ray.
+            adv = t[back] + self._step
+            travelled[active[back]] += adv
+            org[active[back]] += adv[:, None] * directions[active[back]]
+            active = active[back]
+        # Rays still crossing back faces after many steps: treat as blocked there.
+        result[active] = travelled[active]
+        return result
+
+    def front_occluded(self, origins, directions, tmax) -> np.ndarray:
+        return np.isfinite(self.front_distance(origins, directions, tmax))

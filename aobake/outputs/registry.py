@@ -1,0 +1,131 @@
+"""Output formats: (target, file extension) -> writer, the one table the CLI, ``aobake.write``
+and the README's output table read.
+
+A writer is ``write(path, result, metadata, options)`` with ``result`` a
+BakeResult (per vertex) or TexelResult (lightmap), ``metadata`` the JSON dict
+every output carries and ``options`` the :class:`WriteOptions`; it writes
+atomically (nothing, complete or partial, is left at ``path`` on failure).  A
+new format is one module with such a function plus one line in ``WRITERS``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from aobake.errors import OutputError
+from aobake.quantities import FIELDS
+
+
+@dataclass(frozen=True)
+class WriteOptions:
+    """half : EXR half floats; bit_depth : PNG/TIFF 8 or 16; r_only : PNG/TIFF AO in R only."""
+
+    half: bool = False
+    bit_depth: int = 8
+    r_only: bool = False
+
+
+@dataclass(frozen=True)
+class Writer:
+    """suffix : lower-case extension, target : 'vertices' | 'texels', write : the function,
+    what / contents : the README's output table row."""
+
+    suffix: str
+    target: str
+    write: Callable
+    what: str
+    contents: Callable[[], str]
+
+
+def _vertex(module_name: str):
+    def write(path, result, metadata, options):
+        import importlib
+
+        module = importlib.import_module(f"aobake.outputs.{module_name}")
+        module.write(path, result.positions, result.faces, result.fields(), metadata)
+    return write
+
+
+def _texture(path, result, metadata, options):
+    from aobake.outputs.texture import write_texture
+
+    write_texture(path, result, metadata, half=options.half, bit_depth=options.bit_depth,
+                  r_only=options.r_only)
+
+
+def _names(names) -> str:
+    return ", ".join(f"`{n}`" for n in names)
+
+
+def _npz_contents() -> str:
+    return (f"{_names(['positions', 'faces', *FIELDS])} (as computed; `rays` int32, "
+            "estimates float32), `metadata` (JSON)")
+
+
+def _ply_contents() -> str:
+    props = [p for f in FIELDS.values() for p in f.ply]
+    return (f"the mesh (positions float64) with properties {_names(props)} (float32; `rays` "
+            "int32) and 8-bit colours `round(255 * ao)`")
+
+
+def _glb_contents() -> str:
+    attrs = [f.gltf for f in FIELDS.values() if f.gltf]
+    return f"the mesh with `COLOR_0` = AO (linear) and custom attributes {_names(attrs)}"
+
+
+def _exr_contents() -> str:
+    channels = [c for f in FIELDS.values() for c in f.exr]
+    return (f"float32 (`--half`) channels {_names([*channels, 'coverage'])}; configuration "
+            "in the header")
+
+
+#: every output format, in the README's order
+WRITERS = (
+    Writer(".npz", "vertices", _vertex("npz"), "per vertex", _npz_contents),
+    Writer(".ply", "vertices", _vertex("ply"), "per vertex", _ply_contents),
+    Writer(".glb", "vertices", _vertex("glb"), "per vertex", _glb_contents),
+    Writer(".exr", "texels", _texture, "lightmap", _exr_contents),
+    Writer(".png", "texels", _texture, "lightmap",
+           lambda: "AO in RGB (`--r-only`: R), coverage in alpha, 8/16 bit (`--bit-depth`)"),
+    Writer(".tif", "texels", _texture, "lightmap", lambda: "as `.png`"),
+    Writer(".tiff", "texels", _texture, "lightmap", lambda: "as `.png`"),
+    Writer(".glb", "texels", _texture, "lightmap",
+           lambda: "the atlas mesh with the AO map as `occlusionTexture` of every input "
+                   "material (each keeps its base colour; one primitive per material)"),
+)
+
+#: formats the mesh of a new atlas can be written in (``--mesh-out``)
+MESH_OUTPUTS = (".obj", ".glb")
+
+
+def suffixes(target: str) -> tuple:
+    return tuple(w.suffix for w in WRITERS if w.target == target)
+
+
+def default_target(path) -> str:
+    """The target an output extension implies: vertices unless only a lightmap can be it."""
+    suffix = Path(path).suffix.lower()
+    return "vertices" if suffix in suffixes("vertices") else "texels"
+
+
+def writer_for(path, target: str) -> Writer:
+    """The writer of ``path``'s (case-insensitive) extension for ``target``; OutputError if none."""
+    suffix = Path(path).suffix.lower()
+    for writer in WRITERS:
+        if writer.suffix == suffix and writer.target == target:
+            return writer
+    kind = "a vertex bake" if target == "vertices" else "a lightmap"
+    raise OutputError(f"{path}: unsupported output format {suffix or '(none)'!r} for {kind} "
+                      f"(--target {target}); use one of {', '.join(suffixes(target))}")
+
+
+def markdown_table() -> str:
+    """The README's output table, made from ``WRITERS`` (a test keeps the README equal to it)."""
+    rows = ["| `--out` | what | contents |", "|---|---|---|"]
+    for writer in WRITERS:
+        target = " + `--target texels`" if writer.suffix in suffixes("vertices") and \
+            writer.target == "texels" else ""
+        rows.append(f"| `{writer.suffix}`{target} | {writer.what} | {writer.contents()} |")
+    return "\n".join(rows)

@@ -1,0 +1,59 @@
+"""The quantities a bake can estimate, and every per-point field a result holds.
+
+``QUANTITIES`` is the registry (canonical order = output order); ``FIELDS`` adds
+the two fields every bake has (``normals``, ``rays``).  Writers, the CLI and the
+docs read names from here, so no name is typed twice.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from aobake.quantities import ao, bent_normal, obscurance
+from aobake.quantities.base import Field, Quantity, Traced
+
+#: name -> Quantity, in canonical (output) order
+QUANTITIES: dict[str, Quantity] = {
+    q.name: q for q in (ao.QUANTITY, obscurance.QUANTITY, bent_normal.QUANTITY)
+}
+
+NORMALS = Field("normals", 3, np.float64, ("nx", "ny", "nz"), None, (),
+                "normals the hemispheres were built on")
+RAYS = Field("rays", 1, np.int32, ("rays",), "_RAYS", ("rays",), "rays cast for each point")
+
+#: every per-point field, in output order: name -> Field
+FIELDS: dict[str, Field] = {
+    f.name: f for f in (NORMALS, *(f for q in QUANTITIES.values() for f in q.fields), RAYS)
+}
+
+#: conventions every bake shares, whatever it computes
+COMMON_CONVENTIONS = {
+    "max_distance": "a hit beyond the max distance is a miss",
+    "stderr": "one standard error of the Monte-Carlo estimate",
+}
+
+
+def canonical(names) -> tuple:
+    """Quantity names (str or iterable; '-' accepted for '_') -> tuple in canonical order.
+
+    Raises ValueError naming the unknown ones.
+    """
+    names = (names,) if isinstance(names, str) else tuple(names)
+    names = tuple(str(n).replace("-", "_") for n in names)
+    unknown = [n for n in names if n not in QUANTITIES]
+    if unknown or not names:
+        raise ValueError(f"quantities must be some of {tuple(QUANTITIES)}, got {names}")
+    return tuple(n for n in QUANTITIES if n in names)
+
+
+def conventions(weighting: str = "cosine", names=tuple(QUANTITIES)) -> dict:
+    """What the numbers of a bake with this weighting mean (written into every output)."""
+    out = {}
+    for name in names:
+        out.update(QUANTITIES[name].conventions[weighting])
+    out.update(COMMON_CONVENTIONS)
+    return out
+
+
+__all__ = ["COMMON_CONVENTIONS", "FIELDS", "Field", "QUANTITIES", "Quantity", "Traced",
+           "canonical", "conventions"]

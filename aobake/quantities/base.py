@@ -1,0 +1,89 @@
+"""What a quantity is: its fields (one spelling from result attribute to file), its
+estimator, its no-information answer, its convention text and its summaries.
+
+A new quantity is one new module in this package defining a :class:`Quantity`
+plus one line in ``aobake.quantities.QUANTITIES``; the CLI's ``--quantity``
+choices, the result attributes, the NPZ/PLY/glTF/EXR names, the report and the
+README's output table all read from there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Field:
+    """One per-point array of a bake, named once for every place it appears.
+
+    name : BakeResult attribute, NPZ key, report key, metadata key
+    width : components per point (1 scalar, 3 vector)
+    dtype : dtype stored in NPZ (float32 for estimates, far finer than their errors)
+    ply : PLY vertex property names (width of them)
+    gltf : glTF custom vertex attribute (starts with "_"), or None
+    exr : lightmap EXR channel names (width of them), or () when not a texel channel
+    meaning : one line for docs and the README
+    """
+
+    name: str
+    width: int
+    dtype: type
+    ply: tuple
+    gltf: str | None
+    exr: tuple
+    meaning: str
+
+
+@dataclass(frozen=True)
+class Traced:
+    """What the tracer hands every estimator for k points.
+
+    directions : (k, R, m, 3) float32 unit ray directions (R replicates of m rays),
+    occluded : (k, R, m) bool (a hit within the max distance),
+    distance : (k, R, m) float32 hit distance, inf on a miss | None (when no quantity needs it),
+    normals : (k, 3) float64 unit, iid : bool (samples.iid), tau : float per scene unit,
+    kernels : the compiled module or None (numpy formulations).
+    """
+
+    directions: np.ndarray
+    occluded: np.ndarray
+    distance: np.ndarray | None
+    normals: np.ndarray
+    iid: bool
+    tau: float
+    kernels: object = None
+
+
+@dataclass(frozen=True)
+class Quantity:
+    """A quantity a bake can estimate.
+
+    name : the one spelling (``--quantity``, config, report)
+    value, error : its two fields (the estimate and its one-standard-error)
+    estimate : Traced -> (value (k,) | (k, 3), error (k,)) float64
+    no_information : normals (k, 3) -> (value, error) for points that cast no rays
+    conventions : weighting -> {metadata key: text} (what 0 and 1 mean)
+    texel : "scalar" (texel = mean of its samples) | "direction" (normalised mean,
+        optionally in tangent space)
+    needs_distance : True when it needs closest-hit distances (dearer queries)
+    kernels : the compiled stages its estimator uses (for the report)
+    summary : (value, error) over sampled points -> report dict
+    """
+
+    name: str
+    value: Field
+    error: Field
+    estimate: Callable
+    no_information: Callable
+    conventions: dict
+    texel: str = "scalar"
+    needs_distance: bool = False
+    kernels: tuple = ()
+    summary: Callable | None = field(default=None)
+
+    @property
+    def fields(self) -> tuple:
+        return (self.value, self.error)

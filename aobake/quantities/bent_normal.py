@@ -1,0 +1,93 @@
+"""Bent normal: the normalised mean of the unoccluded sample directions.
+
+A unit vector (the surface normal when no ray escapes); its error is an angle in
+radians (:func:`estimate`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from aobake.quantities.base import Field, Quantity, Traced
+
+#: Angular standard error (radians) reported when there is nothing to measure it
+#: from (no escaping ray, a single ray or replicate, no rays): the bent normal is
+#: then only known to lie in the hemisphere, up to pi/2 from the normal.
+NO_INFORMATION_ANGLE = np.pi / 2
+
+
+def estimate(traced: Traced):
+    """Bent normal and its angular standard error for k points.
+
+    Returns (bent (k, 3) float64 unit, stderr (k,) float64 radians).
+
+    The bent normal is b / |b| with b the mean of f = d [ray escapes] over all rays.
+    Its error is the delta method for normalising: the component of b's error
+    perpendicular to b, over |b|: stderr^2 = tr(P Cov(b) P) / |b|^2 with
+    P = I - b b^T / |b|^2 (the expected squared angle to the true bent normal).
+    Cov(b) comes from the same source as the AO error: i.i.d. per-ray
+    contributions (``random``) or the spread of the R replicate means.  Capped at
+    pi/2, which is also the value when no ray escapes or there is no spread.
+    """
+    directions, occluded, normals = traced.directions, traced.occluded, traced.normals
+    k, groups, m, _ = directions.shape
+    n = groups * m
+    f = directions * ~occluded[..., None]  # (k, R, m, 3) float32
+    if traced.iid:
+        per = f.reshape(k, n, 3).astype(np.float64)
+        count = n
+    else:
+        per = f.sum(axis=2, dtype=np.float64) / m  # replicate means (k, R, 3)
+        count = groups
+    b = per.sum(axis=1) / count  # (k, 3)
+    length = np.linalg.norm(b, axis=1)
+    ok = length > 0
+    unit = b / np.where(ok, length, 1.0)[:, None]
+    bent = np.where(ok[:, None], unit, normals)
+    stderr = np.full(k, NO_INFORMATION_ANGLE)
+    if count >= 2:
+        dev = per - b[:, None, :]
+        along = np.einsum("kjc,kc->kj", dev, unit)
+        perp2 = (np.square(dev).sum(axis=2) - np.square(along)).sum(axis=1)  # sum |dev_perp|^2
+        var = np.maximum(perp2, 0.0) / (count * (count - 1))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            angle = np.sqrt(var) / length
+        stderr = np.where(ok, np.minimum(angle, NO_INFORMATION_ANGLE), NO_INFORMATION_ANGLE)
+    return bent, stderr
+
+
+def no_information(normals: np.ndarray):
+    """The surface normal, up to pi/2 off."""
+    return normals.copy(), np.full(len(normals), NO_INFORMATION_ANGLE)
+
+
+def summary(value: np.ndarray, error: np.ndarray) -> dict:
+    return {"stderr_mean_rad": float(error.mean()), "stderr_p95_rad": float(np.percentile(error, 95))}
+
+
+QUANTITY = Quantity(
+    name="bent_normal",
+    value=Field("bent_normal", 3, np.float32, ("bent_normal_x", "bent_normal_y", "bent_normal_z"),
+                "_BENT_NORMAL", ("bent_normal.X", "bent_normal.Y", "bent_normal.Z"),
+                "mean unoccluded direction (unit)"),
+    error=Field("bent_normal_stderr", 1, np.float32, ("bent_normal_stderr",), "_BENT_NORMAL_STDERR",
+                ("bent_normal_stderr",), "angular standard error of bent_normal (radians)"),
+    estimate=estimate,
+    no_information=no_information,
+    conventions={
+        "cosine": {
+            "bent_normal": "normalised mean of the unoccluded sample directions; the surface "
+                           "normal if none",
+            "bent_normal_stderr": "angular standard error of the bent normal in radians (delta "
+                                  "method); pi/2 when nothing escapes or there is no spread to "
+                                  "measure"},
+        "uniform": {
+            "bent_normal": "normalised uniform-measure mean of the unoccluded directions; the "
+                           "surface normal if none",
+            "bent_normal_stderr": "angular standard error of the bent normal in radians (delta "
+                                  "method); pi/2 when nothing escapes or there is no spread to "
+                                  "measure"},
+    },
+    texel="direction",
+    summary=summary,
+)

@@ -1,0 +1,64 @@
+"""What a target is: where AO is measured, and how per-point estimates become a result.
+
+A target turns a scene into sample points (``sample``), and the traced estimates
+at those points into its result (``finish``).  ``aobake.bake.run`` calls them in
+that order, with tracing in between; a target never traces or builds a backend.
+A new target is one module with such a class plus one line in
+``aobake.targets.TARGETS``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+
+@dataclass
+class SamplePoints:
+    """Where to trace.
+
+    points : (n, 3) float64 scene units, normals : (n, 3) float64 unit (zero = not
+    traced: 0 rays, no-information values), ids : (n,) int64 sample-stream ids (a
+    point's rays are a pure function of (seed, id, sample id): equal ids get equal
+    rays), kernels : stage -> compiled? for the compiled stages the target ran,
+    state : whatever ``finish`` needs back.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    ids: np.ndarray
+    kernels: dict = field(default_factory=dict)
+    state: object = None
+
+
+@dataclass
+class Finished:
+    """A target's result before the report, and what the report needs from it.
+
+    result : BakeResult | TexelResult (``report`` filled in by ``run``),
+    values, rays : the per-point fields and rays (n,) the error summary is taken over,
+    points : how many points the report counts, cast : rays traced (None = sum of rays),
+    report : extra report sections (e.g. ``texture``),
+    rays_key : the report's name for the rays each point cast.
+    """
+
+    result: object
+    values: dict
+    rays: np.ndarray
+    points: int
+    cast: int | None = None
+    report: dict = field(default_factory=dict)
+    rays_key: str = "rays_per_point"
+
+
+class Target(Protocol):
+    name: str
+
+    def rays_per_point(self, config) -> int: ...
+
+    def sample(self, scene, config, threads: int, timings: dict, warnings: list) -> SamplePoints: ...
+
+    def finish(self, scene, config, plan: SamplePoints, values: dict, rays: np.ndarray,
+               timings: dict, warnings: list) -> Finished: ...

@@ -1,0 +1,44 @@
+"""Query-point target: reference values exactly where another implementation needs them."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from aobake.results import BakeResult
+from aobake.targets.base import Finished, SamplePoints
+
+
+class PointsTarget:
+    """points : (n, 3) float, normals : (n, 3) float (normalised here; zero = not sampled),
+    point_ids : (n,) int64 sample-stream ids (default 0..n-1).  The points are offset
+    along their normals by the configured ray offset, like vertices."""
+
+    name = "points"
+
+    def __init__(self, points, normals, point_ids=None):
+        points = np.asarray(points, dtype=np.float64)
+        normals = np.asarray(normals, dtype=np.float64)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(f"points must be (n, 3), got {points.shape}")
+        if normals.shape != points.shape:
+            raise ValueError(f"normals must be {points.shape}, got {normals.shape}")
+        if not (np.isfinite(points).all() and np.isfinite(normals).all()):
+            raise ValueError("points and normals must be finite")
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+        self.points = points
+        self.normals = np.where(length > 0, normals / np.where(length > 0, length, 1.0), 0.0)
+        ids = (np.arange(len(points), dtype=np.int64) if point_ids is None
+               else np.asarray(point_ids, np.int64))
+        if ids.shape != (len(points),):
+            raise ValueError(f"point_ids must be ({len(points)},), got {ids.shape}")
+        self.ids = ids
+
+    def rays_per_point(self, config) -> int:
+        return config.rays
+
+    def sample(self, scene, config, threads, timings, warnings) -> SamplePoints:
+        return SamplePoints(self.points, self.normals, self.ids)
+
+    def finish(self, scene, config, plan, values, rays, timings, warnings) -> Finished:
+        result = BakeResult(self.points, None, self.normals, rays, values)
+        return Finished(result, values, rays, len(self.points))

@@ -1,0 +1,126 @@
+"""Lightmap target: the texels of a UV atlas, each the mean of K surface samples.
+
+Stages, one module each: ``atlas`` (own UVs or a new xatlas atlas, via
+``unwrap``; ``uvcheck`` decides whether own UVs can be baked), ``raster``
+(texels -> samples on triangles), ``surface`` (samples -> points and shading
+normals), then tracing (not here), then ``gather`` (samples -> texel channels,
+errors, gutters).  Texel conventions: see ``aobake.targets.texels.raster``.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from aobake import _native
+from aobake.results import TexelResult
+from aobake.targets.base import Finished, SamplePoints
+from aobake.targets.texels.atlas import check_texture_budget, make_atlas, split_corners
+from aobake.targets.texels.gather import channels as gather_channels
+from aobake.targets.texels.surface import surface_points
+
+
+class TexelTarget:
+    """A lightmap of ``config.resolution`` texels; ``config.rays`` is per texel, split over
+    its ``config.texel_samples`` samples (each casts ceil(rays / K))."""
+
+    name = "texels"
+
+    def check(self, config) -> None:
+        """Refuse an image too large for this machine before loading anything."""
+        width, height = config.resolution
+        check_texture_budget(width, height, config.texel_samples)
+
+    def rays_per_point(self, config) -> int:
+        return -(-config.rays // config.texel_samples)
+
+    def sample(self, scene, config, threads, timings, warnings) -> SamplePoints:
+        width, height = config.resolution
+        phases: dict = {}
+        compiled = _native.kernels() is not None  # decided once, recorded as decided
+        atlas, bake_uv, bake_faces_uv, check, samples = make_atlas(
+            scene, config.unwrap, width, height, config.padding, config.texel_samples,
+            config.seed, threads, warnings, phases, compiled)
+        timings["uv_check_s"] = phases["uv_check_s"]
+        timings["unwrap_s"] = phases["unwrap_s"]
+        clock = time.perf_counter()
+        points, normals, _ = surface_points(scene.vertices, scene.vertex_normals, scene.faces,
+                                            samples)
+        # Rasterising the UVs baked into (a rejected own-UV pass is in uv_check_s) + surface points.
+        timings["rasterize_s"] = phases["raster_s"] + time.perf_counter() - clock
+        # Point ids: position in the (texel, sample, face)-sorted sample list, a pure
+        # function of the inputs, so texels are reproducible for any threads/chunks.
+        ids = np.arange(len(points), dtype=np.int64)
+        state = dict(atlas=atlas, uv=bake_uv, faces_uv=bake_faces_uv, check=check,
+                     samples=samples)
+        return SamplePoints(points, normals, ids, kernels={"rasterizer": compiled}, state=state)
+
+    def finish(self, scene, config, plan, values, rays, timings, warnings) -> Finished:
+        from aobake.quantities import QUANTITIES
+
+        clock = time.perf_counter()
+        state = plan.state
+        samples = state["samples"]
+        to_tangent = None
+        if config.bent_space == "tangent":
+            def to_tangent(sub, traced, bent):
+                return _to_tangent(scene, state["uv"], state["faces_uv"], sub,
+                                   plan.normals[traced], bent)
+        quantities = [QUANTITIES[name] for name in config.quantities]
+        images, covered, filled = gather_channels(quantities, samples, values, rays,
+                                                  config.padding, to_tangent)
+        timings["splat_dilate_s"] = time.perf_counter() - clock
+        shared = int(np.count_nonzero(samples.shared >= 2))
+        if shared:
+            warnings.append(f"{scene.source}: {shared} texels are shared by overlapping or "
+                            "mirrored UV shells; their values average the surfaces that share them")
+        width, height = config.resolution
+        texture = _texture_stats(images, covered, filled, shared, width, height, config.padding,
+                                 config.texel_samples, state["atlas"], state["check"],
+                                 config.bent_space)
+        result = TexelResult(images, covered, state["atlas"], {})
+        return Finished(result, values, rays, len(plan.points),
+                        report={"texture": texture, "timings": timings},
+                        rays_key="rays_per_texel_sample")
+
+
+def _to_tangent(scene, uv, faces_uv, samples, normals, bent):
+    """Bent normals (s, 3) -> tangent space of the bake UVs (MikkTSpace-style frames)."""
+    from aobake.tangents import to_tangent_space, vertex_tangents
+
+    keys, faces = split_corners(scene.faces, faces_uv)
+    tangents = vertex_tangents(scene.vertices[keys[:, 0]], scene.vertex_normals[keys[:, 0]],
+                               uv[keys[:, 1]], faces)
+    corner = tangents[faces[samples.face]]  # (s, 3, 4)
+    t = np.einsum("sc,scd->sd", samples.bary, corner[..., :3])
+    w = np.where(np.einsum("sc,sc->s", samples.bary, corner[..., 3]) < 0, -1.0, 1.0)
+    return to_tangent_space(bent, normals, np.concatenate([t, w[:, None]], axis=1))
+
+
+def _texture_stats(channels, covered, filled, shared, width, height, padding, k, atlas, check,
+                   bent_space):
+    stats = {
+        "width": width,
+        "height": height,
+        "padding": padding,
+        "texel_samples": k,
+        "texels_covered": int(covered.sum()),
+        "texels_padded": int(np.count_nonzero(filled & ~covered)),
+        "texels_shared": shared,
+        "atlas": "xatlas" if atlas.new else "mesh UVs",
+        "charts": atlas.charts,
+        "uv_check": None if check is None else {
+            "valid": check.valid, "out_of_range_faces": check.out_of_range_faces,
+            "overlapping_texels": check.overlapping_texels, "mirrored_faces": check.mirrored_faces,
+            "message": check.message},
+        "bent_space": bent_space,
+        "convention": "row 0 is the top of the image (v = 1); texel (r, c) centre at "
+                      "u = (c + 0.5) / W, v = 1 - (r + 0.5) / H",
+    }
+    for name in ("ao", "obscurance"):
+        if name in channels and covered.any():
+            se = channels[name + "_stderr"][covered]
+            stats[name + "_stderr"] = {"mean": float(se.mean()), "p50": float(np.median(se)),
+                                       "p95": float(np.percentile(se, 95)), "max": float(se.max())}
+    return stats

@@ -1,0 +1,147 @@
+"""Which UVs a lightmap is baked into: the mesh's own when they can be, else a new xatlas atlas.
+
+The atlas is the mesh the map belongs to, split so each vertex has one atlas UV.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from aobake.errors import InputError
+from aobake.targets.texels.raster import rasterize
+from aobake.targets.texels.unwrap import unwrap as xatlas_unwrap
+from aobake.targets.texels.uvcheck import check_uvs
+
+#: largest image side accepted
+MAX_RESOLUTION = 16384
+#: rough bytes held per texel sample (sample record, point, normal, estimates): for the memory check
+_BYTES_PER_SAMPLE = 320
+
+
+@dataclass
+class Atlas:
+    """The mesh a lightmap belongs to, split so each vertex has one atlas UV.
+
+    positions : (m, 3) float64, normals : (m, 3) float64, faces : (f, 3) int64,
+    uv : (m, 2) float64 atlas UVs (OBJ convention), base_uv : (m, 2) float64 |
+    None the mesh's own UVs when a new atlas was made for a mesh that had them,
+    source_vertex : (m,) int64 index of each vertex in the input scene,
+    new : bool True when the atlas was made by xatlas (the mesh must be written out),
+    materials : list | None the input's materials (see Scene.materials), kept in GLBs,
+    face_material : (f,) int64 | None each face's material,
+    charts : int | None number of charts of a new atlas.
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray
+    base_uv: np.ndarray | None
+    source_vertex: np.ndarray
+    new: bool
+    materials: list | None = None
+    face_material: np.ndarray | None = None
+    charts: int | None = None
+
+
+def check_texture_budget(width: int, height: int, texel_samples: int) -> int:
+    """Refuse absurd sizes with the memory they would need; returns the estimate in bytes."""
+    need = width * height * (texel_samples * _BYTES_PER_SAMPLE + 64)
+    if max(width, height) > MAX_RESOLUTION:
+        raise ValueError(f"resolution {width}x{height} is larger than {MAX_RESOLUTION} per side "
+                         f"(it would need about {need / 2**30:.1f} GiB)")
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover
+        total = None
+    if total and need > total // 2:
+        raise ValueError(f"resolution {width}x{height} with {texel_samples} samples per texel needs "
+                         f"about {need / 2**30:.1f} GiB, more than half of this machine's "
+                         f"{total / 2**30:.1f} GiB")
+    return need
+
+
+def split_corners(*corner_indices):
+    """Unique combinations of per-corner indices.
+
+    corner_indices : k arrays (f, 3) int64.  Returns (keys (m, k) int64, faces (f, 3) int64).
+    """
+    stacked = np.stack([c.reshape(-1) for c in corner_indices], axis=1)
+    keys, inverse = np.unique(stacked, axis=0, return_inverse=True)
+    return keys, inverse.reshape(-1, 3)
+
+
+def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_samples: int,
+               seed: int, threads: int, warnings: list, timings: dict, compiled: bool | None):
+    """Choose the UVs to bake into (the mesh's own when valid, else a fresh xatlas atlas)
+    and rasterise them.
+
+    Returns (atlas, bake_uv (t, 2), bake_faces_uv (f, 3), uv_check or None, samples).
+    Fills ``timings`` with uv_check_s, unwrap_s and raster_s.
+    """
+
+    def raster(uv, faces_uv):
+        clock = time.perf_counter()
+        samples = rasterize(uv, faces_uv, width, height, texel_samples, seed, threads=threads,
+                            compiled=compiled)
+        timings["raster_s"] = time.perf_counter() - clock
+        return samples
+
+    check = samples = None
+    timings.update(uv_check_s=0.0, unwrap_s=0.0)
+    if scene.faces_uv is not None:
+        corners = scene.uv[scene.faces_uv]
+        in_range = bool(np.all((corners >= 0.0) & (corners <= 1.0)))
+        if unwrap == "never" or (unwrap == "auto" and in_range):
+            # Likely baked as they are: the bake's own rasterisation gives the overlap
+            # count too (texel-centre coverage), so the check costs no extra pass.
+            samples = raster(scene.uv, scene.faces_uv)
+            clock = time.perf_counter()
+            check = check_uvs(scene.uv, scene.faces_uv, width, height, shared=samples.shared)
+        else:  # not baked as they are: a texel-centre (K = 1) pass for the report is enough
+            clock = time.perf_counter()
+            check = check_uvs(scene.uv, scene.faces_uv, width, height)
+        timings["uv_check_s"] = time.perf_counter() - clock
+    if unwrap == "never":
+        if scene.faces_uv is None:
+            raise InputError(f"{scene.source}: mesh has no UVs and --no-unwrap was given")
+        if not check.valid:
+            warnings.append(f"{scene.source}: baking into the mesh's own UVs although {check.message}")
+    use_own = scene.faces_uv is not None and unwrap != "always" and (check.valid or unwrap == "never")
+    if use_own:
+        keys, faces = split_corners(scene.faces, scene.faces_uv)
+        atlas = Atlas(scene.vertices[keys[:, 0]], scene.vertex_normals[keys[:, 0]], faces,
+                      scene.uv[keys[:, 1]], None, keys[:, 0], new=False, materials=scene.materials,
+                      face_material=scene.face_material)
+        return atlas, scene.uv, scene.faces_uv, check, samples
+    if scene.faces_uv is not None and unwrap == "auto":
+        warnings.append(f"{scene.source}: the mesh's UVs cannot be baked ({check.message}); "
+                        "made a new atlas with xatlas")
+    if samples is not None:  # rasterising the rejected own UVs was part of checking them
+        timings["uv_check_s"] += timings.pop("raster_s")
+    if width != height:
+        warnings.append(f"{scene.source}: xatlas packs square layouts: the new atlas uses the "
+                        f"top-left {min(width, height)}x{min(width, height)} of the "
+                        f"{width}x{height} image")
+    clock = time.perf_counter()
+    unwrapped = xatlas_unwrap(scene.vertices, scene.faces, (width, height), padding)
+    timings["unwrap_s"] = time.perf_counter() - clock
+    if not np.array_equal(unwrapped.vmapping[unwrapped.faces], scene.faces):
+        raise RuntimeError("xatlas changed the face order")  # the texel->face mapping relies on it
+    if scene.faces_uv is not None:
+        keys, faces = split_corners(unwrapped.faces, scene.faces_uv)
+        base_uv = scene.uv[keys[:, 1]]
+    else:
+        keys, faces = split_corners(unwrapped.faces)
+        base_uv = None
+    source = unwrapped.vmapping[keys[:, 0]]
+    atlas = Atlas(scene.vertices[source], scene.vertex_normals[source], faces,
+                  unwrapped.uv[keys[:, 0]], base_uv, source, new=True,
+                  materials=scene.materials if base_uv is not None else None,
+                  face_material=scene.face_material if base_uv is not None else None,
+                  charts=unwrapped.charts)
+    return atlas, unwrapped.uv, unwrapped.faces, check, raster(unwrapped.uv, unwrapped.faces)

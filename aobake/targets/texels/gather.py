@@ -1,0 +1,107 @@
+"""From per-sample estimates back to texels: splatting, texel errors, gutters, channels.
+
+A texel's value is the mean of its s sample estimates (K surface positions, each
+with its own rays); its standard error is sqrt(sum se^2) / s.  Directions (bent
+normals) are averaged and normalised, optionally in tangent space.  Channels are
+(H, W) images in the texel convention of ``aobake.targets.texels.raster`` (row 0
+at the top, v near 1), dilated ``padding`` texels into the gutters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from aobake import stats
+from aobake.post import dilate
+from aobake.targets.texels.raster import TexelSamples
+
+
+def splat_count(samples: TexelSamples, width: int | None = None, height: int | None = None) -> np.ndarray:
+    """(height, width) int64 number of samples in each texel."""
+    width, height = _size(samples, width, height)
+    return np.bincount(samples.texel, minlength=width * height).reshape(height, width)
+
+
+def splat(samples: TexelSamples, values, width: int | None = None, height: int | None = None) -> np.ndarray:
+    """Average per-sample values into texels.
+
+    values : (s,) or (s, c) float.  Returns (height, width, c) float64, the mean
+    of the samples in each texel (c = 1 for 1-D values); texels without samples
+    are 0 (use ``splat_count`` or ``samples.coverage`` as the mask).
+    """
+    width, height = _size(samples, width, height)
+    values = np.asarray(values, dtype=np.float64)
+    if values.ndim == 1:
+        values = values[:, None]
+    if values.ndim != 2 or values.shape[0] != samples.n_samples:
+        raise ValueError(f"values must be ({samples.n_samples},) or ({samples.n_samples}, c), got {values.shape}")
+    n = width * height
+    count = np.bincount(samples.texel, minlength=n).astype(np.float64)
+    out = np.empty((n, values.shape[1]))
+    for ch in range(values.shape[1]):
+        out[:, ch] = np.bincount(samples.texel, weights=values[:, ch], minlength=n)
+    np.divide(out, count[:, None], out=out, where=count[:, None] > 0)
+    return out.reshape(height, width, values.shape[1])
+
+
+def _size(samples: TexelSamples, width, height) -> tuple[int, int]:
+    width = samples.width if width is None else int(width)
+    height = samples.height if height is None else int(height)
+    if (width, height) != (samples.width, samples.height):
+        raise ValueError(
+            f"size {width}x{height} does not match the samples' {samples.width}x{samples.height}"
+        )
+    return width, height
+
+
+def subset(samples: TexelSamples, keep: np.ndarray) -> TexelSamples:
+    """The samples where ``keep`` (s,) bool is True (coverage and sharing unchanged)."""
+    return replace(samples, texel=samples.texel[keep], face=samples.face[keep],
+                   bary=samples.bary[keep], sample=samples.sample[keep],
+                   is_fallback=samples.is_fallback[keep])
+
+
+def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, padding: int,
+             to_tangent=None) -> tuple[dict, np.ndarray, np.ndarray]:
+    """Texel channels of a bake.
+
+    quantities : the Quantity objects baked, samples : s sample points,
+    values : field name -> (s,) / (s, 3) float64 estimates, rays : (s,) int32,
+    to_tangent : None, or a function (traced samples, traced (s,) bool, bent (t, 3) float64)
+    -> bent in tangent space.
+    Returns (channels: name -> (H, W) float32 in output order, covered (H, W) bool,
+    filled (H, W) bool covered or padded).
+    """
+    width, height = samples.width, samples.height
+    traced = rays > 0  # samples on zero-area faces have no normal: left out of the texel means
+    sub = samples if traced.all() else subset(samples, traced)
+    count = np.bincount(sub.texel, minlength=width * height).reshape(height, width)
+    covered = count > 0
+    out = {}
+    for q in quantities:
+        value, error = values[q.value.name][traced], values[q.error.name][traced]
+        if q.texel == "direction":
+            if to_tangent is not None:
+                value = to_tangent(sub, traced, value)
+            mean = splat(sub, value)
+            length = np.linalg.norm(mean, axis=-1, keepdims=True)
+            mean = np.where(length > 0, mean / np.where(length > 0, length, 1), 0.0)
+            for axis, label in enumerate(q.value.exr):
+                out[label] = mean[..., axis]
+        else:
+            out[q.value.exr[0]] = splat(sub, value)[..., 0]
+        # The texel averages its s samples: stderr sqrt(sum se^2) / s (an angle for directions).
+        out[q.error.exr[0]] = stats.texel_stderr(splat(sub, error ** 2)[..., 0], count)
+    rays_img = np.bincount(sub.texel, weights=rays[traced].astype(np.float64),
+                           minlength=width * height).reshape(height, width)
+    names = list(out)
+    stack = np.stack([out[n] for n in names], axis=-1)
+    stack, filled = dilate(stack, covered, padding)
+    for i, name in enumerate(names):
+        out[name] = stack[..., i]
+    out["rays"] = rays_img
+    out["coverage"] = samples.coverage.astype(np.float64) * covered
+    return ({name: np.asarray(image, dtype=np.float32) for name, image in out.items()},
+            covered, filled)

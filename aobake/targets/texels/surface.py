@@ -1,0 +1,76 @@
+"""From texel samples (triangle + barycentrics) to surface points and shading normals."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from aobake.targets.texels.raster import TexelSamples
+
+log = logging.getLogger(__name__)
+
+
+def surface_points(positions, normals, faces, samples: TexelSamples):
+    """Interpolate positions and shading normals at the samples.
+
+    positions : (n, 3) float; normals : (n, 3) float vertex normals, or None
+    for flat shading; faces : (f, 3) int, the faces the samples refer to.
+
+    Returns (points (s, 3) float64, normals (s, 3) float64 unit, face_normals
+    (s, 3) float64 unit).  The shading normal is the normalised interpolated
+    vertex normal, replaced by the face normal where it is zero or points
+    against the face (dot <= 0), since a ray hemisphere around it would dip
+    into the surface.  A face with zero 3D area has a zero face normal; its
+    shading normal is then the interpolated one, or zero if that is zero too
+    (such samples have no surface and should be dropped by the caller).
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    if positions.ndim != 2 or positions.shape[1] != 3:
+        raise ValueError(f"positions must be (n, 3), got {positions.shape}")
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float64)
+        if normals.shape != positions.shape:
+            raise ValueError(f"normals must be {positions.shape}, got {normals.shape}")
+    # Face normals once per face (not per sample): np.cross on millions of rows is slow.
+    ftri = positions[faces]
+    fn = np.cross(ftri[:, 1] - ftri[:, 0], ftri[:, 2] - ftri[:, 0])
+    fn_len = np.linalg.norm(fn, axis=1, keepdims=True)
+    unit = np.divide(fn, fn_len, out=np.zeros_like(fn), where=fn_len > 0)
+    s = samples.n_samples
+    points, shading, face_normals = np.empty((s, 3)), np.empty((s, 3)), np.empty((s, 3))
+    n_bad = 0
+    # In blocks: row-wise arithmetic, so the result is the same, but the temporaries
+    # stay small (whole-array temporaries of millions of rows cost more in page
+    # faults than in arithmetic).
+    for lo in range(0, s, _SURFACE_BLOCK):
+        hi = min(s, lo + _SURFACE_BLOCK)
+        face = samples.face[lo:hi]
+        bary = samples.bary[lo:hi]
+        corners = faces[face]  # (b, 3)
+
+        def interpolate(values):
+            return (bary[:, 0, None] * values[corners[:, 0]] + bary[:, 1, None] * values[corners[:, 1]]
+                    + bary[:, 2, None] * values[corners[:, 2]])
+
+        fnorm = face_normals[lo:hi] = unit[face]
+        points[lo:hi] = interpolate(positions)
+        if normals is None:
+            shading[lo:hi] = fnorm
+            continue
+        n = interpolate(normals)
+        n_len = np.linalg.norm(n, axis=1, keepdims=True)
+        n = np.divide(n, n_len, out=np.zeros_like(n), where=n_len > 0)
+        has_face = fn_len[face, 0] > 0
+        bad = has_face & ((n_len[:, 0] == 0) | (np.einsum("ij,ij->i", n, fnorm) <= 0))
+        n[bad] = fnorm[bad]
+        n_bad += int(bad.sum())
+        shading[lo:hi] = n
+    if n_bad:
+        log.debug("%d samples use the face normal (vertex normal zero or flipped)", n_bad)
+    return points, shading, face_normals
+
+
+#: samples interpolated at once by :func:`surface_points` (memory, not results)
+_SURFACE_BLOCK = 1 << 16

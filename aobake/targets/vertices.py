@@ -1,0 +1,39 @@
+"""Per-vertex target: one sample point per distinct (position, normal) of the mesh."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from aobake.results import BakeResult
+from aobake.targets.base import Finished, SamplePoints
+
+
+class VertexTarget:
+    """AO at the scene's vertices, in file order."""
+
+    name = "vertices"
+
+    def rays_per_point(self, config) -> int:
+        return config.rays
+
+    def sample(self, scene, config, threads, timings, warnings) -> SamplePoints:
+        # Vertices that share position and normal get the same point id, hence the same
+        # samples and identical values (no noise seam where a file splits vertices at UV seams).
+        keys = np.ascontiguousarray(np.concatenate([scene.vertices, scene.vertex_normals], axis=1))
+        # Rows as opaque 48-byte records: a 1-D unique is ~3x faster than unique(axis=0).
+        rows = keys.view(np.dtype((np.void, keys.itemsize * keys.shape[1]))).ravel()
+        _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+        return SamplePoints(scene.vertices[first], scene.vertex_normals[first],
+                            first.astype(np.int64), state=inverse.reshape(-1))
+
+    def finish(self, scene, config, plan, values, rays, timings, warnings) -> Finished:
+        inverse = plan.state
+        traced = int(rays.astype(np.int64).sum())  # before copying to vertices that share samples
+        values = {name: array[inverse] for name, array in values.items()}
+        rays = rays[inverse]
+        unsampled = int(np.count_nonzero(rays == 0))
+        if unsampled:
+            warnings.append(f"{unsampled} vertices have no defined normal (unreferenced or only on "
+                            "zero-area faces): not sampled, no-information values")
+        result = BakeResult(scene.vertices, scene.faces, scene.vertex_normals, rays, values)
+        return Finished(result, values, rays, len(scene.vertices), cast=traced)
