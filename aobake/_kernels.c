@@ -38,7 +38,7 @@ static int check(Py_buffer *b, const char *name, Py_ssize_t itemsize, Py_ssize_t
     return 0;
 }
 
-/* splitmix64 finaliser, as aobake.samplers._mix (wrapping uint64 arithmetic). */
+/* splitmix64 finaliser, as aobake.rng.mix (wrapping uint64 arithmetic). */
 static inline uint64_t mix(uint64_t x)
 {
     x ^= x >> 30;
@@ -53,7 +53,7 @@ static inline uint64_t mix(uint64_t x)
  * origins   (k, 3)    float32   ray origin of each point
  * normals   (k, 3)    float64   unit normal of each point
  * ids       (k,)      int64     point ids
- * key, dim_salt       uint64    aobake.samplers.hash_uniform's stream key and
+ * key, dim_salt       uint64    aobake.rng.hash_uniform's stream key and
  *                               dimension salt for the azimuth shift
  * local     (R, m, 3) float32   local directions (x, y, z), z along the normal
  * out_origins    (k*R*m, 3) float32  written: origins[p] repeated R*m times

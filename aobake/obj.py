@@ -9,9 +9,10 @@ so OBJ is read here and every index is checked.
 Supported: ``v`` (extra w or colour columns ignored), ``vt``, ``vn``, ``f`` with
 ``v``, ``v/vt``, ``v//vn``, ``v/vt/vn`` corners, negative (relative) indices,
 quads and n-gons (fan-triangulated from the first corner, as most tools do),
-``o``/``g`` groups (recorded), ``mtllib``/``usemtl`` (recorded, so a lightmap
+``mtllib``/``usemtl`` (recorded, so a lightmap
 GLB can keep the base colour), line continuations.  Ignored with a count in the
-warnings: ``l``/``p`` elements.  Ignored silently: ``s``, comments.
+warnings: ``l``/``p`` elements.  Ignored silently: ``o``/``g`` groups (all faces are baked
+as one mesh), ``s``, comments.
 """
 
 from __future__ import annotations
@@ -34,8 +35,6 @@ class ObjData:
     faces_uv : (f, 3) int64 | None   per-corner index into ``uv``; None unless every face has one
     normals : (k, 3) float64 | None  the ``vn`` lines
     faces_normal : (f, 3) int64 | None  per-corner index into ``normals``, -1 where a corner has none
-    groups : list of (name, first_face, n_faces) for ``o``/``g`` statements
-    polygons : int  polygon count in the file (before triangulation)
     """
 
     vertices: np.ndarray
@@ -44,8 +43,6 @@ class ObjData:
     faces_uv: np.ndarray | None
     normals: np.ndarray | None
     faces_normal: np.ndarray | None
-    groups: list = field(default_factory=list)
-    polygons: int = 0
     warnings: list = field(default_factory=list)
     mtllibs: list = field(default_factory=list)
     materials: list = field(default_factory=list)
@@ -104,7 +101,7 @@ def read_obj(path: str | os.PathLike) -> ObjData:
 
     verts, uvs, norms = [], [], []
     tri_v, tri_t, tri_n = [], [], []
-    groups, skipped, polygons = [], 0, 0
+    skipped = 0
     mtllibs, materials, tri_m, current = [], [], [], -1
     all_have_t = True
     for number, line in _logical_lines(text):
@@ -131,7 +128,6 @@ def read_obj(path: str | os.PathLike) -> ObjData:
                     n = fields[2] if len(fields) > 2 and fields[2] else None
                     ct.append(-1 if t is None else _resolve(t, len(uvs), path, number, "texture"))
                     cn.append(-1 if n is None else _resolve(n, len(norms), path, number, "normal"))
-                polygons += 1
                 all_have_t &= min(ct) >= 0
                 # Fan triangulation from the first corner (what Blender's importer and
                 # most archives' writers assume for convex polygons).
@@ -140,9 +136,6 @@ def read_obj(path: str | os.PathLike) -> ObjData:
                     tri_t.append((ct[0], ct[k], ct[k + 1]))
                     tri_n.append((cn[0], cn[k], cn[k + 1]))
                     tri_m.append(current)
-            elif key in ("o", "g"):
-                name = " ".join(parts[1:]) or "default"
-                groups.append((name, len(tri_v)))
             elif key in ("l", "p"):
                 skipped += 1
             elif key == "mtllib":
@@ -164,11 +157,6 @@ def read_obj(path: str | os.PathLike) -> ObjData:
     warnings = []
     if skipped:
         warnings.append(f"{path}: ignored {skipped} line/point elements (only faces are baked)")
-    spans = []
-    for i, (name, first) in enumerate(groups):
-        end = groups[i + 1][1] if i + 1 < len(groups) else len(tri_v)
-        if end > first:
-            spans.append((name, first, end - first))
     return ObjData(
         vertices=np.asarray(verts, dtype=np.float64),
         faces=np.asarray(tri_v, dtype=np.int64),
@@ -176,8 +164,6 @@ def read_obj(path: str | os.PathLike) -> ObjData:
         faces_uv=np.asarray(tri_t, dtype=np.int64) if uvs and all_have_t else None,
         normals=np.asarray(norms, dtype=np.float64) if norms else None,
         faces_normal=np.asarray(tri_n, dtype=np.int64) if norms else None,
-        groups=spans,
-        polygons=polygons,
         warnings=warnings,
         mtllibs=mtllibs,
         materials=materials,

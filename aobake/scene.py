@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from aobake.vectors import normalize
+
 from aobake.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -115,9 +117,7 @@ def _face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 def _normalize(vectors: np.ndarray) -> np.ndarray:
     """Unit rows; rows of zero (or non-finite) length become zero rather than NaN."""
-    length = np.linalg.norm(vectors, axis=-1, keepdims=True)
-    ok = np.isfinite(length) & (length > 0)
-    return np.where(ok, vectors / np.where(ok, length, 1.0), 0.0)
+    return normalize(vectors)[0]
 
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -19,12 +19,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from aobake.vectors import normalize
+
 
 def _unit(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Normalise rows of v; return (unit (n, 3), ok (n,) bool where length > 0)."""
-    length = np.linalg.norm(v, axis=-1, keepdims=True)
-    ok = length[..., 0] > 0
-    return np.divide(v, length, out=np.zeros_like(v), where=length > 0), ok
+    unit, length = normalize(v)
+    return unit, length[..., 0] > 0
 
 
 def _reject(v: np.ndarray, n: np.ndarray) -> np.ndarray:

@@ -6,6 +6,7 @@ import numpy as np
 
 from aobake.results import BakeResult
 from aobake.targets.base import Finished, SamplePoints
+from aobake.vectors import check_rows, normalize
 
 
 class PointsTarget:
@@ -16,17 +17,12 @@ class PointsTarget:
     name = "points"
 
     def __init__(self, points, normals, point_ids=None):
-        points = np.asarray(points, dtype=np.float64)
-        normals = np.asarray(normals, dtype=np.float64)
-        if points.ndim != 2 or points.shape[1] != 3:
-            raise ValueError(f"points must be (n, 3), got {points.shape}")
-        if normals.shape != points.shape:
-            raise ValueError(f"normals must be {points.shape}, got {normals.shape}")
+        points = check_rows("points", points)
+        normals = check_rows("normals", normals, n=len(points))
         if not (np.isfinite(points).all() and np.isfinite(normals).all()):
             raise ValueError("points and normals must be finite")
-        length = np.linalg.norm(normals, axis=1, keepdims=True)
         self.points = points
-        self.normals = np.where(length > 0, normals / np.where(length > 0, length, 1.0), 0.0)
+        self.normals = normalize(normals)[0]
         ids = (np.arange(len(points), dtype=np.int64) if point_ids is None
                else np.asarray(point_ids, np.int64))
         if ids.shape != (len(points),):

@@ -16,6 +16,7 @@ import numpy as np
 from aobake import stats
 from aobake.post import dilate
 from aobake.targets.texels.raster import TexelSamples
+from aobake.vectors import normalize
 
 
 def splat_count(samples: TexelSamples, width: int | None = None, height: int | None = None) -> np.ndarray:
@@ -86,8 +87,7 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
             if to_tangent is not None:
                 value = to_tangent(sub, traced, value)
             mean = splat(sub, value)
-            length = np.linalg.norm(mean, axis=-1, keepdims=True)
-            mean = np.where(length > 0, mean / np.where(length > 0, length, 1), 0.0)
+            mean = normalize(mean)[0]
             for axis, label in enumerate(q.value.exr):
                 out[label] = mean[..., axis]
         else:

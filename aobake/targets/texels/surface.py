@@ -7,6 +7,7 @@ import logging
 import numpy as np
 
 from aobake.targets.texels.raster import TexelSamples
+from aobake.vectors import check_rows, normalize
 
 log = logging.getLogger(__name__)
 
@@ -25,19 +26,14 @@ def surface_points(positions, normals, faces, samples: TexelSamples):
     shading normal is then the interpolated one, or zero if that is zero too
     (such samples have no surface and should be dropped by the caller).
     """
-    positions = np.asarray(positions, dtype=np.float64)
+    positions = check_rows("positions", positions)
     faces = np.asarray(faces, dtype=np.int64)
-    if positions.ndim != 2 or positions.shape[1] != 3:
-        raise ValueError(f"positions must be (n, 3), got {positions.shape}")
     if normals is not None:
-        normals = np.asarray(normals, dtype=np.float64)
-        if normals.shape != positions.shape:
-            raise ValueError(f"normals must be {positions.shape}, got {normals.shape}")
+        normals = check_rows("normals", normals, n=len(positions))
     # Face normals once per face (not per sample): np.cross on millions of rows is slow.
     ftri = positions[faces]
     fn = np.cross(ftri[:, 1] - ftri[:, 0], ftri[:, 2] - ftri[:, 0])
-    fn_len = np.linalg.norm(fn, axis=1, keepdims=True)
-    unit = np.divide(fn, fn_len, out=np.zeros_like(fn), where=fn_len > 0)
+    unit, fn_len = normalize(fn)
     s = samples.n_samples
     points, shading, face_normals = np.empty((s, 3)), np.empty((s, 3)), np.empty((s, 3))
     n_bad = 0
@@ -60,8 +56,7 @@ def surface_points(positions, normals, faces, samples: TexelSamples):
             shading[lo:hi] = fnorm
             continue
         n = interpolate(normals)
-        n_len = np.linalg.norm(n, axis=1, keepdims=True)
-        n = np.divide(n, n_len, out=np.zeros_like(n), where=n_len > 0)
+        n, n_len = normalize(n)
         has_face = fn_len[face, 0] > 0
         bad = has_face & ((n_len[:, 0] == 0) | (np.einsum("ij,ij->i", n, fnorm) <= 0))
         n[bad] = fnorm[bad]
