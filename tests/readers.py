@@ -16,17 +16,9 @@ from typing import Any
 import numpy as np
 
 from aobake.errors import InputError, OutputError
-from aobake.outputs.glb import _CHUNK_BIN, _CHUNK_JSON, _MAGIC, _VERSION
+from aobake.outputs.glb import _CHUNK_BIN, _CHUNK_JSON, _COMPONENT_DTYPES, _MAGIC, _VERSION
 from aobake.outputs.ply import METADATA_COMMENT
 
-_COMPONENT_DTYPES = {
-    5120: np.dtype("i1"),
-    5121: np.dtype("u1"),
-    5122: np.dtype("<i2"),
-    5123: np.dtype("<u2"),
-    5125: np.dtype("<u4"),
-    5126: np.dtype("<f4"),
-}
 _TYPE_WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 _NUMPY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",

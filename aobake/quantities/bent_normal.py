@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from aobake.quantities.base import Field, Quantity, Traced
+from aobake.vectors import normalize
 
 #: Angular standard error (radians) reported when there is nothing to measure it
 #: from (no escaping ray, a single ray or replicate, no rays): the bent normal is
@@ -40,9 +41,9 @@ def estimate(traced: Traced):
         per = f.sum(axis=2, dtype=np.float64) / m  # replicate means (k, R, 3)
         count = groups
     b = per.sum(axis=1) / count  # (k, 3)
-    length = np.linalg.norm(b, axis=1)
+    unit, length = normalize(b)
+    length = length[:, 0]
     ok = length > 0
-    unit = b / np.where(ok, length, 1.0)[:, None]
     bent = np.where(ok[:, None], unit, normals)
     stderr = np.full(k, NO_INFORMATION_ANGLE)
     if count >= 2:
