@@ -40,6 +40,25 @@ def combine(*meshes) -> trimesh.Trimesh:
     return trimesh.util.concatenate(meshes)
 
 
+def floor_and_ceiling(h, half) -> trimesh.Trimesh:
+    """Two facing squares of half extent ``half``: a floor at z = 0 and a ceiling at z = h."""
+    return combine(quad([0, 0, 0], half, half), quad([0, 0, h], half, half))
+
+
+def floor_points(n, spread, height=0.0, seed=1):
+    """n seeded points uniform on [-spread, spread]^2 at z = height, with normals (0, 0, 1)."""
+    rng = np.random.default_rng(seed)
+    pts = np.zeros((n, 3))
+    pts[:, :2] = rng.uniform(-spread, spread, size=(n, 2))
+    pts[:, 2] = height
+    return pts, up(n)
+
+
+def up(n) -> np.ndarray:
+    """(n, 3) normals (0, 0, 1)."""
+    return np.tile([0.0, 0.0, 1.0], (n, 1))
+
+
 def polygon_form_factor(point, normal, corners) -> float:
     """Lambert's point-to-polygon form factor (cosine-weighted solid angle / pi).
 

@@ -1,9 +1,11 @@
 """Shared fixtures and helpers of the test suite.
 
 - ``tests/`` is importable (``analytic``, ``readers``);
-- ``cli(*args)`` runs the command line through click's CliRunner;
+- ``run_cli(*args)`` (``from conftest import run_cli``) runs the command line through
+  click's CliRunner;
 - ``box_ply`` writes a unit box as PLY (a mesh without UVs);
-- ``backend`` runs a test once per tracing backend (the registry's);
+- ``backend``, ``sampler``, ``weighting`` run a test once per registered tracing backend,
+  sampler and hemisphere weighting (a test that means a subset parametrises its own);
 - ``kernel`` skips a test where ``aobake._kernels`` was not built (``.ci/run``
   asserts separately that CI built it).
 """
@@ -19,6 +21,8 @@ from click.testing import CliRunner  # noqa: E402
 
 from aobake import _native  # noqa: E402
 from aobake.backends import BACKENDS  # noqa: E402
+from aobake.samplers import SAMPLERS  # noqa: E402
+from aobake.warp import WEIGHTINGS  # noqa: E402
 
 
 def run_cli(*args):
@@ -26,11 +30,6 @@ def run_cli(*args):
     from aobake.cli import main
 
     return CliRunner().invoke(main, [str(a) for a in args])
-
-
-@pytest.fixture
-def cli():
-    return run_cli
 
 
 @pytest.fixture
@@ -45,6 +44,18 @@ def box_ply(tmp_path):
 @pytest.fixture(params=sorted(BACKENDS))
 def backend(request):
     """Each registered backend's name (the closed-form tests run on every one)."""
+    return request.param
+
+
+@pytest.fixture(params=list(SAMPLERS))
+def sampler(request):
+    """Each registered sampler's name (random, stratified, sobol)."""
+    return request.param
+
+
+@pytest.fixture(params=list(WEIGHTINGS))
+def weighting(request):
+    """Each hemisphere weighting's name (cosine, uniform)."""
     return request.param
 
 

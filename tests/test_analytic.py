@@ -13,6 +13,10 @@ aobake.rays), so their errors are correlated: the standard deviation of the mean
 is bounded by the mean of the per-point standard errors, whatever the
 correlation, and that bound is the tolerance (the calibration tests check the
 per-point stderr over seeds).
+
+Every test runs once per tracing backend (the ``backend`` fixture): Embree, and the float64
+numpy reference, which is slow (every ray against every face) but these scenes have at most
+24 triangles, so it needs no reduced workload here.
 """
 
 import math
@@ -21,18 +25,8 @@ import numpy as np
 import pytest
 
 import aobake
-from analytic import (ceiling_obscurance, combine, dof_for, polygon, polygon_form_factor, quad,
-                      solid_angle, z_bound)
-
-SAMPLERS = ["random", "stratified", "sobol"]
-
-
-def floor_points(n, spread, height=0.0):
-    rng = np.random.default_rng(1)
-    pts = np.zeros((n, 3))
-    pts[:, :2] = rng.uniform(-spread, spread, size=(n, 2))
-    pts[:, 2] = height
-    return pts, np.tile([0.0, 0.0, 1.0], (n, 1))
+from analytic import (ceiling_obscurance, dof_for, floor_and_ceiling, floor_points, polygon,
+                      polygon_form_factor, quad, solid_angle, up, z_bound)
 
 
 def check(estimate, stderr, exact, sampler, rays):
@@ -55,12 +49,12 @@ def assert_within(estimate, stderr, exact, k):
         f"estimates {estimate[bad][:5]}, stderr {stderr[bad][:5]}, exact {exact}")
 
 
-@pytest.mark.parametrize("sampler", SAMPLERS)
-def test_open_plane_is_fully_open(sampler):
+def test_open_plane_is_fully_open(sampler, backend):
     mesh = quad([0, 0, 0], 5, 5)
     pts, nrm = floor_points(16, 4.0)
-    res = aobake.bake_points(mesh, pts, nrm, rays=64, sampler=sampler,
+    res = aobake.bake_points(mesh, pts, nrm, backend=backend, rays=64, sampler=sampler,
                              quantities=("ao", "obscurance", "bent-normal"))
+    assert res.report["parameters"]["backend"] == backend
     assert np.all(res.ao == 1.0) and np.all(res.ao_stderr == 0.0)
     assert np.all(res.obscurance == 1.0)
     np.testing.assert_allclose(np.linalg.norm(res.bent_normal, axis=1), 1.0, atol=1e-12)
@@ -68,15 +62,14 @@ def test_open_plane_is_fully_open(sampler):
     assert np.all(res.bent_normal[:, 2] > 0.9)
 
 
-@pytest.mark.parametrize("sampler", SAMPLERS)
-def test_inside_closed_box_is_fully_occluded(sampler):
+def test_inside_closed_box_is_fully_occluded(sampler, backend):
     import trimesh
 
     box = trimesh.creation.box(extents=[2, 2, 2])
     rng = np.random.default_rng(2)
     pts = rng.uniform(-0.8, 0.8, size=(20, 3))
     nrm = rng.normal(size=(20, 3))
-    res = aobake.bake_points(box, pts, nrm, rays=128, sampler=sampler,
+    res = aobake.bake_points(box, pts, nrm, backend=backend, rays=128, sampler=sampler,
                              quantities=("ao", "obscurance", "bent-normal"))
     assert np.all(res.ao == 0.0) and np.all(res.ao_stderr == 0.0)
     # No escaping ray: the bent normal falls back to the normal.
@@ -87,9 +80,7 @@ def test_inside_closed_box_is_fully_occluded(sampler):
     assert np.all((res.obscurance > 0) & (res.obscurance < 1))
 
 
-@pytest.mark.parametrize("sampler", SAMPLERS)
-@pytest.mark.parametrize("weighting", ["cosine", "uniform"])
-def test_floor_under_ceiling_with_max_distance(sampler, weighting):
+def test_floor_under_ceiling_with_max_distance(sampler, weighting, backend):
     # The escape indicator is a step in the elevation sample; a Sobol replicate of 32
     # rays counts floor or ceil of 32 x (escape fraction) escapes.  d is chosen so that
     # 32 (h/d) = 14.5 and 32 (h/d)^2 = 6.6 are far from integers: the replicates then
@@ -101,17 +92,16 @@ def test_floor_under_ceiling_with_max_distance(sampler, weighting):
     exact = (h / d) ** 2 if weighting == "cosine" else h / d
     # The ceiling covers every direction with L <= d from the sampled floor region.
     reach = math.sqrt(d * d - h * h) + 1.0
-    mesh = combine(quad([0, 0, 0], reach + 1, reach + 1), quad([0, 0, h], reach + 1, reach + 1))
+    mesh = floor_and_ceiling(h, reach + 1)
     pts, nrm = floor_points(32, 0.5)
     rays = 256
-    res = aobake.bake_points(mesh, pts, nrm, rays=rays, max_distance=d, sampler=sampler,
+    res = aobake.bake_points(mesh, pts, nrm, backend=backend, rays=rays, max_distance=d, sampler=sampler,
                              weighting=weighting)
     check(res.ao, res.ao_stderr, exact, sampler, rays)
     assert np.any(res.ao_stderr > 0)
 
 
-@pytest.mark.parametrize("sampler", SAMPLERS)
-def test_floor_under_tessellated_disc(sampler):
+def test_floor_under_tessellated_disc(sampler, backend):
     h, radius, sides = 0.7, 1.3, 24
     disc = polygon([0, 0, h], radius, sides)
     corners = disc.vertices[1:]
@@ -119,8 +109,8 @@ def test_floor_under_tessellated_disc(sampler):
     pts = np.zeros((24, 3))
     pts[:, :2] = rng.uniform(-2.0, 2.0, size=(24, 2))
     pts[0] = 0.0
-    nrm = np.tile([0, 0, 1.0], (len(pts), 1))
-    res = aobake.bake_points(disc, pts, nrm, rays=512, sampler=sampler)
+    nrm = up(len(pts))
+    res = aobake.bake_points(disc, pts, nrm, backend=backend, rays=512, sampler=sampler)
     exact = np.array([1 - polygon_form_factor(p, [0, 0, 1], corners) for p in pts])
     check(res.ao - exact, res.ao_stderr, 0.0, sampler, 512)
     # Sanity of the oracle: the coaxial point matches the disc's h^2 / (h^2 + R^2)
@@ -128,8 +118,7 @@ def test_floor_under_tessellated_disc(sampler):
     assert exact[0] >= h**2 / (h**2 + radius**2)
 
 
-@pytest.mark.parametrize("sampler", SAMPLERS)
-def test_uniform_weighting_is_the_open_solid_angle(sampler):
+def test_uniform_weighting_is_the_open_solid_angle(sampler, backend):
     """--weighting uniform (libigl's and xNormal's convention) estimates (1/2pi) int V dw: under a
     polygon that is 1 - solid angle / 2pi (cosine AO would be 1 - form factor)."""
     h, radius, sides = 0.7, 1.3, 24
@@ -137,8 +126,8 @@ def test_uniform_weighting_is_the_open_solid_angle(sampler):
     corners = disc.vertices[1:]
     pts = np.zeros((16, 3))
     pts[1:, :2] = np.random.default_rng(4).uniform(-1.5, 1.5, size=(15, 2))
-    nrm = np.tile([0, 0, 1.0], (len(pts), 1))
-    res = aobake.bake_points(disc, pts, nrm, rays=512, sampler=sampler, weighting="uniform")
+    nrm = up(len(pts))
+    res = aobake.bake_points(disc, pts, nrm, backend=backend, rays=512, sampler=sampler, weighting="uniform")
     exact = np.array([1 - solid_angle(p, corners) / (2 * math.pi) for p in pts])
     check(res.ao - exact, res.ao_stderr, 0.0, sampler, 512)
     cosine = np.array([1 - polygon_form_factor(p, [0, 0, 1], corners) for p in pts])
@@ -147,21 +136,20 @@ def test_uniform_weighting_is_the_open_solid_angle(sampler):
     assert res.report["conventions"]["ao"].startswith("uniform-weighted visibility")
 
 
-@pytest.mark.parametrize("weighting", ["cosine", "uniform"])
 @pytest.mark.parametrize("tau", [0.5, 3.0])
-def test_obscurance_under_ceiling_exponential_integrals(tau, weighting):
+def test_obscurance_under_ceiling_exponential_integrals(tau, weighting, backend):
     h, d = 0.5, 1.5
     reach = math.sqrt(d * d - h * h) + 1.0
-    mesh = combine(quad([0, 0, 0], reach + 1, reach + 1), quad([0, 0, h], reach + 1, reach + 1))
+    mesh = floor_and_ceiling(h, reach + 1)
     pts, nrm = floor_points(32, 0.5)
-    res = aobake.bake_points(mesh, pts, nrm, rays=256, max_distance=d, tau=tau,
+    res = aobake.bake_points(mesh, pts, nrm, backend=backend, rays=256, max_distance=d, tau=tau,
                              quantities=("obscurance",), sampler="random", weighting=weighting)
     assert res.ao is None and res.bent_normal is None  # only what was asked
     exact = ceiling_obscurance(h, d, tau, weighting)
     assert_within(res.obscurance, res.obscurance_stderr, exact, z_bound(len(pts), None))
 
 
-def test_bent_normal_beside_wall_tilts_by_atan_2_over_pi():
+def test_bent_normal_beside_wall_tilts_by_atan_2_over_pi(backend):
     # A wall (plane x = 0) far larger than the distance to it: the unoccluded set
     # is the half-hemisphere x > 0.
     wall = quad([0, 0, 50], 1e3, 50, axis_u=1, axis_v=2)
@@ -169,8 +157,8 @@ def test_bent_normal_beside_wall_tilts_by_atan_2_over_pi():
     pts = np.zeros((n, 3))
     pts[:, 0] = 1e-3
     pts[:, 1] = np.linspace(-1, 1, n)
-    nrm = np.tile([0, 0, 1.0], (n, 1))
-    res = aobake.bake_points(wall, pts, nrm, rays=1024, sampler="random",
+    nrm = up(n)
+    res = aobake.bake_points(wall, pts, nrm, backend=backend, rays=1024, sampler="random",
                              quantities=("ao", "bent-normal"))
     assert_within(res.ao, res.ao_stderr, 0.5, z_bound(n, None))
     angle = np.arctan2(res.bent_normal[:, 0], res.bent_normal[:, 2])

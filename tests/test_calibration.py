@@ -7,6 +7,7 @@ The test accepts the ratio var_observed / mean(stderr^2) inside the chi-square
 interval at 1e-4, widened by the uncertainty of mean(stderr^2) itself.
 """
 
+import functools
 import math
 
 import numpy as np
@@ -14,7 +15,7 @@ import pytest
 from scipy import stats
 
 import aobake
-from analytic import combine, polygon, quad
+from analytic import combine, polygon, quad, up
 
 K = 150
 
@@ -30,29 +31,32 @@ def assert_calibrated(observed: float, stderr2: np.ndarray, label) -> None:
     assert lo / (1 + 4 * rel) <= ratio <= hi * (1 + 4 * rel), (label, ratio)
 
 
+#: two floor points under a tilted disc: a visibility boundary that no grid aligns with
+POINTS = np.array([[0.0, 0.0, 1e-6], [0.9, -0.4, 1e-6]])
+
+
+@functools.lru_cache(maxsize=None)
 def bakes_over_seeds(sampler: str, quantity: str) -> list:
-    """K bakes (seeds 0..K-1) of two floor points under a tilted disc: a visibility
-    boundary that no grid aligns with."""
+    """K bakes (seeds 0..K-1) of POINTS under a tilted disc (cached: each point's test
+    reads the same bakes)."""
     mesh = combine(polygon([0.2, 0.1, 0.8], 1.0, 17), quad([0, 0, 0], 3, 3))
-    pts = np.array([[0.0, 0.0, 1e-6], [0.9, -0.4, 1e-6]])
-    nrm = np.tile([0, 0, 1.0], (2, 1))
-    return [aobake.bake_points(mesh, pts, nrm, rays=64, seed=seed, sampler=sampler,
+    nrm = up(len(POINTS))
+    return [aobake.bake_points(mesh, POINTS, nrm, rays=64, seed=seed, sampler=sampler,
                                quantities=(quantity,), max_distance=2.0, tau=1.5, threads=1)
             for seed in range(K)]
 
 
-@pytest.mark.parametrize("sampler", ["random", "stratified", "sobol"])
+@pytest.mark.parametrize("point", range(len(POINTS)))
 @pytest.mark.parametrize("quantity", ["ao", "obscurance"])
-def test_stderr_matches_spread_over_seeds(sampler, quantity):
+def test_stderr_matches_spread_over_seeds(sampler, quantity, point):
     results = bakes_over_seeds(sampler, quantity)
-    est = np.array([getattr(res, quantity) for res in results])
-    var = np.array([getattr(res, quantity + "_stderr") ** 2 for res in results])
-    for p in range(est.shape[1]):
-        assert_calibrated(est[:, p].var(ddof=1), var[:, p], (sampler, quantity, p))
+    est = np.array([getattr(res, quantity)[point] for res in results])
+    var = np.array([getattr(res, quantity + "_stderr")[point] ** 2 for res in results])
+    assert_calibrated(est.var(ddof=1), var, (sampler, quantity, point))
 
 
-@pytest.mark.parametrize("sampler", ["random", "stratified", "sobol"])
-def test_bent_normal_angular_stderr_matches_spread_over_seeds(sampler):
+@pytest.mark.parametrize("point", range(len(POINTS)))
+def test_bent_normal_angular_stderr_matches_spread_over_seeds(sampler, point):
     """The reported angular stderr (radians) matches the angles by which the bent normal
     scatters around its mean over seeds.
 
@@ -61,11 +65,10 @@ def test_bent_normal_angular_stderr_matches_spread_over_seeds(sampler):
     on how round the error ellipse is; the test uses the wider chi2(K - 1) interval.
     """
     results = bakes_over_seeds(sampler, "bent-normal")
-    bent = np.array([res.bent_normal for res in results])  # (K, 2, 3)
-    var = np.array([res.bent_normal_stderr ** 2 for res in results])  # (K, 2)
+    bent = np.array([res.bent_normal[point] for res in results])  # (K, 3)
+    var = np.array([res.bent_normal_stderr[point] ** 2 for res in results])  # (K,)
     assert np.all(var > 0) and np.all(var < (np.pi / 2) ** 2)
-    for p in range(bent.shape[1]):
-        mean = bent[:, p].mean(axis=0)
-        mean /= np.linalg.norm(mean)
-        perp = bent[:, p] - np.outer(bent[:, p] @ mean, mean)  # ~ angle vectors, radians
-        assert_calibrated(np.square(perp).sum() / (K - 1), var[:, p], (sampler, p))
+    mean = bent.mean(axis=0)
+    mean /= np.linalg.norm(mean)
+    perp = bent - np.outer(bent @ mean, mean)  # ~ angle vectors, radians
+    assert_calibrated(np.square(perp).sum() / (K - 1), var, (sampler, point))

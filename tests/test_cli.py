@@ -1,14 +1,18 @@
 """The CLI through click's CliRunner: help, bad options, end-to-end bakes, errors."""
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
-from click.testing import CliRunner
 
-from aobake.cli import main
+from conftest import run_cli
 from readers import read_glb
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture
@@ -20,12 +24,8 @@ def mesh_path(tmp_path):
     return path
 
 
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
-
-
 def test_help_states_conventions():
-    res = run("--help")
+    res = run_cli("--help")
     assert res.exit_code == 0
     assert "1 = fully open, 0 = fully occluded" in res.output
     for flag in ("--quantity", "--max-distance", "--sampler", "--weighting", "--ground-plane"):
@@ -41,7 +41,7 @@ def test_help_states_conventions():
     (["-q", "gi"], "quantity"),
 ])
 def test_bad_options_exit_2(mesh_path, tmp_path, args, text):
-    res = run(mesh_path, "--out", tmp_path / "o.npz", *args)
+    res = run_cli(mesh_path, "--out", tmp_path / "o.npz", *args)
     assert res.exit_code == 2
     assert text in res.output
     assert not (tmp_path / "o.npz").exists()
@@ -49,7 +49,7 @@ def test_bad_options_exit_2(mesh_path, tmp_path, args, text):
 
 def test_end_to_end_npz_and_report(mesh_path, tmp_path):
     out, rep = tmp_path / "ao.npz", tmp_path / "report.json"
-    res = run(mesh_path, "--out", out, "-q", "ao", "-q", "obscurance", "-q", "bent-normal",
+    res = run_cli(mesh_path, "--out", out, "-q", "ao", "-q", "obscurance", "-q", "bent-normal",
               "--rays", 32, "--max-distance", "25%", "--report", rep, "--quiet")
     assert res.exit_code == 0, res.output
     data = np.load(out)
@@ -69,16 +69,16 @@ def test_end_to_end_npz_and_report(mesh_path, tmp_path):
 
 def test_ao_only_uses_occlusion_queries(mesh_path, tmp_path):
     rep = tmp_path / "r.json"
-    assert run(mesh_path, "--out", tmp_path / "a.ply", "--rays", 8, "--report", rep).exit_code == 0
+    assert run_cli(mesh_path, "--out", tmp_path / "a.ply", "--rays", 8, "--report", rep).exit_code == 0
     assert json.loads(rep.read_text())["parameters"]["query"] == "occluded"
 
 
 def test_ply_and_glb_outputs_line_up(mesh_path, tmp_path):
     for ext in ("ply", "glb"):
         out = tmp_path / f"ao.{ext}"
-        assert run(mesh_path, "--out", out, "--rays", 8, "--quiet").exit_code == 0
+        assert run_cli(mesh_path, "--out", out, "--rays", 8, "--quiet").exit_code == 0
     npz = tmp_path / "ao.npz"
-    run(mesh_path, "--out", npz, "--rays", 8, "--quiet")
+    run_cli(mesh_path, "--out", npz, "--rays", 8, "--quiet")
     ref = np.load(npz)
     ply = trimesh.load(tmp_path / "ao.ply", process=False)
     np.testing.assert_allclose(ply.vertices, ref["positions"])
@@ -101,7 +101,7 @@ def test_bad_input_one_line_error_no_output(tmp_path, name, content, message):
     if content is not None:
         path.write_bytes(content)
     out = tmp_path / "out.ply"
-    res = run(path, "--out", out)
+    res = run_cli(path, "--out", out)
     assert res.exit_code == 1
     lines = res.output.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("aobake: error:")
@@ -111,35 +111,28 @@ def test_bad_input_one_line_error_no_output(tmp_path, name, content, message):
     assert not [p for p in tmp_path.iterdir() if ".tmp" in p.name]
 
 
-def test_refuses_to_overwrite_input(mesh_path):
+def test_refuses_to_overwrite_input(mesh_path, box_ply):
     before = mesh_path.read_bytes()
-    res = run(mesh_path, "--out", mesh_path.with_suffix(".OBJ") if False else mesh_path)
+    res = run_cli(mesh_path, "--out", mesh_path)
     assert res.exit_code == 1
     assert "unsupported output format" in res.output or "overwrite" in res.output
-    ply = mesh_path.with_suffix(".ply")
-    trimesh.creation.box().export(ply)
-    res = run(ply, "--out", ply)
+    ply_before = box_ply.read_bytes()
+    res = run_cli(box_ply, "--out", box_ply)
     assert res.exit_code == 1 and "refusing to overwrite the input" in res.output
-    assert mesh_path.read_bytes() == before
+    assert mesh_path.read_bytes() == before and box_ply.read_bytes() == ply_before
 
 
 def test_unsupported_output_and_missing_directory(mesh_path, tmp_path):
-    res = run(mesh_path, "--out", tmp_path / "ao.txt")
+    res = run_cli(mesh_path, "--out", tmp_path / "ao.txt")
     assert res.exit_code == 1 and "unsupported output format" in res.output
-    res = run(mesh_path, "--out", tmp_path / "nope" / "ao.ply")
+    res = run_cli(mesh_path, "--out", tmp_path / "nope" / "ao.ply")
     assert res.exit_code == 1 and "does not exist" in res.output
 
 
-def test_python_m_and_shim(mesh_path, tmp_path):
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
-    for cmd in ([sys.executable, "-m", "aobake"], [sys.executable, str(root / "cli.py")]):
-        out = tmp_path / "m.npz"
-        proc = subprocess.run(cmd + [str(mesh_path), "--out", str(out), "--rays", "4", "--quiet"],
-                              capture_output=True, text=True, cwd=root)
-        assert proc.returncode == 0, proc.stderr
-        assert out.exists()
-        out.unlink()
+@pytest.mark.parametrize("entry", [["-m", "aobake"], [str(ROOT / "cli.py")]], ids=["python-m", "shim"])
+def test_python_m_and_shim(mesh_path, tmp_path, entry):
+    out = tmp_path / "m.npz"
+    proc = subprocess.run([sys.executable, *entry, str(mesh_path), "--out", str(out), "--rays", "4",
+                           "--quiet"], capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    assert out.exists()

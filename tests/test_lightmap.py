@@ -1,18 +1,17 @@
 """Lightmaps: analytic values texel by texel, vertex/texel agreement, seams,
 round trips through the CLI, reproducibility and bad input."""
 
+import functools
 import json
 
 import numpy as np
 import pytest
 import trimesh
-from click.testing import CliRunner
 
 from aobake.bake import bake, bake_texels
-from aobake.cli import main
-from readers import read_accessor, read_glb
-from readers import read_image
 from analytic import dof_for, z_bound
+from conftest import run_cli
+from readers import read_accessor, read_glb, read_image
 
 
 def uv_quad(center, half, flip=False):
@@ -159,29 +158,35 @@ def _seam_midpoints(atlas):
     return np.array(ua), np.array(ub)
 
 
-def test_seams_agree_after_padding_and_gutter_shows_without():
+@functools.lru_cache(maxsize=None)
+def _seam_bakes():
+    """A sphere under a plate (AO varies over it) on a fresh atlas, baked with padding 0 and 4
+    (cached: both seam tests read the same bakes and the padded atlas's seams)."""
     sphere = trimesh.creation.uv_sphere(radius=1.0, count=[24, 24])
-    sphere.apply_translation([0, 0, 0])
     plate = trimesh.creation.box(extents=[0.8, 0.8, 0.1])
     plate.apply_translation([0, 0, 1.3])  # some occlusion so AO varies over the sphere
     mesh = trimesh.util.concatenate([sphere, plate])
     results = {p: bake_texels(mesh, resolution=128, padding=p, texel_samples=4, rays=256,
                               sampler="random", unwrap="always") for p in (0, 4)}
-    atlas = results[4].atlas
-    ua, ub = _seam_midpoints(atlas)
+    return results, _seam_midpoints(results[4].atlas)
+
+
+@pytest.mark.parametrize("padding", [4, 0], ids=["padded-seams-agree", "unpadded-gutter-shows"])
+def test_seams_agree_after_padding_and_gutter_shows_without(padding):
+    results, (ua, ub) = _seam_bakes()
     assert len(ua) > 20
-    for padding, res in results.items():
-        ao, se = res.channels["ao"], res.channels["ao_stderr"]
-        a, b = _bilinear(ao, ua), _bilinear(ao, ub)
-        err = np.hypot(_bilinear(se, ua), _bilinear(se, ub))
-        # A seam sample reads texels up to ~1.5 texels from the edge on each side:
-        # the geometric gradient over that distance is far below the noise at 128^2.
-        z = np.abs(a - b) / np.maximum(err, 1e-12)
-        if padding:
-            assert np.all(z <= z_bound(len(z), None)), z.max()
-        else:
-            # Without padding, bilinear lookups at chart edges read empty gutter texels.
-            assert np.max(z) > z_bound(len(z), None)
+    res = results[padding]
+    ao, se = res.channels["ao"], res.channels["ao_stderr"]
+    a, b = _bilinear(ao, ua), _bilinear(ao, ub)
+    err = np.hypot(_bilinear(se, ua), _bilinear(se, ub))
+    # A seam sample reads texels up to ~1.5 texels from the edge on each side:
+    # the geometric gradient over that distance is far below the noise at 128^2.
+    z = np.abs(a - b) / np.maximum(err, 1e-12)
+    if padding:
+        assert np.all(z <= z_bound(len(z), None)), z.max()
+    else:
+        # Without padding, bilinear lookups at chart edges read empty gutter texels.
+        assert np.max(z) > z_bound(len(z), None)
 
 
 def test_reproducible_textures(ceiling_obj):
@@ -194,13 +199,9 @@ def test_reproducible_textures(ceiling_obj):
             assert np.array_equal(image, other.channels[name]), name
 
 
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
-
-
 def test_exr_channels_and_header_round_trip(ceiling_obj, tmp_path):
     out = tmp_path / "ao.exr"
-    res = run(ceiling_obj, "--out", out, "--resolution", "16x8", "--rays", 16, "-q", "ao",
+    res = run_cli(ceiling_obj, "--out", out, "--resolution", "16x8", "--rays", 16, "-q", "ao",
               "-q", "obscurance", "-q", "bent-normal", "--no-unwrap", "--quiet")
     assert res.exit_code == 0, res.output
     pixels, names, attrs = read_image(out)
@@ -217,7 +218,7 @@ def test_exr_channels_and_header_round_trip(ceiling_obj, tmp_path):
     assert not (tmp_path / "ao.obj").exists()  # own UVs: no new atlas to write
     ao = pixels[..., names.index("ao")]
     assert np.all((ao >= 0) & (ao <= 1))
-    res = run(ceiling_obj, "--out", tmp_path / "h.exr", "--resolution", 8, "--rays", 8,
+    res = run_cli(ceiling_obj, "--out", tmp_path / "h.exr", "--resolution", 8, "--rays", 8,
               "--half", "--no-unwrap", "--quiet")
     assert res.exit_code == 0 and read_image(tmp_path / "h.exr")[2]["oiio:format"] == "half"
 
@@ -226,11 +227,11 @@ def test_exr_channels_and_header_round_trip(ceiling_obj, tmp_path):
 def test_ldr_bit_depths_read_back_exactly(ceiling_obj, tmp_path, ext, depth):
     out = tmp_path / f"ao{ext}"
     rep = tmp_path / "r.json"
-    res = run(ceiling_obj, "--out", out, "--resolution", 16, "--rays", 16, "--bit-depth", depth,
+    res = run_cli(ceiling_obj, "--out", out, "--resolution", 16, "--rays", 16, "--bit-depth", depth,
               "--no-unwrap", "--quiet", "--report", rep)
     assert res.exit_code == 0, res.output
     exr = tmp_path / "ao.exr"
-    run(ceiling_obj, "--out", exr, "--resolution", 16, "--rays", 16, "--no-unwrap", "--quiet")
+    run_cli(ceiling_obj, "--out", exr, "--resolution", 16, "--rays", 16, "--no-unwrap", "--quiet")
     pixels, names, _ = read_image(out)
     ref, ref_names, _ = read_image(exr)
     top = 2**depth - 1
@@ -246,7 +247,7 @@ def test_glb_lightmap_reloads_with_occlusion_texture(tmp_path):
     src = tmp_path / "t.ply"
     torus.export(src)
     out = tmp_path / "ao.glb"
-    res = run(src, "--out", out, "--target", "texels", "--resolution", 64, "--rays", 8, "--quiet")
+    res = run_cli(src, "--out", out, "--target", "texels", "--resolution", 64, "--rays", 8, "--quiet")
     assert res.exit_code == 0, res.output
     gltf, blob = read_glb(out)
     material = gltf["materials"][0]
@@ -258,11 +259,9 @@ def test_glb_lightmap_reloads_with_occlusion_texture(tmp_path):
     assert len(loaded.to_geometry().faces) == len(torus.faces)
 
 
-def test_new_atlas_writes_mesh_beside_output(tmp_path):
-    src = tmp_path / "box.ply"
-    trimesh.creation.box().export(src)
+def test_new_atlas_writes_mesh_beside_output(tmp_path, box_ply):
     out = tmp_path / "ao.png"
-    res = run(src, "--out", out, "--resolution", 128, "--rays", 8, "--quiet")
+    res = run_cli(box_ply, "--out", out, "--resolution", 128, "--rays", 8, "--quiet")
     assert res.exit_code == 0, res.output
     mesh_out = tmp_path / "ao.obj"
     assert mesh_out.exists()
@@ -280,25 +279,21 @@ def test_new_atlas_writes_mesh_beside_output(tmp_path):
     (["--resolution", "abc"], "N or WxH"),
     (["--no-unwrap"], "no UVs and --no-unwrap"),
 ])
-def test_bad_texture_options(tmp_path, args, message):
-    src = tmp_path / "box.ply"
-    trimesh.creation.box().export(src)
+def test_bad_texture_options(tmp_path, box_ply, args, message):
     out = tmp_path / "ao.exr"
-    res = run(src, "--out", out, "--rays", 4, *args)
+    res = run_cli(box_ply, "--out", out, "--rays", 4, *args)
     assert res.exit_code == 1, res.output
     assert message in res.output and "Traceback" not in res.output
     assert len(res.output.strip().splitlines()) == 1
     assert not out.exists() and not (tmp_path / "ao.obj").exists()
 
 
-def test_unwritable_output_path(tmp_path):
-    src = tmp_path / "box.ply"
-    trimesh.creation.box().export(src)
+def test_unwritable_output_path(tmp_path, box_ply):
     locked = tmp_path / "locked"
     locked.mkdir()
     locked.chmod(0o500)
     try:
-        res = run(src, "--out", locked / "ao.exr", "--resolution", 8, "--rays", 4)
+        res = run_cli(box_ply, "--out", locked / "ao.exr", "--resolution", 8, "--rays", 4)
         import os
 
         if os.access(locked, os.W_OK):  # running as root: permissions do not bind
@@ -307,15 +302,13 @@ def test_unwritable_output_path(tmp_path):
         assert list(locked.iterdir()) == []
     finally:
         locked.chmod(0o700)
-    res = run(src, "--out", tmp_path / "missing" / "ao.exr", "--resolution", 8, "--rays", 4)
+    res = run_cli(box_ply, "--out", tmp_path / "missing" / "ao.exr", "--resolution", 8, "--rays", 4)
     assert res.exit_code == 1 and "does not exist" in res.output
 
 
-def test_output_on_read_only_filesystem(tmp_path):
-    src = tmp_path / "box.ply"
-    trimesh.creation.box().export(src)
+def test_output_on_read_only_filesystem(box_ply):
     # /proc refuses new files even for root: the write itself fails, cleanly.
-    res = run(src, "--out", "/proc/aobake-test.exr", "--resolution", 8, "--rays", 4)
+    res = run_cli(box_ply, "--out", "/proc/aobake-test.exr", "--resolution", 8, "--rays", 4)
     assert res.exit_code == 1, res.output
     assert "Traceback" not in res.output and len(res.output.strip().splitlines()) == 1
 
@@ -334,7 +327,7 @@ def test_glb_keeps_base_colour_and_uvs_with_new_atlas(tmp_path):
     (tmp_path / "m.obj").write_text("mtllib m.mtl\nusemtl red\n" + body)
     out = tmp_path / "ao.glb"
     rep = tmp_path / "r.json"
-    res = run(tmp_path / "m.obj", "--out", out, "--target", "texels", "--resolution", 64,
+    res = run_cli(tmp_path / "m.obj", "--out", out, "--target", "texels", "--resolution", 64,
               "--padding", 2, "--rays", 8, "--report", rep)
     assert res.exit_code == 0, res.output
     report = json.loads(rep.read_text())
@@ -384,7 +377,7 @@ def test_glb_keeps_every_material_of_a_multi_material_obj(tmp_path):
     text.insert(faces[2], "usemtl red")
     (tmp_path / "m.obj").write_text("mtllib m.mtl\n" + "\n".join(text) + "\n")
     out = tmp_path / "ao.glb"
-    res = run(tmp_path / "m.obj", "--out", out, "--target", "texels", "--resolution", 48,
+    res = run_cli(tmp_path / "m.obj", "--out", out, "--target", "texels", "--resolution", 48,
               "--padding", 1, "--rays", 8, "--quiet")
     assert res.exit_code == 0, res.output
     gltf, blob = read_glb(out)
@@ -411,12 +404,10 @@ def test_glb_keeps_every_material_of_a_multi_material_obj(tmp_path):
     assert len(loaded.geometry) == 3
 
 
-def test_new_atlas_in_a_non_square_image(tmp_path):
+def test_new_atlas_in_a_non_square_image(tmp_path, box_ply):
     out = tmp_path / "ao.exr"
     rep = tmp_path / "r.json"
-    mesh = trimesh.creation.box()
-    mesh.export(tmp_path / "box.ply")
-    res = run(tmp_path / "box.ply", "--out", out, "--resolution", "64x32", "--padding", 1,
+    res = run_cli(box_ply, "--out", out, "--resolution", "64x32", "--padding", 1,
               "--rays", 4, "--report", rep)
     assert res.exit_code == 0, res.output
     pixels, names, _ = read_image(out)

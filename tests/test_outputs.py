@@ -534,20 +534,24 @@ def test_failure_half_way_keeps_old_file_and_no_temp(tmp_path, mesh, monkeypatch
     assert path.read_bytes() == b"previous"
 
 
+# The mesh fixture is a 42-vertex icosphere; each case is (fields given n, message).
+@pytest.mark.parametrize("bad_fields, message", [
+    (lambda n: {"normals": np.zeros((n, 4))}, r"normals must be \(n, 3\) = \(42, 3\), got \(42, 4\)"),
+    (lambda n: {"bent_normal": np.zeros(n)}, r"bent_normal must be \(n, 3\)"),
+    (lambda n: {"rays": np.ones(n)}, "rays must be integer, got float64"),
+    (lambda n: {"rays": -np.ones(n, dtype=int)}, r"rays must be in \[0, 2\*\*31\)"),
+    (lambda n: {"occlusion": np.ones(n)}, "unknown fields \\['occlusion'\\]"),
+    (lambda n: {"normals": np.full((n, 3), np.nan)}, "normals must be finite"),
+], ids=["normals-shape", "bent-normal-shape", "rays-float", "rays-negative", "unknown-field",
+        "normals-nan"])
+def test_bad_fields_are_rejected(tmp_path, mesh, bad_fields, message):
+    with pytest.raises(ValueError, match=message):
+        npz.write(tmp_path / "x.npz", mesh.vertices, mesh.faces, bad_fields(len(mesh.vertices)), {})
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_validation_messages(tmp_path, mesh):
-    n = len(mesh.vertices)
     out = tmp_path / "x.npz"
-    cases = [
-        ({"normals": np.zeros((n, 4))}, r"normals must be \(n, 3\) = \(42, 3\), got \(42, 4\)"),
-        ({"bent_normal": np.zeros(n)}, r"bent_normal must be \(n, 3\)"),
-        ({"rays": np.ones(n)}, "rays must be integer, got float64"),
-        ({"rays": -np.ones(n, dtype=int)}, r"rays must be in \[0, 2\*\*31\)"),
-        ({"occlusion": np.ones(n)}, "unknown fields \\['occlusion'\\]"),
-        ({"normals": np.full((n, 3), np.nan)}, "normals must be finite"),
-    ]
-    for fields, message in cases:
-        with pytest.raises(ValueError, match=message):
-            npz.write(out, mesh.vertices, mesh.faces, fields, {})
     with pytest.raises(ValueError, match=r"positions must be \(n, 3\)"):
         npz.write(out, mesh.vertices[:, :2], mesh.faces, {}, {})
     with pytest.raises(ValueError, match="faces index vertices 0..42, but there are 42"):

@@ -56,13 +56,14 @@ def test_oblique_hit_and_back_side():
     np.testing.assert_allclose(t[0], np.linalg.norm([0.2, 0.3, 1.0]), rtol=1e-15)
 
 
-def test_miss_beside_triangle():
-    # (0.6, 0.6) is past the hypotenuse u + v = 1; (-0.1, 0.5) is left of the u = 0 edge.
-    for xy in ([0.6, 0.6], [-0.1, 0.5], [0.5, -1e-9]):
-        o, d = _ray([*xy, 1.0])
-        t, face = reference.first_hit(TRI_V, TRI_F, o, d, np.inf)
-        assert face[0] == -1 and t[0] == np.inf, xy
-        assert not reference.occluded(TRI_V, TRI_F, o, d, np.inf)[0]
+# (0.6, 0.6) is past the hypotenuse u + v = 1; (-0.1, 0.5) is left of the u = 0 edge;
+# (0.5, -1e-9) just below the v = 0 edge.
+@pytest.mark.parametrize("xy", [[0.6, 0.6], [-0.1, 0.5], [0.5, -1e-9]])
+def test_miss_beside_triangle(xy):
+    o, d = _ray([*xy, 1.0])
+    t, face = reference.first_hit(TRI_V, TRI_F, o, d, np.inf)
+    assert face[0] == -1 and t[0] == np.inf
+    assert not reference.occluded(TRI_V, TRI_F, o, d, np.inf)[0]
 
 
 def test_edge_hit_counts():
@@ -118,12 +119,15 @@ def test_degenerate_triangles_never_hit():
     assert reference.first_hit(vertices, faces, origins, directions, np.inf)[1][0] == -1
 
 
-def test_triangle_behind_or_at_origin_misses():
+@pytest.mark.parametrize("z", [-1.0, 0.0], ids=["behind", "at"])
+def test_triangle_behind_or_at_origin_misses(z):
     # Triangle behind the origin (t = -1) and exactly at it (t = 0): both misses.
-    for z in (-1.0, 0.0):
-        o, d = _ray([0.25, 0.25, z])
-        t, face = reference.first_hit(TRI_V, TRI_F, o, d, np.inf)
-        assert face[0] == -1 and t[0] == np.inf, z
+    o, d = _ray([0.25, 0.25, z])
+    t, face = reference.first_hit(TRI_V, TRI_F, o, d, np.inf)
+    assert face[0] == -1 and t[0] == np.inf
+
+
+def test_triangle_just_in_front_of_origin_hits():
     # Just above it: a hit at that tiny distance (no tnear offset is applied here).
     o, d = _ray([0.25, 0.25, 1e-12])
     t, face = reference.first_hit(TRI_V, TRI_F, o, d, np.inf)
@@ -146,14 +150,14 @@ def test_nearest_of_stacked_triangles():
     assert reference.first_hit(vertices, faces, o, d, 0.5)[1][0] == 1
 
 
-def test_ties_go_to_lowest_face_for_any_block_size():
+@pytest.mark.parametrize("block_pairs", [1, 2, 1000])
+def test_ties_go_to_lowest_face_for_any_block_size(block_pairs):
     # Two identical triangles: same t, face 0 wins whether or not they share a block.
     vertices = np.concatenate([TRI_V, TRI_V])
     faces = np.array([[3, 4, 5], [0, 1, 2]])
     o, d = _ray([0.25, 0.25, 1.0])
-    for block_pairs in (1, 2, 1000):
-        face = reference.first_hit(vertices, faces, o, d, np.inf, block_pairs=block_pairs)[1]
-        assert face[0] == 0
+    face = reference.first_hit(vertices, faces, o, d, np.inf, block_pairs=block_pairs)[1]
+    assert face[0] == 0
 
 
 def test_empty_inputs():
@@ -262,13 +266,15 @@ def test_agrees_with_trimesh_numpy_intersector():
     np.testing.assert_array_equal(t_cut[within], t[within])
 
 
-def test_block_size_does_not_change_results():
+# One pair at a time; 7 of the 80 faces a block (a ragged last block); one ray against all
+# faces (100); all 64 rays x 80 faces at once.
+@pytest.mark.parametrize("block_pairs", [1, 7, 100, 80 * 64])
+def test_block_size_does_not_change_results(block_pairs):
     mesh = trimesh.creation.icosphere(subdivisions=1)
     origins, directions = _random_rays(np.random.default_rng(7), 64)
     expected = reference.first_hit(mesh.vertices, mesh.faces, origins, directions, np.inf)
-    for block_pairs in (1, 7, 100, 80 * 64):
-        t, face = reference.first_hit(
-            mesh.vertices, mesh.faces, origins, directions, np.inf, block_pairs=block_pairs
-        )
-        np.testing.assert_array_equal(t, expected[0])
-        np.testing.assert_array_equal(face, expected[1])
+    t, face = reference.first_hit(
+        mesh.vertices, mesh.faces, origins, directions, np.inf, block_pairs=block_pairs
+    )
+    np.testing.assert_array_equal(t, expected[0])
+    np.testing.assert_array_equal(face, expected[1])

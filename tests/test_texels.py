@@ -93,7 +93,8 @@ def test_triangle_away_from_centres_matches_brute_force():
     assert np.array_equal(np.sort(s.texel[~s.is_fallback]), np.flatnonzero(inside))
 
 
-def test_shared_edges_and_vertices_on_texel_centres_counted_once():
+@pytest.mark.parametrize("k", [1, 4])
+def test_shared_edges_and_vertices_on_texel_centres_counted_once(k):
     # A triangulation whose vertices sit on texel centres, texel corners and
     # random points: every centre must be covered by exactly one triangle.
     w = h = 16
@@ -103,11 +104,10 @@ def test_shared_edges_and_vertices_on_texel_centres_counted_once():
     grid = np.stack(np.meshgrid(np.arange(0, 17, 4), np.arange(0, 17, 4)), -1).reshape(-1, 2) / 16
     pts = np.unique(np.concatenate([corners, grid, centres, rng.random((30, 2))]), axis=0)
     tri = Delaunay(pts).simplices
-    for k in (1, 4):
-        s = rasterize(pts, tri, w, h, texel_samples=k)
-        assert np.all(s.shared == 1)
-        assert s.n_samples == w * h * k
-        assert np.all(s.coverage == 1)
+    s = rasterize(pts, tri, w, h, texel_samples=k)
+    assert np.all(s.shared == 1)
+    assert s.n_samples == w * h * k
+    assert np.all(s.coverage == 1)
     assert check_uvs(pts, tri, w, h).overlapping_texels == 0
 
 
@@ -129,14 +129,14 @@ def test_row_zero_is_top():
     assert np.all(s.coverage[:2] == 1) and np.all(s.coverage[2:] == 0)
 
 
-def test_jittered_samples_stay_in_their_texel():
+@pytest.mark.parametrize("k", [4, 5], ids=["grid", "lattice"])
+def test_jittered_samples_stay_in_their_texel(k):
     w, h = 8, 8
-    for k in (4, 5):
-        s = rasterize(QUAD_UV, QUAD_FACES, w, h, texel_samples=k, seed=7)
-        p = sample_uv(QUAD_UV, QUAD_FACES, s)
-        r, c = s.rows_cols()
-        x, y = p[:, 0] * w, (1 - p[:, 1]) * h
-        assert np.all((x >= c - 1e-9) & (x <= c + 1 + 1e-9) & (y >= r - 1e-9) & (y <= r + 1 + 1e-9))
+    s = rasterize(QUAD_UV, QUAD_FACES, w, h, texel_samples=k, seed=7)
+    p = sample_uv(QUAD_UV, QUAD_FACES, s)
+    r, c = s.rows_cols()
+    x, y = p[:, 0] * w, (1 - p[:, 1]) * h
+    assert np.all((x >= c - 1e-9) & (x <= c + 1 + 1e-9) & (y >= r - 1e-9) & (y <= r + 1 + 1e-9))
 
 
 def test_square_k_is_stratified():
@@ -193,26 +193,26 @@ def test_mirrored_and_degenerate_and_out_of_range_faces():
 # --- fallback samples ---------------------------------------------------------------
 
 
-def test_sliver_gets_fallback_samples_on_the_triangle():
+@pytest.mark.parametrize("k", [1, 4])
+def test_sliver_gets_fallback_samples_on_the_triangle(k):
     # A thin sliver between texel-centre rows: no centre lands on it.
     w = h = 16
     uv = np.array([[0.02, 0.5 + 0.1 / h], [0.98, 0.5 + 0.3 / h], [0.5, 0.5 + 0.45 / h]])
     f = np.array([[0, 1, 2]])
-    for k in (1, 4):
-        s = rasterize(uv, f, w, h, texel_samples=k)
-        fb = s.is_fallback
-        assert fb.sum() > (10 if k == 1 else 0)  # with K = 4 some jittered points do land
-        assert np.all(s.coverage.ravel()[np.unique(s.texel)] > 0)
-        assert np.all((s.bary[fb] >= 0) & (s.bary[fb] <= 1))
-        np.testing.assert_allclose(s.bary[fb].sum(1), 1.0)
-        # the point is within half a texel diagonal of its texel's centre
-        p = sample_uv(uv, f, s)[fb]
-        d = (p - centre_uv(s.texel[fb], w, h)) * [w, h]
-        assert np.all(np.hypot(d[:, 0], d[:, 1]) <= np.sqrt(0.5) + 1e-9)
-        # one sample per fallback texel, and its coverage is > 0 but below 1/K
-        assert len(np.unique(s.texel[fb])) == fb.sum()
-        cov = s.coverage.ravel()[s.texel[fb]]
-        assert np.all(cov == texels.FALLBACK_COVERAGE_FRACTION / k)
+    s = rasterize(uv, f, w, h, texel_samples=k)
+    fb = s.is_fallback
+    assert fb.sum() > (10 if k == 1 else 0)  # with K = 4 some jittered points do land
+    assert np.all(s.coverage.ravel()[np.unique(s.texel)] > 0)
+    assert np.all((s.bary[fb] >= 0) & (s.bary[fb] <= 1))
+    np.testing.assert_allclose(s.bary[fb].sum(1), 1.0)
+    # the point is within half a texel diagonal of its texel's centre
+    p = sample_uv(uv, f, s)[fb]
+    d = (p - centre_uv(s.texel[fb], w, h)) * [w, h]
+    assert np.all(np.hypot(d[:, 0], d[:, 1]) <= np.sqrt(0.5) + 1e-9)
+    # one sample per fallback texel, and its coverage is > 0 but below 1/K
+    assert len(np.unique(s.texel[fb])) == fb.sum()
+    cov = s.coverage.ravel()[s.texel[fb]]
+    assert np.all(cov == texels.FALLBACK_COVERAGE_FRACTION / k)
     s1 = rasterize(uv, f, w, h, texel_samples=1)
     assert s1.is_fallback.all()  # K = 1: every sample is a fallback here
 
@@ -277,20 +277,26 @@ def test_unwrap_icosphere():
     assert_valid_atlas(mesh.vertices, mesh.faces, unwrap(mesh.vertices, mesh.faces, res, pad), res, pad)
 
 
-def test_unwrap_does_not_depend_on_scale_or_position():
+@pytest.fixture(scope="module")
+def unit_torus_atlas():
+    """A 48 x 24 torus at unit size and its 128^2 atlas (shared by the scale cases)."""
+    mesh = trimesh.creation.torus(major_radius=1.0, minor_radius=0.4, major_sections=48,
+                                  minor_sections=24)
+    return mesh, unwrap(mesh.vertices, mesh.faces, 128, 2)
+
+
+@pytest.mark.parametrize("scale, shift", [(1e-4, 0.0), (1e4, 0.0), (1.0, 1e5)])
+def test_unwrap_does_not_depend_on_scale_or_position(unit_torus_atlas, scale, shift):
     """xatlas works in float32 with absolute tolerances; unwrap normalises the mesh first, so
     a mesh 1e-4 across or 1e5 from the origin gets the atlas of the same mesh at unit size
     (before: a division by zero, and 2204 collapsed UV triangles)."""
-    mesh = trimesh.creation.torus(major_radius=1.0, minor_radius=0.4, major_sections=48,
-                                  minor_sections=24)
-    ref = unwrap(mesh.vertices, mesh.faces, 128, 2)
-    for scale, shift in ((1e-4, 0.0), (1e4, 0.0), (1.0, 1e5)):
-        vertices = mesh.vertices * scale + shift
-        un = unwrap(vertices, mesh.faces, 128, 2)
-        chk = check_uvs(un.uv, un.faces, 128, 128)
-        assert chk.valid and chk.degenerate_faces == 0, (scale, shift, chk.message)
-        np.testing.assert_array_equal(un.faces, ref.faces)
-        np.testing.assert_allclose(un.uv, ref.uv, atol=1e-6, err_msg=f"{scale} {shift}")
+    mesh, ref = unit_torus_atlas
+    vertices = mesh.vertices * scale + shift
+    un = unwrap(vertices, mesh.faces, 128, 2)
+    chk = check_uvs(un.uv, un.faces, 128, 128)
+    assert chk.valid and chk.degenerate_faces == 0, chk.message
+    np.testing.assert_array_equal(un.faces, ref.faces)
+    np.testing.assert_allclose(un.uv, ref.uv, atol=1e-6)
 
 
 def test_unwrap_into_a_non_square_image():

@@ -66,7 +66,9 @@ class TriangleBackend:
         for _ in range(MAX_BACKFACE_STEPS):
             if not len(active):
                 break
-            remaining = tmax[active] - travelled[active]
+            # A ray that stepped past a back face within one step of tmax has no length
+            # left: a zero (not negative) limit, which every backend treats as a miss.
+            remaining = np.maximum(tmax[active] - travelled[active], np.float32(0))
             t, prim = self.intersect(org[active], directions[active], remaining)
             hit = prim >= 0
             facing = np.einsum("ij,ij->i", self._face_normals[np.maximum(prim, 0)],
