@@ -9,9 +9,9 @@
  * not built); tests check the two agree bit for bit.
  *
  * Exactness: every operation below is a single IEEE-754 operation rounded in
- * the same precision as its numpy counterpart (double for the frame and its
- * rotation, float for the direction sum), evaluated left to right; cos and sin
- * come from the C library, which the numpy path calls through math.cos/sin.
+ * the same precision as its numpy counterpart, evaluated left to right; cos and
+ * sin come from one + and * polynomial (aobake.warp.cos_sin_2pi), sqrt is
+ * correctly rounded in both.
  * setup.py compiles with -ffp-contract=off so no multiply-add is fused (numpy
  * never fuses).
  *
@@ -48,49 +48,109 @@ static inline uint64_t mix(uint64_t x)
     return x ^ (x >> 31);
 }
 
-/* fill_rays(origins, normals, ids, key, dim_salt, local, k, R, m, out_origins, out_directions)
+/* The samplers of aobake.samplers, sample j of the replicate with key `key`. */
+#define SALT0 0x632BE59BD9B4E019ULL  /* aobake.rng.dim_salt(0) */
+#define SALT1 0xC657CB37B369C032ULL  /* aobake.rng.dim_salt(1) */
+#define SAMPLE_STEP 0xD1B54A32D192ED03ULL  /* aobake.samplers.base.sample_hashes */
+
+static inline double unit53(uint64_t h) { return (double)(h >> 11) * 0x1p-53; }
+
+static inline uint32_t reverse32(uint32_t x)
+{
+    x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);
+    x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);
+    x = ((x >> 4) & 0x0F0F0F0Fu) | ((x & 0x0F0F0F0Fu) << 4);
+    x = ((x >> 8) & 0x00FF00FFu) | ((x & 0x00FF00FFu) << 8);
+    return (x >> 16) | (x << 16);
+}
+
+/* aobake.samplers.sobol.owen_scramble (Burley 2020, Laine-Karras permutation). */
+static inline uint32_t owen(uint32_t x, uint32_t seed)
+{
+    x = reverse32(x);
+    x += seed;
+    x ^= x * 0x6C50B47Cu;
+    x ^= x * 0xB82F1E52u;
+    x ^= x * 0xC7AFE638u;
+    x ^= x * 0x8D22F6E6u;
+    return reverse32(x);
+}
+
+/* aobake.warp.cos_sin_2pi: + and * only, in the same order. */
+/* (-1)^k / (2k+1)! and (-1)^k / (2k)!, as Python computes them (correctly rounded). */
+static const double SIN_C[7] = {1.0, -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0, 1.0 / 362880.0,
+                                -1.0 / 39916800.0, 1.0 / 6227020800.0};
+static const double COS_C[8] = {1.0, -1.0 / 2.0, 1.0 / 24.0, -1.0 / 720.0, 1.0 / 40320.0,
+                                -1.0 / 3628800.0, 1.0 / 479001600.0, -1.0 / 87178291200.0};
+
+static inline void cos_sin_2pi(double u, double *co, double *si)
+{
+    const double t = u * 4.0;
+    const double q = floor(t);
+    const double x = ((t - q) - 0.5) * 1.5707963267948966;
+    const double x2 = x * x;
+    double s = SIN_C[6], c = COS_C[7];
+    for (int i = 5; i >= 0; --i)
+        s = s * x2 + SIN_C[i];
+    s = s * x;
+    for (int i = 6; i >= 0; --i)
+        c = c * x2 + COS_C[i];
+    const double sa = (s + c) * 0.7071067811865476, ca = (c - s) * 0.7071067811865476;
+    switch (((int64_t)q) & 3) {
+    case 0: *co = ca; *si = sa; break;
+    case 1: *co = -sa; *si = ca; break;
+    case 2: *co = -ca; *si = -sa; break;
+    default: *co = sa; *si = -ca; break;
+    }
+}
+
+/* fill_rays(origins, normals, keys, table, sampler, weighting, nx, ny, k, R, m,
+ *           out_origins, out_directions)
  *
  * origins   (k, 3)    float32   ray origin of each point
  * normals   (k, 3)    float64   unit normal of each point
- * ids       (k,)      int64     point ids
- * key, dim_salt       uint64    aobake.rng.hash_uniform's stream key and
- *                               dimension salt for the azimuth shift
- * local     (R, m, 3) float32   local directions (x, y, z), z along the normal
+ * keys      (k, R)    uint64    aobake.samplers.replicate_keys
+ * table     (m, 2)    uint32    Sobol points (sampler 2), else empty
+ * sampler   0 random, 1 stratified (nx * ny = m cells), 2 sobol (Owen-scrambled)
+ * weighting 0 cosine (r = sqrt(u0), z = sqrt(1 - u0)), 1 uniform (z = 1 - u0,
+ *           r = sqrt(u0 (2 - u0)))
  * out_origins    (k*R*m, 3) float32  written: origins[p] repeated R*m times
- * out_directions (k*R*m, 3) float32  written: x T' + y B' + z N
+ * out_directions (k*R*m, 3) float32  written: float((r cos phi T + r sin phi B) + z N)
  *
- * Per point and replicate g, as aobake.rays.RayGenerator's numpy path does it:
- *   u   = hash_uniform(seed, SHIFT stream, id * R + g, dim 1)
- *   phi = (2 pi) u;  c, s = cos(phi), sin(phi)       (C library, as math.cos)
- *   (T, B) = aobake.warp.frames(N)                   (Duff et al. 2017)
- *   T' = float(c T + s B), B' = float(c B - s T), N' = float(N)
+ * Operation for operation as aobake.rays.RayGenerator's numpy path.
  */
 static PyObject *fill_rays(PyObject *self, PyObject *args)
 {
-    Py_buffer org = {0}, nrm = {0}, idb = {0}, loc = {0}, out_o = {0}, out_d = {0};
-    unsigned long long key, salt;
-    Py_ssize_t k, R, m;
+    Py_buffer org = {0}, nrm = {0}, keyb = {0}, tab = {0}, out_o = {0}, out_d = {0};
+    int sampler, weighting;
+    Py_ssize_t nx, ny, k, R, m;
     PyObject *result = NULL;
     (void)self;
-    if (!PyArg_ParseTuple(args, "y*y*y*KKy*nnnw*w*", &org, &nrm, &idb, &key, &salt, &loc,
-                          &k, &R, &m, &out_o, &out_d))
+    if (!PyArg_ParseTuple(args, "y*y*y*y*iinnnnnw*w*", &org, &nrm, &keyb, &tab, &sampler,
+                          &weighting, &nx, &ny, &k, &R, &m, &out_o, &out_d))
         return NULL;
     if (k < 0 || R < 0 || m < 0) {
         PyErr_SetString(PyExc_ValueError, "negative size");
         goto done;
     }
+    if (sampler < 0 || sampler > 2 || weighting < 0 || weighting > 1 ||
+        (sampler == 1 && (nx < 1 || ny < 1 || nx * ny != m))) {
+        PyErr_SetString(PyExc_ValueError, "bad sampler, weighting or grid");
+        goto done;
+    }
     if (check(&org, "origins", 4, 3 * k) || check(&nrm, "normals", 8, 3 * k) ||
-        check(&idb, "ids", 8, k) || check(&loc, "local", 4, R * m * 3) ||
+        check(&keyb, "keys", 8, k * R) || check(&tab, "table", 4, sampler == 2 ? 2 * m : 0) ||
         check(&out_o, "out_origins", 4, k * R * m * 3) ||
         check(&out_d, "out_directions", 4, k * R * m * 3))
         goto done;
 
     {
-        const float *o = (const float *)org.buf, *l = (const float *)loc.buf;
+        const float *o = (const float *)org.buf;
         const double *n = (const double *)nrm.buf;
-        const int64_t *ids = (const int64_t *)idb.buf;
+        const uint64_t *keys = (const uint64_t *)keyb.buf;
+        const uint32_t *tb = (const uint32_t *)tab.buf;
         float *oo = (float *)out_o.buf, *od = (float *)out_d.buf;
-        const double two_pi = 2.0 * 3.141592653589793;  /* Python's 2.0 * math.pi */
+        const double below_one = nextafter(1.0, 0.0);
 
         Py_BEGIN_ALLOW_THREADS
         for (Py_ssize_t p = 0; p < k; ++p) {
@@ -102,25 +162,40 @@ static PyObject *fill_rays(PyObject *self, PyObject *args)
             const double t[3] = {1.0 + sign * x * x * a, sign * b, -sign * x};
             const double bt[3] = {b, sign + y * y * a, -y};
             const float ox = o[3 * p], oy = o[3 * p + 1], oz = o[3 * p + 2];
-            const float n0 = (float)x, n1 = (float)y, n2 = (float)z;
             for (Py_ssize_t g = 0; g < R; ++g) {
-                const uint64_t index = (uint64_t)(ids[p] * (int64_t)R + (int64_t)g);
-                const uint64_t h = mix(mix((uint64_t)key ^ index) + (uint64_t)salt);
-                const double phi = two_pi * ((double)(h >> 11) * 0x1p-53);
-                const double cg = cos(phi), sg = sin(phi);
-                /* Rows of the rotated frame, rounded to float32 once (as numpy stores them). */
-                const float t0 = (float)(cg * t[0] + sg * bt[0]);
-                const float t1 = (float)(cg * t[1] + sg * bt[1]);
-                const float t2 = (float)(cg * t[2] + sg * bt[2]);
-                const float b0 = (float)(cg * bt[0] - sg * t[0]);
-                const float b1 = (float)(cg * bt[1] - sg * t[1]);
-                const float b2 = (float)(cg * bt[2] - sg * t[2]);
-                const float *lg = l + 3 * m * g;
+                const uint64_t key = keys[p * R + g];
+                const uint32_t s0 = (uint32_t)(mix(key + SALT0) >> 32);
+                const uint32_t s1 = (uint32_t)(mix(key + SALT1) >> 32);
                 for (Py_ssize_t j = 0; j < m; ++j) {
-                    const float lx = lg[3 * j], ly = lg[3 * j + 1], lz = lg[3 * j + 2];
-                    od[0] = lx * t0 + ly * b0 + lz * n0;
-                    od[1] = lx * t1 + ly * b1 + lz * n1;
-                    od[2] = lx * t2 + ly * b2 + lz * n2;
+                    double u0, u1;
+                    if (sampler == 2) {
+                        u0 = ((double)owen(tb[2 * j], s0) + 0.5) * 0x1p-32;
+                        u1 = ((double)owen(tb[2 * j + 1], s1) + 0.5) * 0x1p-32;
+                    } else {
+                        const uint64_t h = mix(key + (uint64_t)(j + 1) * SAMPLE_STEP);
+                        u0 = unit53(mix(h + SALT0));
+                        u1 = unit53(mix(h + SALT1));
+                        if (sampler == 1) {
+                            u0 = ((double)(j % nx) + u0) / (double)nx;
+                            u1 = ((double)(j / nx) + u1) / (double)ny;
+                            if (u0 > below_one) u0 = below_one;
+                            if (u1 > below_one) u1 = below_one;
+                        }
+                    }
+                    double r, zz;
+                    if (weighting == 0) {
+                        r = sqrt(u0);
+                        zz = sqrt(1.0 - u0);
+                    } else {
+                        zz = 1.0 - u0;
+                        r = sqrt(u0 * (2.0 - u0));
+                    }
+                    double c, s;
+                    cos_sin_2pi(u1, &c, &s);
+                    const double lx = r * c, ly = r * s;
+                    od[0] = (float)((lx * t[0] + ly * bt[0]) + zz * x);
+                    od[1] = (float)((lx * t[1] + ly * bt[1]) + zz * y);
+                    od[2] = (float)((lx * t[2] + ly * bt[2]) + zz * z);
                     oo[0] = ox;
                     oo[1] = oy;
                     oo[2] = oz;
@@ -137,8 +212,8 @@ static PyObject *fill_rays(PyObject *self, PyObject *args)
 done:
     PyBuffer_Release(&org);
     PyBuffer_Release(&nrm);
-    PyBuffer_Release(&idb);
-    PyBuffer_Release(&loc);
+    PyBuffer_Release(&keyb);
+    PyBuffer_Release(&tab);
     PyBuffer_Release(&out_o);
     PyBuffer_Release(&out_d);
     return result;
@@ -342,8 +417,8 @@ done:
 
 static PyMethodDef methods[] = {
     {"fill_rays", fill_rays, METH_VARARGS,
-     "fill_rays(origins, normals, ids, key, dim_salt, local, k, R, m, out_origins, "
-     "out_directions): write point-major ray origins and directions."},
+     "fill_rays(origins, normals, keys, table, sampler, weighting, nx, ny, k, R, m, "
+     "out_origins, out_directions): write point-major ray origins and directions."},
     {"raster_pairs", raster_pairs, METH_VARARGS,
      "raster_pairs(ax, ay, dx, dy, owner, corner, vmax, t, row, col, width, n_sub, seed_key, q, g, "
      "out_centre, out_open, out_ins, out_bary): per-pair rasteriser tests."},

@@ -52,7 +52,7 @@ def run(
     plan = target.sample(scene, config, threads, timings, warnings)
     clock = time.perf_counter()
     values, rays = tracer.estimate(plan.points, plan.normals, plan.ids, threads, chunk_rays,
-                                   progress)
+                                   progress, sizes=plan.sizes)
     timings["trace_s"] = time.perf_counter() - clock
     done = target.finish(scene, config, plan, values, rays, timings, warnings)
     wall = time.perf_counter() - start

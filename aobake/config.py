@@ -22,9 +22,14 @@ AXES = ("x", "y", "z")
 UNWRAP = ("auto", "always", "never")
 BENT_SPACES = ("object", "tangent")
 
-#: default ray offset, as a fraction of the bounding-box diagonal: ~300 float32
-#: ulps of the rebased coordinates (no self-hits) yet 1% of a 1e-3 gap (no leaks).
-DEFAULT_RAY_OFFSET = 1e-5
+#: default ray offset, as a fraction of the size of the point's own triangles (the square
+#: root of twice their mean area: an edge length), never below OFFSET_ULPS float32 ulps of
+#: the point's rebased coordinates.  Geometry at the point, not the bounding box: a stray
+#: far-away triangle changes no point's offset.  (aobake.trace.point_offsets)
+DEFAULT_RAY_OFFSET = 1e-3
+#: float32 ulps of a point's (rebased) coordinates its origin is lifted at least: Embree's
+#: hit distances carry a few ulps of error, so 64 keeps a ray off its own triangle.
+OFFSET_ULPS = 64
 #: default tau for obscurance, in units of 1 / diagonal: rho reaches 1 - 1/e at a tenth of the scene size.
 DEFAULT_TAU_DIAGONALS = 10.0
 
@@ -81,7 +86,8 @@ class BakeConfig:
     max_distance float in scene units (inf = unlimited) or 'P%' of the diagonal
     tau          obscurance decay per scene unit; None = DEFAULT_TAU_DIAGONALS / diagonal
     seed, sampler, weighting, normals, ground_plane, up_axis, backfaces: see the CLI help
-    ray_offset   origin offset along the normal, as a fraction of the diagonal
+    ray_offset   origin offset along the normal, as a fraction of the point's own triangle
+                 size (at least OFFSET_ULPS float32 ulps of its coordinates)
     backend      tracing backend (BACKENDS): embree, or the slow float64 reference
     Lightmaps only (ignored per vertex):
     resolution   (width, height) texels
@@ -134,7 +140,7 @@ class BakeConfig:
                 raise ValueError(f"{name} must be one of {sorted(allowed)}, got {getattr(self, name)!r}")
         offset = float(self.ray_offset)
         if not (math.isfinite(offset) and 0 < offset < 0.1):
-            raise ValueError(f"ray_offset must be in (0, 0.1) of the diagonal, got {self.ray_offset}")
+            raise ValueError(f"ray_offset must be in (0, 0.1) of the triangle size, got {self.ray_offset}")
         object.__setattr__(self, "ray_offset", offset)
         object.__setattr__(self, "ground_plane", bool(self.ground_plane))
 

@@ -90,10 +90,14 @@ class Scene:
         lo, hi = self.bounds
         return float(np.linalg.norm(hi - lo))
 
+    def areas(self) -> np.ndarray:
+        """(f,) float64 triangle areas (computed at load, or now)."""
+        return self.face_areas if self.face_areas is not None else _face_areas(self.vertices, self.faces)
+
     def stats(self) -> dict:
         """Scene statistics for the report."""
         lo, hi = self.bounds
-        areas = self.face_areas if self.face_areas is not None else _face_areas(self.vertices, self.faces)
+        areas = self.areas()
         return {
             "source": self.source,
             "vertices": int(len(self.vertices)),

@@ -22,7 +22,7 @@ from aobake import _native
 from aobake.backends import BACKENDS
 from aobake.backends.plane import PlaneOccluder
 from aobake.backends.union import Union, query_name
-from aobake.config import AXES, BakeConfig
+from aobake.config import AXES, OFFSET_ULPS, BakeConfig
 from aobake.quantities import QUANTITIES, Traced
 from aobake.rays import RayGenerator
 from aobake.samplers import sample_set
@@ -77,6 +77,21 @@ def run_chunks(
             raise
 
 
+def point_offsets(rebased: np.ndarray, sizes: np.ndarray | None, fraction: float) -> np.ndarray:
+    """(n,) float64 origin offsets along the normal, in scene units.
+
+    rebased : (n, 3) float64 points minus the rebase centre, sizes : (n,) float64 the size of
+    each point's own triangles (None: unknown, as for query points), fraction : ray_offset.
+    The offset is ``fraction * size``, at least OFFSET_ULPS float32 ulps of the point's
+    largest rebased coordinate (what Embree's float32 hit distances can resolve there).
+    """
+    magnitude = np.abs(rebased).max(axis=1).astype(np.float32)
+    floor = OFFSET_ULPS * np.spacing(magnitude).astype(np.float64)
+    if sizes is None:
+        return floor
+    return np.maximum(floor, fraction * sizes)
+
+
 def _spread_bits(q: np.ndarray) -> np.ndarray:
     """(n,) uint32 of 10-bit ints -> their bits moved to positions 0, 3, 6, ... (uint32)."""
     q = q & np.uint32(0x3FF)
@@ -120,18 +135,21 @@ class Tracer:
         lo, hi = scene.bounds
         # Rebase on the bbox centre before the float32 cast (far-from-origin scenes).
         self.center = 0.5 * (lo + hi)
-        self.offset = config.ray_offset * diagonal
+        # Stepping past a back face (--backfaces ignore): OFFSET_ULPS ulps of the scene's
+        # largest rebased coordinate, a length any point of the scene can resolve.
+        self.step = OFFSET_ULPS * float(np.spacing(np.float32(np.abs(hi - self.center).max())))
+        self.offsets = None  # (min, median, max) of the per-point offsets, set by estimate()
         self.max_distance = config.resolve_max_distance(diagonal)
         self.tau = config.resolve_tau(diagonal)
         self.quantities = [QUANTITIES[name] for name in config.quantities]
-        self.samples = sample_set(config.sampler, config.rays if rays is None else rays, config.seed)
+        self.samples = sample_set(config.sampler, config.rays if rays is None else rays)
         # Decided once, on the calling thread, and recorded as decided (report: kernels).
         self.kernels = _native.kernels()
         self.generator = RayGenerator(self.samples, config.weighting, config.seed,
                                       compiled=self.kernels is not None)
         self.need_distance = any(q.needs_distance for q in self.quantities)
         occluders = [BACKENDS[config.backend](scene.vertices, scene.faces, scene.face_normals,
-                                              self.center, self.offset)]
+                                              self.center, self.step)]
         if config.ground_plane:
             axis = AXES.index(config.up_axis)
             self.ground_height = float(lo[axis])
@@ -153,7 +171,10 @@ class Tracer:
         params = {
             "max_distance": self.max_distance,
             "tau": self.tau,
-            "ray_offset": self.offset,
+            "ray_offset": None if self.offsets is None else self.offsets[1],
+            "ray_offset_range": None if self.offsets is None else [self.offsets[0], self.offsets[2]],
+            "ray_offset_rule": f"max({self.config.ray_offset:g} x own triangle size, "
+                               f"{OFFSET_ULPS} float32 ulps of the rebased coordinates)",
             "rays_per_point": self.samples.rays,
             "replicates": self.samples.groups,
             "stderr_method": "per-ray variance (iid)" if self.samples.iid
@@ -167,9 +188,14 @@ class Tracer:
             params["ground_plane"] = {"axis": self.config.up_axis, "height": self.ground_height}
         return params
 
-    def estimate_chunk(self, points: np.ndarray, normals: np.ndarray, ids: np.ndarray) -> dict:
-        """points (k, 3) float64, normals (k, 3) float64 unit, ids (k,) int64 -> field dict."""
-        origins = points + self.offset * normals - self.center
+    def estimate_chunk(self, points: np.ndarray, normals: np.ndarray, ids: np.ndarray,
+                       sizes: np.ndarray | None = None) -> dict:
+        """points (k, 3) float64, normals (k, 3) float64 unit, ids (k,) int64, sizes (k,) float64
+        own triangle sizes | None -> field dict."""
+        # Rebase first, then offset: the offset is then exact relative to the float32 grid
+        # the backend sees, however far the scene is from the origin.
+        rebased = points - self.center
+        origins = rebased + point_offsets(rebased, sizes, self.config.ray_offset)[:, None] * normals
         rays = self.generator.rays(origins, normals, ids)
         k, groups, m, _ = rays.directions.shape
         tmax = np.float32(min(self.max_distance, 3.0e38))
@@ -199,8 +225,10 @@ class Tracer:
         threads: int | None = None,
         chunk_rays: int = DEFAULT_CHUNK_RAYS,
         progress: Callable[[int, int], None] | None = None,
+        sizes: np.ndarray | None = None,
     ) -> tuple[dict, np.ndarray]:
-        """Estimates for all points (n, 3) float64 with normals (n, 3) float64 and ids (n,) int64.
+        """Estimates for all points (n, 3) float64 with normals (n, 3) float64 and ids (n,) int64;
+        sizes (n,) float64 the size of each point's own triangles (None: unknown).
 
         Points whose normal is zero are not traced (0 rays, no-information estimate).
         Returns (field name -> (n,) / (n, 3) float64 array, rays (n,) int32).
@@ -215,9 +243,15 @@ class Tracer:
         rays = np.zeros(n, dtype=np.int32)
         rays[valid] = self.samples.rays
 
+        if len(valid):
+            used = point_offsets(points[valid] - self.center, None if sizes is None else sizes[valid],
+                                 self.config.ray_offset)
+            self.offsets = (float(used.min()), float(np.median(used)), float(used.max()))
+
         def work(i):
             sel = order[i * per_chunk:(i + 1) * per_chunk]
-            return sel, self.estimate_chunk(points[sel], normals[sel], ids[sel])
+            return sel, self.estimate_chunk(points[sel], normals[sel], ids[sel],
+                                            None if sizes is None else sizes[sel])
 
         def land(i, result):
             sel, values = result

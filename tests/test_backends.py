@@ -6,6 +6,7 @@ import pytest
 import trimesh
 
 import aobake
+from aobake.trace import point_offsets
 from aobake.backends import BACKENDS, reference
 from aobake.backends.embree import EmbreeBackend
 from aobake.backends.plane import PlaneOccluder
@@ -223,7 +224,9 @@ def test_whole_bake_agrees_on_both_backends(backfaces, quantities, monkeypatch):
     assert set(queries) == {params["query"]}
     o, d, tmax = (np.concatenate(x).astype(np.float64) for x in (o, d, tmax))
     # Each ray's point: its origin is the point's, offset along the normal and rebased.
-    start = points + params["ray_offset"] * normals - params["rebase_center"]
+    # (rebased first, then offset; query points have no triangles: the float32-ulp floor)
+    rebased = points - params["rebase_center"]
+    start = rebased + point_offsets(rebased, None, ref.report["config"]["ray_offset"])[:, None] * normals
     owner = np.argmin(np.linalg.norm(o[:, None] - start[None], axis=2), axis=1)
     assert np.all(np.linalg.norm(o - start[owner], axis=1) < 1e-6)
     n_rays = np.bincount(owner, minlength=len(points))

@@ -31,8 +31,10 @@ def test_scaled_and_translated_scene_gives_same_ao(scale, shift):
         a, b = getattr(base, name), getattr(res, name)
         se = np.hypot(getattr(base, name + "_stderr"), getattr(res, name + "_stderr"))
         assert np.all(np.abs(a - b) <= k * se + 0.0), (name, a, b)
-    assert res.report["parameters"]["ray_offset"] == pytest.approx(
-        base.report["parameters"]["ray_offset"] * scale)
+    # Query points have no triangles: their offset is 64 float32 ulps of their coordinates,
+    # which follow the scale up to the power-of-two steps of the float32 grid.
+    ratio = res.report["parameters"]["ray_offset"] / (base.report["parameters"]["ray_offset"] * scale)
+    assert 0.5 <= ratio <= 2.0, ratio
 
 
 @pytest.mark.parametrize("scale, shift", [(1e-4, 0.0), (1.0, 1e5)])

@@ -1,4 +1,4 @@
-"""Samplers and warps: distributions, determinism, stratification."""
+"""Samplers and warps: distributions, determinism, stratification, independence between points."""
 
 import numpy as np
 import pytest
@@ -6,8 +6,9 @@ from scipy import stats
 
 from aobake.rays import RayGenerator
 from aobake.rng import hash_uniform
-from aobake.samplers import sample_set, shifts, sobol_2d
-from aobake.warp import frames, warp
+from aobake.samplers import point_key, replicate_keys, sample_set, sobol_2d
+from aobake.samplers.sobol import owen_scramble, reverse_bits
+from aobake.warp import cos_sin_2pi, frames, warp
 
 
 def test_hash_is_pure_function_of_ids():
@@ -32,35 +33,85 @@ def test_sobol_matches_scipy():
     np.testing.assert_array_equal(ours, ref)
 
 
-def test_shifted_samples_are_uniform(sampler):
-    """Each u = frac(b + s) is exactly uniform: KS test over many points."""
-    s = sample_set(sampler, 64, seed=1)
-    sh = shifts(1, np.arange(4000), s.groups)  # (k, R, 2)
-    u = (s.base[None, None, :, :] + sh[:, :, None, :]) % 1.0
+def _values(sampler, n_rays, ids, seed=1):
+    """(k, R, m, 2) sample values of points ``ids`` and their SampleSet."""
+    s = sample_set(sampler, n_rays)
+    return s.values(replicate_keys(point_key(seed), np.asarray(ids), s.groups), s.m), s
+
+
+def test_samples_are_uniform(sampler):
+    """Every sample value is uniform on [0, 1): KS test over many points, per dimension."""
+    u, _ = _values(sampler, 64, np.arange(4000))
     for dim in range(2):
         assert stats.kstest(u[..., dim].ravel(), "uniform").pvalue > 1e-4
+    assert u[..., 0].max() < 1.0
 
 
-def test_stratified_base_has_one_point_per_stratum():
-    s = sample_set("stratified", 256, seed=4)  # 8 replicates of 32 = 4 x 8 grid
-    m = len(s.base)
-    nx = 4
-    cells = (np.floor(s.base[:, 0] * nx) + nx * np.floor(s.base[:, 1] * (m // nx))).astype(int)
-    assert sorted(cells) == list(range(m))
+def test_samples_are_a_pure_function_of_point_and_seed(sampler):
+    ids = np.array([5, 2**40, 7, 5])
+    u, _ = _values(sampler, 64, ids)
+    again, _ = _values(sampler, 64, ids[::-1])
+    np.testing.assert_array_equal(u, again[::-1])
+    np.testing.assert_array_equal(u[0], u[3])  # the same point, the same samples
+    assert not np.array_equal(u, _values(sampler, 64, ids, seed=2)[0])
 
 
-def test_sobol_base_is_a_net():
-    s = sample_set("sobol", 256, seed=0)  # m = 32 = 2^5: a (0,5,2)-net
-    for k in range(6):
-        cols, rows = 2**k, 2 ** (5 - k)
-        cells = np.floor(s.base[:, 0] * cols) + cols * np.floor(s.base[:, 1] * rows)
-        assert len(np.unique(cells)) == 32
+def test_no_sample_value_is_shared_between_points_or_replicates(sampler):
+    """Independence: distinct points (and replicates) never share a random number, and the
+    estimates of a step function at different points are uncorrelated across seeds."""
+    u, s = _values(sampler, 64, np.arange(200))
+    for dim in range(2):
+        flat = u[..., dim].ravel()
+        assert len(np.unique(flat)) == len(flat), "a value repeats between points or replicates"
+    # The fraction of samples with u0 > 0.37 at 200 points over 300 seeds: correlation of
+    # two points' errors has sd ~ 1/sqrt(300); test all pairs' mean and the worst pair.
+    est = np.array([(_values(sampler, 64, np.arange(200), seed)[0][..., 0] > 0.37).mean(axis=(1, 2))
+                    for seed in range(300)])
+    corr = np.corrcoef(est.T)[np.triu_indices(200, 1)]
+    bound = stats.norm.ppf(1 - 1e-4 / 2) / np.sqrt(300)
+    assert abs(corr.mean()) < bound / np.sqrt(len(corr)) * 5 and np.abs(corr).max() < 2.5 * bound
+
+
+def test_stratified_replicate_has_one_sample_per_cell():
+    u, s = _values("stratified", 256, np.arange(10))  # 8 replicates of 32 = 4 x 8 grid
+    nx, ny = s.grid
+    assert (nx, ny) == (4, 8)
+    cells = (np.floor(u[..., 0] * nx) + nx * np.floor(u[..., 1] * ny)).astype(int)
+    assert np.all(np.sort(cells, axis=-1) == np.arange(32))
+
+
+@pytest.mark.parametrize("k", range(6))
+def test_owen_scrambled_sobol_replicate_is_a_net(k):
+    """Owen scrambling keeps the (0, 5, 2)-net property in every replicate: every
+    2^k x 2^(5-k) elementary box holds exactly one of the 32 samples."""
+    u, _ = _values("sobol", 256, np.arange(10))  # m = 32 = 2^5
+    cols, rows = 2**k, 2 ** (5 - k)
+    cells = np.floor(u[..., 0] * cols) + cols * np.floor(u[..., 1] * rows)
+    assert np.all(np.sort(cells, axis=-1) == np.arange(32))
+
+
+def test_owen_scramble_is_a_bijection_keeping_prefixes():
+    """Nested uniform scrambling permutes the integers and maps intervals [a 2^j, (a+1) 2^j)
+    onto such intervals (the net property rests on it)."""
+    x = np.arange(2**16, dtype=np.uint32) << np.uint32(16)
+    y = owen_scramble(x, np.uint32(0x9E3779B9))
+    assert len(np.unique(y)) == len(x)
+    top = (y >> np.uint32(24)).reshape(256, 256)  # inputs sharing their top 8 bits ...
+    assert np.all(top == top[:, :1])  # ... share them after scrambling
+    assert np.array_equal(reverse_bits(reverse_bits(x)), x)
+
+
+def test_cos_sin_polynomial_is_accurate():
+    u = np.concatenate([np.random.default_rng(3).random(200_000), [0.0, 0.25, 0.5, 0.75]])
+    c, s = cos_sin_2pi(u)
+    np.testing.assert_allclose(c, np.cos(2 * np.pi * u), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(s, np.sin(2 * np.pi * u), rtol=0, atol=1e-13)
 
 
 def test_rays_rounding_and_replicates():
-    assert sample_set("random", 100, 0).rays == 100
-    assert sample_set("sobol", 100, 0).rays == 104  # 8 replicates of 13
-    assert sample_set("sobol", 1, 0).rays == 1
+    assert sample_set("random", 100).rays == 100
+    assert sample_set("sobol", 100).rays == 104  # 8 replicates of 13
+    assert sample_set("sobol", 1).rays == 1
 
 
 def test_warp_chi_square_against_pdf(weighting):
@@ -68,13 +119,10 @@ def test_warp_chi_square_against_pdf(weighting):
     rng = np.random.default_rng(0)
     normal = rng.normal(size=3)
     normal /= np.linalg.norm(normal)
-    # One point per seed: the elevation part is shared by the points of one bake,
-    # so independent samples of it need independent seeds.
-    d = []
-    for seed in range(200):
-        gen = RayGenerator(sample_set("random", 256, seed), weighting, seed=seed)
-        d.append(gen.rays(np.zeros((1, 3)), normal[None], np.array([seed])).directions.reshape(-1, 3))
-    d = np.concatenate(d).astype(np.float64)
+    # Points are independent: 200 points of one bake give 200 independent sample sets.
+    gen = RayGenerator(sample_set("random", 256), weighting, seed=0)
+    d = gen.rays(np.zeros((200, 3)), np.tile(normal, (200, 1)), np.arange(200)).directions
+    d = d.reshape(-1, 3).astype(np.float64)
     t, b = frames(normal[None])
     z = d @ normal
     phi = np.arctan2(d @ b[0], d @ t[0])
@@ -94,8 +142,8 @@ def test_warp_chi_square_against_pdf(weighting):
 def test_warp_reference_matches_generator_layout():
     u = np.array([[0.25, 0.0], [0.0, 0.5]])
     d = warp(u, "cosine")
-    np.testing.assert_allclose(d[0], [0.5, 0, np.sqrt(0.75)])
-    np.testing.assert_allclose(d[1], [0, 0, 1], atol=1e-12)
+    np.testing.assert_allclose(d[0], [0.5, 0, np.sqrt(0.75)], atol=1e-13)
+    np.testing.assert_allclose(d[1], [0, 0, 1], atol=1e-13)
 
 
 def test_frames_are_orthonormal():
@@ -119,7 +167,7 @@ def test_compiled_rays_equal_numpy_rays_bit_for_bit(sampler, weighting, kernel):
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     origins = rng.normal(size=(300, 3)) * np.array([1e-4, 1.0, 1e5])
     ids = rng.integers(0, 2**40, size=300)
-    samples = sample_set(sampler, 100, 11)
+    samples = sample_set(sampler, 100)
     gen = RayGenerator(samples, weighting, seed=11, compiled=True)
     assert gen.compiled
     a = gen.rays(origins, normals, ids)

@@ -1,90 +1,98 @@
-"""What every sampler shares: the SampleSet record, the replicate split and the shifts.
+"""What every sampler shares: the SampleSet record, the replicate split, the per-point keys.
 
-Sample values u in [0,1)^2 are pure functions of (seed, point id, sample id).
-
-Every sampler here is a *randomised* point set with Cranley-Patterson rotation:
-a base set ``b_j`` (j = 0..m-1) shared by all points, shifted by a uniform random
-vector: ``u = frac(b_j + (e_g, s_pg))``.  The first (elevation) shift ``e_g`` is
-drawn per replicate g and shared by all points; the second (azimuth) shift
-``s_pg`` per point and replicate (hashes of seed, replicate and point id).  Each
-u is then exactly uniform on [0,1)^2, so every estimate is unbiased whatever
-the base set; replicates are independent; and the azimuth shift is a rotation
-of the point's frame, so ``rays`` warps the base set once and only rotates it
-per point (that is what keeps ray generation cheap).
+Sample values u in [0,1)^2 are pure functions of (seed, point id, replicate,
+sample index), and every point is randomised on its own: no random number is
+shared by two points, two replicates or two texel samples.  A point's R
+replicates each get a 64-bit key (:func:`replicate_keys`); a sampler turns a key
+and the sample index j (0..m-1) into u, so the errors of different points are
+independent and every average over points has the spread independence predicts.
 
 How the standard error is estimated depends on the sampler (``iid`` flag):
 
-* ``random``: base points are i.i.d. uniform, so after one shift per point the
-  ``n`` samples of a point are i.i.d.: the per-ray sample variance is honest.
-* ``stratified`` (jittered grid) and ``sobol`` (the first m points of the 2-D
-  Sobol sequence): samples of one point are not independent, so ``R``
-  independent replicates (same base set, independent shifts) are traced, and the
-  standard error is the spread of the R replicate means (randomised QMC).
+* i.i.d. samplers (``random``): the R m samples of a point are independent:
+  the per-ray spread is the error.
+* randomised QMC (``stratified``, ``sobol``): the m samples of one replicate are
+  not independent, the R replicates are: the spread of the R replicate means is
+  the error (``aobake.stats``).
 
-Randomness comes from a counter-based hash (splitmix64) of integer ids, never a
-shared generator, so results do not depend on threads or chunking.
+The hash is ``aobake.rng``'s splitmix64, mirrored in ``aobake/_kernels.c``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
-from aobake.rng import hash_key, hash_uniform
+from aobake.rng import GOLDEN, dim_salt, hash_key, mix, to_unit
 
 #: replicates for the randomised-QMC samplers' standard error.
 REPLICATES = 8
 
-# Hash streams: distinct constants so base points and shifts never share numbers.
-STREAM_BASE = 0x5EED_0001
-_STREAM_SHIFT = 0x5EED_0002
-_STREAM_ELEVATION = 0x5EED_0003
-
-
-def shift_key(seed: int) -> int:
-    """hash_key of the Cranley-Patterson shift stream (see :func:`shifts`)."""
-    return hash_key(seed, _STREAM_SHIFT)
+#: hash stream of the per-point keys (distinct from every other stream of aobake)
+STREAM_POINT = 0x5EED_0004
+#: uint64 salts of the two sample dimensions (u0: elevation, u1: azimuth)
+SALTS = (np.uint64(dim_salt(0)), np.uint64(dim_salt(1)))
 
 
 @dataclass(frozen=True)
 class SampleSet:
-    """The rays of one point: ``groups`` replicates of ``base`` (m points), each shifted.
+    """How the R m sample values of every point are made.
 
-    base : (m, 2) float64 in [0,1)^2
-    groups : int  replicates R; rays per point = R * m
-    iid : bool    True if all R*m samples of a point are i.i.d. (per-ray variance is honest)
+    name : the sampler, groups : R replicates, m : samples per replicate
+    (rays per point = R m), iid : True when all R m samples of a point are i.i.d.,
+    values : (keys (k, R) uint64, m) -> u (k, R, m, 2) float64 in [0, 1)^2, with
+    u0 < 1 strictly (the numpy formulation; the compiled kernel mirrors it bit for bit),
+    kernel : the compiled kernel's code for this sampler, or None (numpy only),
+    table : (m, 2) uint32 per-sampler constants handed to the kernel (Sobol points),
+    grid : (nx, ny) of a stratified sampler, (0, 0) otherwise.
     """
 
-    base: np.ndarray
+    name: str
     groups: int
+    m: int
     iid: bool
+    values: Callable
+    kernel: int | None = None
+    table: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.uint32))
+    grid: tuple = (0, 0)
 
     @property
     def rays(self) -> int:
-        return self.groups * len(self.base)
+        return self.groups * self.m
 
 
-def elevation_shifts(seed: int, groups: int) -> np.ndarray:
-    """(groups,) float64 shift of the first coordinate per replicate, shared by all points.
+def point_key(seed: int) -> int:
+    """The bake's uint64 key of the per-point stream."""
+    return hash_key(seed, STREAM_POINT)
 
-    Sharing it across points lets the elevation warp run once per bake (see
-    ``rays``); each point's samples stay exactly uniform because its azimuth
-    shift is independent.
+
+def replicate_keys(key: int, point_ids: np.ndarray, groups: int) -> np.ndarray:
+    """(k, R) uint64 keys of the R replicates of points ``point_ids`` (k,) int64.
+
+    A pure function of (seed, point id, replicate): the same point gets the same keys in
+    any chunk, in any thread; distinct (point, replicate) pairs get distinct keys (mix is a
+    bijection; the replicate enters through an odd multiple of the golden ratio).
     """
-    return hash_uniform(seed, _STREAM_ELEVATION, np.arange(groups), 0)
+    with np.errstate(over="ignore"):
+        per_point = mix(np.uint64(key) ^ np.asarray(point_ids, dtype=np.int64).astype(np.uint64))
+        g = (np.arange(groups, dtype=np.uint64) + np.uint64(1)) * np.uint64(GOLDEN)
+        return mix(per_point[:, None] + g[None, :])
 
 
-def shifts(seed: int, point_ids: np.ndarray, groups: int) -> np.ndarray:
-    """(k, groups, 2) float64 Cranley-Patterson shifts for points ``point_ids`` (k,) int64.
+def sample_hashes(keys: np.ndarray, m: int) -> np.ndarray:
+    """(k, R, m) uint64: one hash per sample of every replicate (i.i.d. and jitter samplers)."""
+    with np.errstate(over="ignore"):
+        j = (np.arange(m, dtype=np.uint64) + np.uint64(1)) * np.uint64(0xD1B54A32D192ED03)
+        return mix(keys[:, :, None] + j[None, None, :])
 
-    A pure function of (seed, point id, replicate): the same point gets the same
-    shifts in any chunk, in any thread.
-    """
-    ids = (np.asarray(point_ids, dtype=np.int64)[:, None] * groups + np.arange(groups)).ravel()
-    out = np.stack([hash_uniform(seed, _STREAM_SHIFT, ids, 0),
-                    hash_uniform(seed, _STREAM_SHIFT, ids, 1)], axis=1)
-    return out.reshape(len(point_ids), groups, 2)
+
+def uniforms(hashes: np.ndarray) -> np.ndarray:
+    """(...,) uint64 sample hashes -> (..., 2) float64 uniform in [0, 1) (53 bits each)."""
+    with np.errstate(over="ignore"):
+        return np.stack([to_unit(mix(hashes + SALTS[0])), to_unit(mix(hashes + SALTS[1]))],
+                        axis=-1)
 
 
 def split(n_rays: int) -> tuple[int, int]:

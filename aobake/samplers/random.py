@@ -1,15 +1,17 @@
-"""``random``: i.i.d. uniform base points; the per-ray sample variance is the honest error."""
+"""``random``: i.i.d. uniform samples per point; the per-ray sample variance is the honest error."""
 
 from __future__ import annotations
 
-import numpy as np
+from aobake.samplers.base import SampleSet, sample_hashes, uniforms
 
-from aobake.rng import hash_uniform
-from aobake.samplers.base import STREAM_BASE, SampleSet
+#: code of this sampler in aobake/_kernels.c
+KERNEL = 0
 
 
-def sample(n_rays: int, seed: int) -> SampleSet:
-    ids = np.arange(n_rays)
-    base = np.stack([hash_uniform(seed, STREAM_BASE, ids, 0),
-                     hash_uniform(seed, STREAM_BASE, ids, 1)], axis=1)
-    return SampleSet(base, 1, True)
+def values(keys, m):
+    """u = two 53-bit uniforms from the hash of (replicate key, j)."""
+    return uniforms(sample_hashes(keys, m))
+
+
+def sample(n_rays: int) -> SampleSet:
+    return SampleSet("random", 1, n_rays, True, values, kernel=KERNEL)

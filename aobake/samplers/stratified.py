@@ -1,20 +1,33 @@
-"""``stratified``: a jittered grid per replicate (R independent replicates give the error)."""
+"""``stratified``: per replicate, a jittered nx x ny grid (one sample per cell); R independent
+replicates give the error."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from aobake.rng import hash_uniform
-from aobake.samplers.base import STREAM_BASE, SampleSet, split
+from aobake.samplers.base import SampleSet, sample_hashes, split, uniforms
+
+#: code of this sampler in aobake/_kernels.c
+KERNEL = 1
+_BELOW_ONE = np.nextafter(1.0, 0.0)
 
 
-def sample(n_rays: int, seed: int) -> SampleSet:
-    groups, m = split(n_rays)
-    # Grid nx * ny = m with nx the largest divisor <= sqrt(m): square when m is.
+def grid(m: int) -> tuple[int, int]:
+    """nx * ny = m with nx the largest divisor <= sqrt(m): square when m is."""
     nx = max(d for d in range(1, int(np.sqrt(m)) + 1) if m % d == 0)
-    ny = m // nx
-    j = np.arange(m)
-    jitter = np.stack([hash_uniform(seed, STREAM_BASE, j, 0),
-                       hash_uniform(seed, STREAM_BASE, j, 1)], axis=1)
-    base = np.stack([(j % nx + jitter[:, 0]) / nx, (j // nx + jitter[:, 1]) / ny], axis=1)
-    return SampleSet(np.minimum(base, np.nextafter(1.0, 0.0)), groups, False)
+    return nx, m // nx
+
+
+def sample(n_rays: int) -> SampleSet:
+    groups, m = split(n_rays)
+    nx, ny = grid(m)
+
+    def values(keys, m):
+        jitter = uniforms(sample_hashes(keys, m))
+        j = np.arange(m)
+        u0 = (j % nx + jitter[..., 0]) / nx
+        u1 = (j // nx + jitter[..., 1]) / ny
+        # (cell + jitter) / n can round up to 1.0: keep u0 < 1 (cos theta > 0).
+        return np.minimum(np.stack([u0, u1], axis=-1), _BELOW_ONE)
+
+    return SampleSet("stratified", groups, m, False, values, kernel=KERNEL, grid=(nx, ny))

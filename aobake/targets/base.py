@@ -22,13 +22,15 @@ class SamplePoints:
     points : (n, 3) float64 scene units, normals : (n, 3) float64 unit (zero = not
     traced: 0 rays, no-information values), ids : (n,) int64 sample-stream ids (a
     point's rays are a pure function of (seed, id, sample id): equal ids get equal
-    rays), kernels : stage -> compiled? for the compiled stages the target ran,
-    state : whatever ``finish`` needs back.
+    rays), sizes : (n,) float64 the size of each point's own triangles (sqrt of twice their
+    mean area; sets the ray offset) or None when unknown, kernels : stage -> compiled? for
+    the compiled stages the target ran, state : whatever ``finish`` needs back.
     """
 
     points: np.ndarray
     normals: np.ndarray
     ids: np.ndarray
+    sizes: np.ndarray | None = None
     kernels: dict = field(default_factory=dict)
     state: object = None
 

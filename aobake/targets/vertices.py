@@ -8,6 +8,16 @@ from aobake.results import BakeResult
 from aobake.targets.base import Finished, SamplePoints
 
 
+def vertex_sizes(scene) -> np.ndarray:
+    """(v,) float64 size of each vertex's triangles: sqrt(2 * mean area of the faces using it)
+    (0 for an unreferenced vertex)."""
+    areas = scene.areas()
+    n = len(scene.vertices)
+    total = np.bincount(scene.faces.ravel(), weights=np.repeat(areas, 3), minlength=n)
+    count = np.bincount(scene.faces.ravel(), minlength=n)
+    return np.sqrt(2.0 * total / np.maximum(count, 1))
+
+
 class VertexTarget:
     """AO at the scene's vertices, in file order."""
 
@@ -24,7 +34,8 @@ class VertexTarget:
         rows = keys.view(np.dtype((np.void, keys.itemsize * keys.shape[1]))).ravel()
         _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
         return SamplePoints(scene.vertices[first], scene.vertex_normals[first],
-                            first.astype(np.int64), state=inverse.reshape(-1))
+                            first.astype(np.int64), sizes=vertex_sizes(scene)[first],
+                            state=inverse.reshape(-1))
 
     def finish(self, scene, config, plan, values, rays, timings, warnings) -> Finished:
         inverse = plan.state

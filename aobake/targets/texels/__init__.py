@@ -52,9 +52,11 @@ class TexelTarget:
         # Point ids: position in the (texel, sample, face)-sorted sample list, a pure
         # function of the inputs, so texels are reproducible for any threads/chunks.
         ids = np.arange(len(points), dtype=np.int64)
+        sizes = np.sqrt(2.0 * scene.areas()[samples.face])
         state = dict(atlas=atlas, uv=bake_uv, faces_uv=bake_faces_uv, check=check,
                      samples=samples)
-        return SamplePoints(points, normals, ids, kernels={"rasterizer": compiled}, state=state)
+        return SamplePoints(points, normals, ids, sizes=sizes, kernels={"rasterizer": compiled},
+                            state=state)
 
     def finish(self, scene, config, plan, values, rays, timings, warnings) -> Finished:
         from aobake.quantities import QUANTITIES
