@@ -89,6 +89,7 @@ class BakeConfig:
     ray_offset   origin offset along the normal, as a fraction of the point's own triangle
                  size (at least OFFSET_ULPS float32 ulps of its coordinates)
     backend      tracing backend (BACKENDS): embree, or the slow float64 reference
+    confidence   two-sided level of every ``*_ci_low`` / ``*_ci_high`` interval
     Lightmaps only (ignored per vertex):
     resolution   (width, height) texels
     padding      texels of gutter dilation
@@ -110,6 +111,7 @@ class BakeConfig:
     backfaces: str = "occlude"
     ray_offset: float = DEFAULT_RAY_OFFSET
     backend: str = "embree"
+    confidence: float = 0.95
     resolution: tuple = (1024, 1024)
     padding: int = 8
     texel_samples: int = 4
@@ -143,6 +145,10 @@ class BakeConfig:
             raise ValueError(f"ray_offset must be in (0, 0.1) of the triangle size, got {self.ray_offset}")
         object.__setattr__(self, "ray_offset", offset)
         object.__setattr__(self, "ground_plane", bool(self.ground_plane))
+        confidence = float(self.confidence)
+        if not (0.5 <= confidence < 1.0):
+            raise ValueError(f"confidence must be in [0.5, 1), got {self.confidence}")
+        object.__setattr__(self, "confidence", confidence)
 
     def resolve_max_distance(self, diagonal: float) -> float:
         """Max distance in scene units."""

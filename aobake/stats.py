@@ -8,7 +8,9 @@ Two kinds of sample sets (``SampleSet.iid``):
   independent, the R replicates are; stderr = sqrt(var(replicate means) / R).
 
 With a single ray or a single replicate there is no spread to measure; the error
-reported then is the worst case for a contribution in [0, 1]: 1 / (2 sqrt(n)).
+reported then is the worst case for a contribution in [0, 1], 1 / (2 sqrt(n)), and the
+interval is [0, 1].  ``error_bars`` turns a measured spread into the reported stderr
+and interval.
 """
 
 from __future__ import annotations
@@ -16,32 +18,36 @@ from __future__ import annotations
 import numpy as np
 
 
-def mean_and_stderr(f: np.ndarray, iid: bool):
-    """f (k, R, m) per-ray contributions in [0, 1] -> (mean (k,), stderr (k,)) float64."""
+def mean_and_spread(f: np.ndarray, iid: bool):
+    """f (k, R, m) per-ray contributions in [0, 1] -> (mean (k,), se (k,), dof) float64.
+
+    ``se`` is the measured standard error (0 when every ray or replicate agrees), ``dof``
+    its degrees of freedom (n - 1 i.i.d., R - 1 replicates; 0 = nothing to measure).
+    """
     k, groups, m = f.shape
     n = groups * m
     if iid:
         flat = f.reshape(k, n).astype(np.float64)
         mean = flat.sum(axis=1) / n
         if n < 2:
-            return mean, np.full(k, 1.0 / (2.0 * np.sqrt(n)))
+            return mean, np.full(k, 1.0 / (2.0 * np.sqrt(n))), 0
         var = np.square(flat - mean[:, None]).sum(axis=1) / (n - 1)
-        return mean, np.sqrt(var / n)
-    return replicate_mean_and_stderr(f.astype(np.float64).sum(axis=2) / m, n)
+        return mean, np.sqrt(var / n), n - 1
+    return replicate_spread(f.astype(np.float64).sum(axis=2) / m, n)
 
 
-def replicate_mean_and_stderr(group_means: np.ndarray, n: int):
-    """group_means (k, R) float64 replicate means of n rays in all -> (mean (k,), stderr (k,))."""
+def replicate_spread(group_means: np.ndarray, n: int):
+    """group_means (k, R) float64 replicate means of n rays in all -> (mean, se, dof)."""
     k, groups = group_means.shape
     mean = group_means.sum(axis=1) / groups
     if groups < 2:
-        return mean, np.full(k, 1.0 / (2.0 * np.sqrt(n)))
+        return mean, np.full(k, 1.0 / (2.0 * np.sqrt(n))), 0
     var = np.square(group_means - mean[:, None]).sum(axis=1) / (groups - 1)
-    return mean, np.sqrt(var / groups)
+    return mean, np.sqrt(var / groups), groups - 1
 
 
-def binary_mean_and_stderr(counts: np.ndarray, m: int, iid: bool):
-    """mean_and_stderr for 0/1 contributions from exact counts.
+def binary_spread(counts: np.ndarray, m: int, iid: bool):
+    """mean_and_spread for 0/1 contributions from exact counts.
 
     counts : (k, R) float64 number of 1s among the m rays of each replicate.
     """
@@ -51,9 +57,48 @@ def binary_mean_and_stderr(counts: np.ndarray, m: int, iid: bool):
         # i.i.d. 0/1 samples: sample variance = n/(n-1) p (1 - p).
         mean = counts.sum(axis=1) / n
         if n < 2:
-            return mean, np.full(k, 1.0 / (2.0 * np.sqrt(n)))
-        return mean, np.sqrt(mean * (1.0 - mean) / (n - 1))
-    return replicate_mean_and_stderr(counts / m, n)
+            return mean, np.full(k, 1.0 / (2.0 * np.sqrt(n))), 0
+        return mean, np.sqrt(mean * (1.0 - mean) / (n - 1)), n - 1
+    return replicate_spread(counts / m, n)
+
+
+def rule_of_three(n, confidence: float):
+    """Half-width no interval over n rays may fall below: 1 - (1 - C)^(1/n), about 3/n at 95%.
+
+    If every one of n rays misses a region (the spread sees nothing), the region's weight
+    is below this with confidence C, whatever the sampler (P(all miss) <= (1 - p)^n).
+    """
+    return 1.0 - (1.0 - confidence) ** (1.0 / np.asarray(n, dtype=np.float64))
+
+
+def error_bars(mean: np.ndarray, se: np.ndarray, n, dof, confidence: float):
+    """The reported error and interval of a mean of n rays in [0, 1] with measured se.
+
+    Returns (stderr, low, high), each (k,) float64:
+
+    * stderr = se where the spread is measured, 1/n where it is 0 (every ray or replicate
+      agrees: 1/n is the resolution of n rays, and for 0/1 contributions the smallest
+      nonzero spread there is, so this is max(se, 1/n) for AO): one standard error,
+      RMS-calibrated where the value is not at a visibility extreme, never 0 where the
+      value can be wrong;
+    * [low, high] = clip(mean -+ h, 0, 1) with h = sqrt((t se)^2 + h0^2), t the Student
+      quantile with ``dof`` degrees of freedom and h0 = ``rule_of_three(n)``: the t
+      interval where the spread is informative, the rule of three where it is not (all
+      rays or replicates agree).  Measured coverage: docs/conventions.md.
+    ``dof`` may be an array (texels); dof < 1 (nothing to measure) gives [0, 1].
+    """
+    n = np.asarray(n, dtype=np.float64)
+    stderr = np.where(se > 0, se, 1.0 / n)
+    dof = np.asarray(dof, dtype=np.float64)
+    t = t_quantile(confidence, np.maximum(dof, 1.0))
+    h = np.sqrt(np.square(t * se) + np.square(rule_of_three(n, confidence)))
+    h = np.where(dof >= 1, h, 1.0)
+    return stderr, np.clip(mean - h, 0.0, 1.0), np.clip(mean + h, 0.0, 1.0)
+
+
+def exact(mean: np.ndarray):
+    """(stderr, low, high) of a value that is exact by construction: 0 and [mean, mean]."""
+    return np.zeros_like(mean), mean.copy(), mean.copy()
 
 
 def texel_stderr(variance_sum: np.ndarray, count: np.ndarray) -> np.ndarray:
@@ -68,3 +113,24 @@ def texel_stderr(variance_sum: np.ndarray, count: np.ndarray) -> np.ndarray:
 def summary(stderr: np.ndarray) -> dict:
     """Mean and 95th percentile of (n,) standard errors."""
     return {"stderr_mean": float(stderr.mean()), "stderr_p95": float(np.percentile(stderr, 95))}
+
+
+# --------------------------------------------------------------------------- intervals
+#
+# Every ao / obscurance value comes with a two-sided interval at ``confidence``
+# (``*_ci_low``, ``*_ci_high``), built to keep its coverage with few rays and at
+# the extremes (docs/conventions.md, "Error bars", has the measured coverage).
+
+
+def normal_quantile(confidence: float) -> float:
+    """z with P(|N(0,1)| <= z) = confidence."""
+    from statistics import NormalDist
+
+    return NormalDist().inv_cdf(0.5 + confidence / 2.0)
+
+
+def t_quantile(confidence: float, dof):
+    """t with P(|T_dof| <= t) = confidence (Student t; dof >= 1, scalar or array)."""
+    from scipy import stats as scipy_stats
+
+    return scipy_stats.t.ppf(0.5 + confidence / 2.0, dof)

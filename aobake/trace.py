@@ -177,8 +177,13 @@ class Tracer:
                                f"{OFFSET_ULPS} float32 ulps of the rebased coordinates)",
             "rays_per_point": self.samples.rays,
             "replicates": self.samples.groups,
-            "stderr_method": "per-ray variance (iid)" if self.samples.iid
-            else f"spread of {self.samples.groups} randomised replicates",
+            "stderr_method": "max(per-ray spread (iid), 1/n)" if self.samples.iid
+            else f"max(spread of {self.samples.groups} independent replicates, 1/n)",
+            "confidence": self.config.confidence,
+            "interval_method": "clip(mean -+ sqrt((t se)^2 + h0^2), 0, 1): t Student with "
+                               + ("n - 1" if self.samples.iid else f"{self.samples.groups - 1}")
+                               + " degrees of freedom, h0 = 1 - (1 - confidence)^(1/n) "
+                                 "(rule of three)",
             "query": self.query,
             "backend": self.config.backend,
             "rebase_center": self.center.tolist(),
@@ -204,17 +209,18 @@ class Tracer:
         shape = (k, groups, m)
         traced = Traced(rays.directions, occluded.reshape(shape),
                         None if distance is None else distance.reshape(shape),
-                        normals, self.samples.iid, self.tau, self.kernels)
+                        normals, self.samples.iid, self.tau, self.kernels, self.config.confidence,
+                        self.max_distance)
         out = {}
         for q in self.quantities:
-            out[q.value.name], out[q.error.name] = q.estimate(traced)
+            out.update(q.estimate(traced))
         return out
 
     def no_information(self, normals: np.ndarray) -> dict:
         """Field dict for points that cast no rays (see each quantity's ``no_information``)."""
         out = {}
         for q in self.quantities:
-            out[q.value.name], out[q.error.name] = q.no_information(normals)
+            out.update(q.no_information(normals))
         return out
 
     def estimate(

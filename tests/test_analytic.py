@@ -55,8 +55,14 @@ def test_open_plane_is_fully_open(sampler, backend):
     res = aobake.bake_points(mesh, pts, nrm, backend=backend, rays=64, sampler=sampler,
                              quantities=("ao", "obscurance", "bent-normal"))
     assert res.report["parameters"]["backend"] == backend
-    assert np.all(res.ao == 1.0) and np.all(res.ao_stderr == 0.0)
-    assert np.all(res.obscurance == 1.0)
+    # Every ray escapes, but nothing proves the hemisphere empty: the error is the
+    # resolution of n rays, and the interval the rule of three (aobake.stats.error_bars).
+    n = res.rays[0]
+    h0 = 1 - 0.05 ** (1 / n)
+    assert np.all(res.ao == 1.0) and np.all(res.ao_stderr == 1 / n)
+    np.testing.assert_allclose(res.ao_ci_low, 1 - h0, rtol=1e-12)
+    assert np.all(res.ao_ci_high == 1.0)
+    assert np.all(res.obscurance == 1.0) and np.all(res.obscurance_stderr == 1 / n)
     np.testing.assert_allclose(np.linalg.norm(res.bent_normal, axis=1), 1.0, atol=1e-12)
     # Bent normal of an open hemisphere is the normal itself (up to the sampling noise).
     assert np.all(res.bent_normal[:, 2] > 0.9)
@@ -71,7 +77,10 @@ def test_inside_closed_box_is_fully_occluded(sampler, backend):
     nrm = rng.normal(size=(20, 3))
     res = aobake.bake_points(box, pts, nrm, backend=backend, rays=128, sampler=sampler,
                              quantities=("ao", "obscurance", "bent-normal"))
-    assert np.all(res.ao == 0.0) and np.all(res.ao_stderr == 0.0)
+    n = res.rays[0]
+    assert np.all(res.ao == 0.0) and np.all(res.ao_stderr == 1 / n)
+    assert np.all(res.ao_ci_low == 0.0)
+    np.testing.assert_allclose(res.ao_ci_high, 1 - 0.05 ** (1 / n), rtol=1e-12)
     # No escaping ray: the bent normal falls back to the normal.
     np.testing.assert_allclose(res.bent_normal, nrm / np.linalg.norm(nrm, axis=1)[:, None])
     # ... and its angular error is the no-information pi/2.

@@ -206,8 +206,9 @@ def test_exr_channels_and_header_round_trip(ceiling_obj, tmp_path):
     assert res.exit_code == 0, res.output
     pixels, names, attrs = read_image(out)
     assert pixels.shape == (8, 16, len(names))
-    expected = {"ao", "ao_stderr", "obscurance", "obscurance_stderr", "bent_normal.X",
-                "bent_normal.Y", "bent_normal.Z", "bent_normal_stderr", "rays", "coverage"}
+    expected = {"ao", "ao_stderr", "ao_ci_low", "ao_ci_high", "obscurance", "obscurance_stderr",
+                "obscurance_ci_low", "obscurance_ci_high", "bent_normal.X", "bent_normal.Y",
+                "bent_normal.Z", "bent_normal_stderr", "rays", "coverage"}
     assert set(names) == expected
     angle_se = pixels[..., names.index("bent_normal_stderr")]
     assert np.all(np.isfinite(angle_se)) and angle_se.min() >= 0 and angle_se.max() <= np.pi / 2

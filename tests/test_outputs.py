@@ -19,6 +19,7 @@ import trimesh
 
 from aobake.errors import OutputError
 from aobake.outputs import glb, npz, ply, write_vertices
+from aobake.quantities import FIELDS
 from aobake.outputs.registry import suffixes
 from readers import read_accessor, read_glb, read_ply, read_view
 from aobake.outputs.report import to_jsonable, write_report
@@ -52,20 +53,22 @@ def mesh():
 
 
 def make_fields(mesh, seed=0):
-    """Every field, random but valid: (n,) in [0, 1], (n, 3) unit, rays int."""
+    """Every field of the registry, random but valid: (n,) in [0, 1], (n, 3) unit, rays int."""
     rng = np.random.default_rng(seed)
     n = len(mesh.vertices)
     bent = rng.normal(size=(n, 3))
-    return {
+    fields = {
         "normals": np.asarray(mesh.vertex_normals, dtype=np.float64),
-        "ao": rng.random(n),
-        "ao_stderr": 0.05 * rng.random(n),
-        "obscurance": rng.random(n),
-        "obscurance_stderr": 0.05 * rng.random(n),
         "bent_normal": bent / np.linalg.norm(bent, axis=1, keepdims=True),
         "bent_normal_stderr": 0.1 * rng.random(n),
         "rays": rng.integers(1, 1 << 20, n),
     }
+    for name in ("ao", "obscurance"):
+        value, se = rng.random(n), 0.05 * rng.random(n)
+        fields.update({name: value, f"{name}_stderr": se, f"{name}_ci_low": value - 2 * se,
+                       f"{name}_ci_high": value + 2 * se})
+    assert set(fields) == set(FIELDS), "make_fields covers every registry field"
+    return fields
 
 
 def make_png(rgb: np.ndarray) -> bytes:
@@ -147,8 +150,9 @@ def test_ply_own_parse(tmp_path, mesh):
     assert properties == [
         ["double", "x"], ["double", "y"], ["double", "z"],
         ["float", "nx"], ["float", "ny"], ["float", "nz"],
-        ["float", "ao"], ["float", "ao_stderr"],
+        ["float", "ao"], ["float", "ao_stderr"], ["float", "ao_ci_low"], ["float", "ao_ci_high"],
         ["float", "obscurance"], ["float", "obscurance_stderr"],
+        ["float", "obscurance_ci_low"], ["float", "obscurance_ci_high"],
         ["float", "bent_normal_x"], ["float", "bent_normal_y"], ["float", "bent_normal_z"],
         ["float", "bent_normal_stderr"],
         ["int", "rays"],
@@ -262,8 +266,9 @@ def test_glb_round_trip(tmp_path, mesh):
     (primitive,) = gltf["meshes"][0]["primitives"]
     assert primitive["mode"] == 4
     assert set(primitive["attributes"]) == {
-        "POSITION", "NORMAL", "COLOR_0", "_AO", "_AO_STDERR",
-        "_OBSCURANCE", "_OBSCURANCE_STDERR", "_BENT_NORMAL", "_BENT_NORMAL_STDERR", "_RAYS",
+        "POSITION", "NORMAL", "COLOR_0", "_AO", "_AO_STDERR", "_AO_CI_LOW", "_AO_CI_HIGH",
+        "_OBSCURANCE", "_OBSCURANCE_STDERR", "_OBSCURANCE_CI_LOW", "_OBSCURANCE_CI_HIGH",
+        "_BENT_NORMAL", "_BENT_NORMAL_STDERR", "_RAYS",
     }  # fmt: skip
     assert gltf["scenes"][gltf["scene"]]["nodes"] == [0]
     assert gltf["nodes"][0]["mesh"] == 0

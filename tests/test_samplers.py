@@ -110,7 +110,8 @@ def test_cos_sin_polynomial_is_accurate():
 
 def test_rays_rounding_and_replicates():
     assert sample_set("random", 100).rays == 100
-    assert sample_set("sobol", 100).rays == 104  # 8 replicates of 13
+    assert sample_set("sobol", 100).rays == 128  # 8 replicates of 16 (a power of two)
+    assert sample_set("stratified", 100).rays == 104  # 8 replicates of 13
     assert sample_set("sobol", 1).rays == 1
 
 

@@ -24,15 +24,42 @@ def escape_counts(occluded: np.ndarray, kernels=None) -> np.ndarray:
     return (m - blocked).reshape(k, groups).astype(np.float64)
 
 
-def estimate(traced: Traced):
+def estimate(traced: Traced) -> dict:
     # Contributions are 0/1: escape counts are exact and cheaper than float sums.
     counts = escape_counts(traced.occluded, traced.kernels)
-    return stats.binary_mean_and_stderr(counts, traced.occluded.shape[2], traced.iid)
+    k, groups, m = traced.occluded.shape
+    mean, se, dof = stats.binary_spread(counts, m, traced.iid)
+    if traced.max_distance == 0:  # nothing can be hit within no distance: AO = 1 exactly
+        return fields_of(FIELDS, mean, *stats.exact(mean))
+    return fields_of(FIELDS, mean, *stats.error_bars(mean, se, groups * m, dof, traced.confidence))
 
 
-def no_information(normals: np.ndarray):
-    """The midpoint 1/2 with error 1/2: nothing is known."""
-    return np.full(len(normals), 0.5), np.full(len(normals), 0.5)
+def scalar_fields(name: str, value: str) -> tuple:
+    """The four fields of a scalar quantity in [0, 1] (value, stderr, interval ends),
+    named ``name``, ``name_stderr``, ``name_ci_low``, ``name_ci_high`` everywhere (glTF in
+    capitals with a leading ``_``)."""
+    def field(suffix, meaning):
+        full = name + suffix
+        return Field(full, 1, np.float32, (full,), "_" + full.upper(), (full,), meaning)
+    return (field("", value), field("_stderr", f"one standard error of {name}"),
+            field("_ci_low", f"lower end of the confidence interval of {name}"),
+            field("_ci_high", f"upper end of the confidence interval of {name}"))
+
+
+def fields_of(fields: tuple, mean, stderr, low, high) -> dict:
+    """The field dict of a scalar quantity with ``fields`` (from scalar_fields)."""
+    return dict(zip((f.name for f in fields), (mean, stderr, low, high)))
+
+
+def no_information_of(fields: tuple):
+    def no_information(normals: np.ndarray) -> dict:
+        """The midpoint 1/2 with error 1/2 and the interval [0, 1]: nothing is known."""
+        k = len(normals)
+        return fields_of(fields, np.full(k, 0.5), np.full(k, 0.5), np.zeros(k), np.ones(k))
+    return no_information
+
+
+FIELDS = scalar_fields("ao", "ambient occlusion: 1 = fully open, 0 = fully occluded")
 
 
 def summary(value: np.ndarray, error: np.ndarray) -> dict:
@@ -41,12 +68,11 @@ def summary(value: np.ndarray, error: np.ndarray) -> dict:
 
 QUANTITY = Quantity(
     name="ao",
-    value=Field("ao", 1, np.float32, ("ao",), "_AO", ("ao",),
-                "ambient occlusion: 1 = fully open, 0 = fully occluded"),
-    error=Field("ao_stderr", 1, np.float32, ("ao_stderr",), "_AO_STDERR", ("ao_stderr",),
-                "one standard error of ao"),
+    value=FIELDS[0],
+    error=FIELDS[1],
+    interval=FIELDS[2:],
     estimate=estimate,
-    no_information=no_information,
+    no_information=no_information_of(FIELDS),
     conventions={
         "cosine": {"ao": "cosine-weighted visibility (1/pi) int V(w) cos dw: 1 = fully open, "
                          "0 = fully occluded"},

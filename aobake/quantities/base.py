@@ -45,7 +45,9 @@ class Traced:
     occluded : (k, R, m) bool (a hit within the max distance),
     distance : (k, R, m) float32 hit distance, inf on a miss | None (when no quantity needs it),
     normals : (k, 3) float64 unit, iid : bool (samples.iid), tau : float per scene unit,
-    kernels : the compiled module or None (numpy formulations).
+    kernels : the compiled module or None (numpy formulations),
+    confidence : the two-sided level of the intervals (0.95),
+    max_distance : the max distance in scene units (0: every ray misses by definition).
     """
 
     directions: np.ndarray
@@ -55,6 +57,8 @@ class Traced:
     iid: bool
     tau: float
     kernels: object = None
+    confidence: float = 0.95
+    max_distance: float = float("inf")
 
 
 @dataclass(frozen=True)
@@ -63,8 +67,10 @@ class Quantity:
 
     name : the one spelling (``--quantity``, config, report)
     value, error : its two fields (the estimate and its one-standard-error)
-    estimate : Traced -> (value (k,) | (k, 3), error (k,)) float64
-    no_information : normals (k, 3) -> (value, error) for points that cast no rays
+    interval : (low, high) fields of its confidence interval, or () (bent normals: the
+        error is an angle)
+    estimate : Traced -> {field name: (k,) | (k, 3) float64} for all its fields
+    no_information : normals (k, 3) -> the same dict for points that cast no rays
     conventions : weighting -> {metadata key: text} (what 0 and 1 mean)
     texel : "scalar" (texel = mean of its samples) | "direction" (normalised mean,
         optionally in tangent space)
@@ -83,7 +89,8 @@ class Quantity:
     needs_distance: bool = False
     kernels: tuple = ()
     summary: Callable | None = field(default=None)
+    interval: tuple = ()
 
     @property
     def fields(self) -> tuple:
-        return (self.value, self.error)
+        return (self.value, self.error, *self.interval)

@@ -17,10 +17,10 @@ from aobake.vectors import normalize
 NO_INFORMATION_ANGLE = np.pi / 2
 
 
-def estimate(traced: Traced):
+def estimate(traced: Traced) -> dict:
     """Bent normal and its angular standard error for k points.
 
-    Returns (bent (k, 3) float64 unit, stderr (k,) float64 radians).
+    Returns {bent_normal: (k, 3) float64 unit, bent_normal_stderr: (k,) float64 radians}.
 
     The bent normal is b / |b| with b the mean of f = d [ray escapes] over all rays.
     Its error is the delta method for normalising: the component of b's error
@@ -28,7 +28,9 @@ def estimate(traced: Traced):
     P = I - b b^T / |b|^2 (the expected squared angle to the true bent normal).
     Cov(b) comes from the same source as the AO error: i.i.d. per-ray
     contributions (``random``) or the spread of the R replicate means.  Capped at
-    pi/2, which is also the value when no ray escapes or there is no spread.
+    pi/2, which is also the value when fewer than two rays escape (one escaping ray
+    fixes the direction of b exactly in every replicate that has it, so the spread says
+    nothing about the error, which is then up to 90 degrees) or there is no spread.
     """
     directions, occluded, normals = traced.directions, traced.occluded, traced.normals
     k, groups, m, _ = directions.shape
@@ -53,13 +55,22 @@ def estimate(traced: Traced):
         var = np.maximum(perp2, 0.0) / (count * (count - 1))
         with np.errstate(divide="ignore", invalid="ignore"):
             angle = np.sqrt(var) / length
-        stderr = np.where(ok, np.minimum(angle, NO_INFORMATION_ANGLE), NO_INFORMATION_ANGLE)
-    return bent, stderr
+        escaped = k_escaped(occluded)
+        known = ok & (escaped >= 2)
+        stderr = np.where(known, np.minimum(angle, NO_INFORMATION_ANGLE), NO_INFORMATION_ANGLE)
+    return {"bent_normal": bent, "bent_normal_stderr": stderr}
 
 
-def no_information(normals: np.ndarray):
+def k_escaped(occluded: np.ndarray) -> np.ndarray:
+    """(k, R, m) bool occluded -> (k,) int64 rays that escaped per point."""
+    k = occluded.shape[0]
+    return occluded.size // max(k, 1) - np.count_nonzero(occluded.reshape(k, -1), axis=1)
+
+
+def no_information(normals: np.ndarray) -> dict:
     """The surface normal, up to pi/2 off."""
-    return normals.copy(), np.full(len(normals), NO_INFORMATION_ANGLE)
+    return {"bent_normal": normals.copy(),
+            "bent_normal_stderr": np.full(len(normals), NO_INFORMATION_ANGLE)}
 
 
 def summary(value: np.ndarray, error: np.ndarray) -> dict:

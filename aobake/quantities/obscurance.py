@@ -28,18 +28,28 @@ def rho(distance: np.ndarray, tau: float) -> np.ndarray:
     return np.where(miss, np.float32(1.0), value)
 
 
-def estimate(traced: Traced):
-    return stats.mean_and_stderr(rho(traced.distance, traced.tau), traced.iid)
+def estimate(traced: Traced) -> dict:
+    k, groups, m = traced.distance.shape
+    mean, se, dof = stats.mean_and_spread(rho(traced.distance, traced.tau), traced.iid)
+    # Exact by construction: with no max distance nothing is hit (rho = 1 for every ray);
+    # with tau = inf every ray has rho = 1 (any hit at L > 0, or a miss) or every ray has
+    # rho = 0 (an origin inside the ground plane, L = 0): the rays cannot disagree.
+    if traced.max_distance == 0 or np.isinf(traced.tau):
+        return ao.fields_of(FIELDS, mean, *stats.exact(mean))
+    return ao.fields_of(FIELDS, mean, *stats.error_bars(mean, se, groups * m, dof,
+                                                        traced.confidence))
+
+
+FIELDS = ao.scalar_fields("obscurance", "distance-weighted openness: 1 = open, 0 = occluded")
 
 
 QUANTITY = Quantity(
     name="obscurance",
-    value=Field("obscurance", 1, np.float32, ("obscurance",), "_OBSCURANCE", ("obscurance",),
-                "distance-weighted openness: 1 = open, 0 = occluded"),
-    error=Field("obscurance_stderr", 1, np.float32, ("obscurance_stderr",), "_OBSCURANCE_STDERR",
-                ("obscurance_stderr",), "one standard error of obscurance"),
+    value=FIELDS[0],
+    error=FIELDS[1],
+    interval=FIELDS[2:],
     estimate=estimate,
-    no_information=ao.no_information,
+    no_information=ao.no_information_of(FIELDS),
     conventions={
         "cosine": {"obscurance": "(1/pi) int rho(L) cos dw with rho(L) = 1 - exp(-tau L); "
                                  "a miss counts rho = 1"},

@@ -1,4 +1,5 @@
-"""``sobol``: per replicate, the first m points of the 2-D Sobol sequence, Owen-scrambled per
+"""``sobol`` (the default): per replicate, the first m = 2^k points of the 2-D Sobol sequence,
+Owen-scrambled per
 point, replicate and dimension (hash-based nested uniform scrambling, Burley 2020,
 "Practical Hash-based Owen Scrambling", with the Laine-Karras permutation constants of
 Vegdahl 2021).
@@ -81,7 +82,11 @@ def scramble_seeds(keys: np.ndarray) -> np.ndarray:
 
 
 def sample(n_rays: int) -> SampleSet:
+    """R = 8 replicates of m = 2^k points, the smallest power of two with R m >= n_rays: a
+    full (0, k, 2)-net per replicate (a prefix of other length loses most of the gain:
+    104 rays as 8 x 13 are about as accurate as 64, benchmarks/study_intervals.py)."""
     groups, m = split(n_rays)
+    m = 1 << (m - 1).bit_length()
     table = sobol_ints(m)
 
     def values(keys, m):

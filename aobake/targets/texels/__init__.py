@@ -15,6 +15,7 @@ import numpy as np
 
 from aobake import _native
 from aobake.results import TexelResult
+from aobake.samplers import sample_set
 from aobake.targets.base import Finished, SamplePoints
 from aobake.targets.texels.atlas import check_texture_budget, make_atlas, split_corners
 from aobake.targets.texels.gather import channels as gather_channels
@@ -70,8 +71,12 @@ class TexelTarget:
                 return _to_tangent(scene, state["uv"], state["faces_uv"], sub,
                                    plan.normals[traced], bent)
         quantities = [QUANTITIES[name] for name in config.quantities]
+        # Degrees of freedom of one sample's stderr: n - 1 rays (i.i.d.) or R - 1 replicates.
+        sampling = sample_set(config.sampler, self.rays_per_point(config))
+        dof = sampling.rays - 1 if sampling.iid else sampling.groups - 1
         images, covered, filled = gather_channels(quantities, samples, values, rays,
-                                                  config.padding, to_tangent)
+                                                  config.padding, to_tangent, dof,
+                                                  config.confidence)
         timings["splat_dilate_s"] = time.perf_counter() - clock
         shared = int(np.count_nonzero(samples.shared >= 2))
         if shared:

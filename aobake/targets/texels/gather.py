@@ -65,13 +65,15 @@ def subset(samples: TexelSamples, keep: np.ndarray) -> TexelSamples:
 
 
 def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, padding: int,
-             to_tangent=None) -> tuple[dict, np.ndarray, np.ndarray]:
+             to_tangent=None, dof: int = 0, confidence: float = 0.95
+             ) -> tuple[dict, np.ndarray, np.ndarray]:
     """Texel channels of a bake.
 
     quantities : the Quantity objects baked, samples : s sample points,
     values : field name -> (s,) / (s, 3) float64 estimates, rays : (s,) int32,
     to_tangent : None, or a function (traced samples, traced (s,) bool, bent (t, 3) float64)
-    -> bent in tangent space.
+    -> bent in tangent space, dof : degrees of freedom of one sample's stderr (R - 1 or
+    n - 1), confidence : the interval level.
     Returns (channels: name -> (H, W) float32 in output order, covered (H, W) bool,
     filled (H, W) bool covered or padded).
     """
@@ -92,8 +94,13 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
                 out[label] = mean[..., axis]
         else:
             out[q.value.exr[0]] = splat(sub, value)[..., 0]
-        # The texel averages its s samples: stderr sqrt(sum se^2) / s (an angle for directions).
-        out[q.error.exr[0]] = stats.texel_stderr(splat(sub, error ** 2)[..., 0], count)
+        # The texel averages its s independent samples: stderr sqrt(sum se^2) / s (an angle
+        # for directions).
+        variance = error ** 2
+        out[q.error.exr[0]] = stats.texel_stderr(splat(sub, variance)[..., 0], count)
+        if q.interval:
+            out.update(_texel_interval(q, sub, out[q.value.exr[0]], out[q.error.exr[0]],
+                                       variance, rays[traced], count, dof, confidence))
     rays_img = np.bincount(sub.texel, weights=rays[traced].astype(np.float64),
                            minlength=width * height).reshape(height, width)
     names = list(out)
@@ -105,3 +112,23 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     out["coverage"] = samples.coverage.astype(np.float64) * covered
     return ({name: np.asarray(image, dtype=np.float32) for name, image in out.items()},
             covered, filled)
+
+
+def _texel_interval(q, sub, value, stderr, variance, rays, count, dof, confidence) -> dict:
+    """The interval of a texel that averages its s samples' estimates.
+
+    t quantile with the Welch-Satterthwaite degrees of freedom of the sum of the samples'
+    variances, (sum v)^2 / sum(v^2 / dof), and the rule-of-three floor of all the
+    texel's rays (see ``aobake.stats.error_bars``).
+    """
+    shape = value.shape
+    total = splat(sub, variance)[..., 0] * count  # sum of v
+    squares = splat(sub, variance ** 2)[..., 0] * count  # sum of v^2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        welch = np.where(squares > 0, dof * total ** 2 / squares, dof)
+    texel_rays = np.bincount(sub.texel, weights=rays.astype(np.float64),
+                             minlength=value.size).reshape(shape)
+    covered = count > 0
+    _, low, high = stats.error_bars(value, stderr, np.where(covered, texel_rays, 1.0),
+                                    np.where(covered, welch, 0.0), confidence)
+    return {q.interval[0].exr[0]: low, q.interval[1].exr[0]: high}
