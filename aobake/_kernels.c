@@ -64,10 +64,11 @@ static inline uint32_t reverse32(uint32_t x)
     return (x >> 16) | (x << 16);
 }
 
-/* aobake.samplers.sobol.owen_scramble (Burley 2020, Laine-Karras permutation). */
-static inline uint32_t owen(uint32_t x, uint32_t seed)
+/* aobake.samplers.sobol.owen_scramble_reversed (Burley 2020, Laine-Karras permutation) of a
+ * bit-reversed Sobol point (the table is stored reversed: one reversal per sample saved). */
+#define BLOCK 64
+static inline uint32_t owen_reversed(uint32_t x, uint32_t seed)
 {
-    x = reverse32(x);
     x += seed;
     x ^= x * 0x6C50B47Cu;
     x ^= x * 0xB82F1E52u;
@@ -78,30 +79,28 @@ static inline uint32_t owen(uint32_t x, uint32_t seed)
 
 /* aobake.warp.cos_sin_2pi: + and * only, in the same order. */
 /* (-1)^k / (2k+1)! and (-1)^k / (2k)!, as Python computes them (correctly rounded). */
-static const double SIN_C[7] = {1.0, -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0, 1.0 / 362880.0,
-                                -1.0 / 39916800.0, 1.0 / 6227020800.0};
-static const double COS_C[8] = {1.0, -1.0 / 2.0, 1.0 / 24.0, -1.0 / 720.0, 1.0 / 40320.0,
-                                -1.0 / 3628800.0, 1.0 / 479001600.0, -1.0 / 87178291200.0};
+static const double SIN_C[5] = {1.0, -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0, 1.0 / 362880.0};
+static const double COS_C[6] = {1.0, -1.0 / 2.0, 1.0 / 24.0, -1.0 / 720.0, 1.0 / 40320.0,
+                                -1.0 / 3628800.0};
 
 static inline void cos_sin_2pi(double u, double *co, double *si)
 {
     const double t = u * 4.0;
-    const double q = floor(t);
-    const double x = ((t - q) - 0.5) * 1.5707963267948966;
+    const int quadrant = (int)t;  /* t in [0, 4): truncation is floor, and vectorises */
+    const double x = ((t - (double)quadrant) - 0.5) * 1.5707963267948966;
     const double x2 = x * x;
-    double s = SIN_C[6], c = COS_C[7];
-    for (int i = 5; i >= 0; --i)
+    double s = SIN_C[4], c = COS_C[5];
+    for (int i = 3; i >= 0; --i)
         s = s * x2 + SIN_C[i];
     s = s * x;
-    for (int i = 6; i >= 0; --i)
+    for (int i = 4; i >= 0; --i)
         c = c * x2 + COS_C[i];
-    const double sa = (s + c) * 0.7071067811865476, ca = (c - s) * 0.7071067811865476;
-    switch (((int64_t)q) & 3) {
-    case 0: *co = ca; *si = sa; break;
-    case 1: *co = -sa; *si = ca; break;
-    case 2: *co = -ca; *si = -sa; break;
-    default: *co = sa; *si = -ca; break;
-    }
+    const double ca = (c - s) * 0.7071067811865476, sa = (s + c) * 0.7071067811865476;
+    /* Quadrant rotation by selection and sign flips (exact), without branches. */
+    const int odd = quadrant & 1, neg_c = (quadrant == 1) | (quadrant == 2), neg_s = quadrant >= 2;
+    const double pc = odd ? sa : ca, ps = odd ? ca : sa;
+    *co = neg_c ? -pc : pc;
+    *si = neg_s ? -ps : ps;
 }
 
 /* fill_rays(origins, normals, keys, table, sampler, weighting, nx, ny, k, R, m,
@@ -110,7 +109,7 @@ static inline void cos_sin_2pi(double u, double *co, double *si)
  * origins   (k, 3)    float32   ray origin of each point
  * normals   (k, 3)    float64   unit normal of each point
  * keys      (k, R)    uint64    aobake.samplers.replicate_keys
- * table     (m, 2)    uint32    Sobol points (sampler 2), else empty
+ * table     (m, 2)    uint32    bit-reversed Sobol points (sampler 2), else empty
  * sampler   0 random, 1 stratified (nx * ny = m cells), 2 sobol (Owen-scrambled)
  * weighting 0 cosine (r = sqrt(u0), z = sqrt(1 - u0)), 1 uniform (z = 1 - u0,
  *           r = sqrt(u0 (2 - u0)))
@@ -166,41 +165,56 @@ static PyObject *fill_rays(PyObject *self, PyObject *args)
                 const uint64_t key = keys[p * R + g];
                 const uint32_t s0 = (uint32_t)(mix(key + SALT0) >> 32);
                 const uint32_t s1 = (uint32_t)(mix(key + SALT1) >> 32);
-                for (Py_ssize_t j = 0; j < m; ++j) {
-                    double u0, u1;
+                /* In blocks, one stage at a time: each loop is branch-free and the
+                 * compiler vectorises the square roots and the polynomial. */
+                for (Py_ssize_t j0 = 0; j0 < m; j0 += BLOCK) {
+                    const Py_ssize_t nb = m - j0 < BLOCK ? m - j0 : BLOCK;
+                    double u0[BLOCK], u1[BLOCK], r[BLOCK], zz[BLOCK], c[BLOCK], s[BLOCK];
                     if (sampler == 2) {
-                        u0 = ((double)owen(tb[2 * j], s0) + 0.5) * 0x1p-32;
-                        u1 = ((double)owen(tb[2 * j + 1], s1) + 0.5) * 0x1p-32;
+                        for (Py_ssize_t i = 0; i < nb; ++i) {
+                            u0[i] = ((double)owen_reversed(tb[2 * (j0 + i)], s0) + 0.5) * 0x1p-32;
+                            u1[i] = ((double)owen_reversed(tb[2 * (j0 + i) + 1], s1) + 0.5) * 0x1p-32;
+                        }
                     } else {
-                        const uint64_t h = mix(key + (uint64_t)(j + 1) * SAMPLE_STEP);
-                        u0 = unit53(mix(h + SALT0));
-                        u1 = unit53(mix(h + SALT1));
+                        for (Py_ssize_t i = 0; i < nb; ++i) {
+                            const uint64_t h = mix(key + (uint64_t)(j0 + i + 1) * SAMPLE_STEP);
+                            u0[i] = unit53(mix(h + SALT0));
+                            u1[i] = unit53(mix(h + SALT1));
+                        }
                         if (sampler == 1) {
-                            u0 = ((double)(j % nx) + u0) / (double)nx;
-                            u1 = ((double)(j / nx) + u1) / (double)ny;
-                            if (u0 > below_one) u0 = below_one;
-                            if (u1 > below_one) u1 = below_one;
+                            for (Py_ssize_t i = 0; i < nb; ++i) {
+                                const Py_ssize_t jj = j0 + i;
+                                u0[i] = ((double)(jj % nx) + u0[i]) / (double)nx;
+                                u1[i] = ((double)(jj / nx) + u1[i]) / (double)ny;
+                                if (u0[i] > below_one) u0[i] = below_one;
+                                if (u1[i] > below_one) u1[i] = below_one;
+                            }
                         }
                     }
-                    double r, zz;
                     if (weighting == 0) {
-                        r = sqrt(u0);
-                        zz = sqrt(1.0 - u0);
+                        for (Py_ssize_t i = 0; i < nb; ++i) {
+                            r[i] = sqrt(u0[i]);
+                            zz[i] = sqrt(1.0 - u0[i]);
+                        }
                     } else {
-                        zz = 1.0 - u0;
-                        r = sqrt(u0 * (2.0 - u0));
+                        for (Py_ssize_t i = 0; i < nb; ++i) {
+                            zz[i] = 1.0 - u0[i];
+                            r[i] = sqrt(u0[i] * (2.0 - u0[i]));
+                        }
                     }
-                    double c, s;
-                    cos_sin_2pi(u1, &c, &s);
-                    const double lx = r * c, ly = r * s;
-                    od[0] = (float)((lx * t[0] + ly * bt[0]) + zz * x);
-                    od[1] = (float)((lx * t[1] + ly * bt[1]) + zz * y);
-                    od[2] = (float)((lx * t[2] + ly * bt[2]) + zz * z);
-                    oo[0] = ox;
-                    oo[1] = oy;
-                    oo[2] = oz;
-                    od += 3;
-                    oo += 3;
+                    for (Py_ssize_t i = 0; i < nb; ++i)
+                        cos_sin_2pi(u1[i], &c[i], &s[i]);
+                    for (Py_ssize_t i = 0; i < nb; ++i) {
+                        const double lx = r[i] * c[i], ly = r[i] * s[i];
+                        od[0] = (float)((lx * t[0] + ly * bt[0]) + zz[i] * x);
+                        od[1] = (float)((lx * t[1] + ly * bt[1]) + zz[i] * y);
+                        od[2] = (float)((lx * t[2] + ly * bt[2]) + zz[i] * z);
+                        oo[0] = ox;
+                        oo[1] = oy;
+                        oo[2] = oz;
+                        od += 3;
+                        oo += 3;
+                    }
                 }
             }
         }

@@ -141,6 +141,10 @@ _VERTEX, _TEXEL = ", ".join(suffixes("vertices")), ", ".join(suffixes("texels"))
               type=click.Choice(CHOICES["backend"]),
               help="Tracing backend: embree, or reference (float64 numpy, every ray against "
                    "every triangle: slow, for validating on small scenes).")
+@click.option("--confidence", default=DEFAULTS["confidence"], show_default=True,
+              type=click.FloatRange(0.5, 1.0, max_open=True),
+              help="Level of the *_ci_low / *_ci_high interval every ao and obscurance value "
+                   "carries.")
 @click.option("--threads", default=None, type=click.IntRange(min=1),
               help="Worker threads. Default: all cores.")
 @click.option("--resolution", default=str(DEFAULTS["resolution"][0]), show_default=True,

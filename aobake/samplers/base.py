@@ -45,7 +45,8 @@ class SampleSet:
     values : (keys (k, R) uint64, m) -> u (k, R, m, 2) float64 in [0, 1)^2, with
     u0 < 1 strictly (the numpy formulation; the compiled kernel mirrors it bit for bit),
     kernel : the compiled kernel's code for this sampler, or None (numpy only),
-    table : (m, 2) uint32 per-sampler constants handed to the kernel (Sobol points),
+    table : (m, 2) uint32 per-sampler constants handed to the kernel (bit-reversed Sobol
+    points),
     grid : (nx, ny) of a stratified sampler, (0, 0) otherwise.
     """
 

@@ -64,7 +64,11 @@ def reverse_bits(x: np.ndarray) -> np.ndarray:
 def owen_scramble(x: np.ndarray, seed: np.ndarray) -> np.ndarray:
     """Hash-based nested uniform (Owen) scramble of uint32 ``x`` with uint32 ``seed``
     (broadcast): reverse, Laine-Karras permutation, reverse (wrapping uint32 arithmetic)."""
-    x = reverse_bits(x)
+    return owen_scramble_reversed(reverse_bits(x), seed)
+
+
+def owen_scramble_reversed(x: np.ndarray, seed: np.ndarray) -> np.ndarray:
+    """:func:`owen_scramble` of ``reverse_bits(x)`` (the sampler stores its table reversed)."""
     with np.errstate(over="ignore"):
         x = x + seed
         x ^= x * np.uint32(0x6C50B47C)
@@ -87,11 +91,11 @@ def sample(n_rays: int) -> SampleSet:
     104 rays as 8 x 13 are about as accurate as 64, benchmarks/study_intervals.py)."""
     groups, m = split(n_rays)
     m = 1 << (m - 1).bit_length()
-    table = sobol_ints(m)
+    table = reverse_bits(sobol_ints(m))  # stored reversed: owen_scramble reverses first
 
     def values(keys, m):
         seeds = scramble_seeds(keys)  # (k, R, 2)
-        x = owen_scramble(table[None, None, :, :], seeds[:, :, None, :])  # (k, R, m, 2)
+        x = owen_scramble_reversed(table[None, None, :, :], seeds[:, :, None, :])  # (k, R, m, 2)
         # The centre of the 2^-32 cell: exactly uniform mean, and u0 < 1 (cos theta > 0).
         return (x.astype(np.float64) + 0.5) * _TWO_POW_M32
 

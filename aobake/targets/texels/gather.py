@@ -118,8 +118,8 @@ def _texel_interval(q, sub, value, stderr, variance, rays, count, dof, confidenc
     """The interval of a texel that averages its s samples' estimates.
 
     t quantile with the Welch-Satterthwaite degrees of freedom of the sum of the samples'
-    variances, (sum v)^2 / sum(v^2 / dof), and the rule-of-three floor of all the
-    texel's rays (see ``aobake.stats.error_bars``).
+    variances, (sum v)^2 / sum(v^2 / dof), rounded down (conservative), and the
+    rule-of-three floor of all the texel's rays (see ``aobake.stats.error_bars``).
     """
     shape = value.shape
     total = splat(sub, variance)[..., 0] * count  # sum of v
