@@ -105,8 +105,8 @@ _VERTEX, _TEXEL = ", ".join(suffixes("vertices")), ", ".join(suffixes("texels"))
 @click.option("--quantity", "-q", "quantities", multiple=True, type=QuantityType(list(QUANTITIES)),
               help="What to bake (repeatable). Default: ao.")
 @click.option("--rays", default=DEFAULTS["rays"], show_default=True, type=click.IntRange(min=1),
-              help="Rays per vertex, or per texel (split over --texel-samples). The QMC "
-                   "samplers round up to a multiple of 8 replicates.")
+              help="Rays per vertex, or per texel (split over --texel-samples). stratified "
+                   "rounds up to a multiple of 8 replicates, sobol to 8 x 2^k.")
 @click.option("--max-distance", default="inf", show_default=True, type=DistanceType(),
               help="Occluder search distance: scene units, 'inf', or 'P%' of the bounding-box "
                    "diagonal. Default inf: AO as defined, with no cut-off.")
@@ -117,8 +117,8 @@ _VERTEX, _TEXEL = ", ".join(suffixes("vertices")), ", ".join(suffixes("texels"))
               type=click.IntRange(0, 2**63 - 1),
               help="Same inputs + seed = bit-identical outputs, for any --threads.")
 @click.option("--sampler", default=DEFAULTS["sampler"], show_default=True, type=_choice("sampler"),
-              help="random: i.i.d.; stratified: jittered grid; sobol: Sobol net. "
-                   "All randomised, all unbiased.")
+              help="random: i.i.d.; stratified: 8 jittered grids; sobol: 8 Owen-scrambled "
+                   "Sobol nets. Every point randomised on its own; all unbiased.")
 @click.option("--weighting", default=DEFAULTS["weighting"], show_default=True,
               type=_choice("weighting"),
               help="What AO averages over: cosine ((1/pi) int V cos, the default) or "
@@ -136,7 +136,8 @@ _VERTEX, _TEXEL = ", ".join(suffixes("vertices")), ", ".join(suffixes("texels"))
               help="ignore: rays pass through back faces (costs closest-hit queries).")
 @click.option("--ray-offset", default=DEFAULTS["ray_offset"], show_default=True,
               type=click.FloatRange(0, 0.1, min_open=True, max_open=True),
-              help="Ray origin offset along the normal, as a fraction of the diagonal.")
+              help="Ray origin offset along the normal, as a fraction of the point's own "
+                   "triangle size (at least 64 float32 ulps of its coordinates).")
 @click.option("--backend", default=DEFAULTS["backend"], show_default=True,
               type=click.Choice(CHOICES["backend"]),
               help="Tracing backend: embree, or reference (float64 numpy, every ray against "
