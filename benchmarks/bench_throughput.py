@@ -35,7 +35,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import aobake  # noqa: E402
-from aobake.trace import DEFAULT_CHUNK_RAYS, Tracer, morton_order  # noqa: E402
+from aobake.targets.vertices import vertex_sizes  # noqa: E402
+from aobake.trace import DEFAULT_CHUNK_RAYS, Tracer, morton_order, point_offsets  # noqa: E402
 from aobake.config import BakeConfig  # noqa: E402
 from aobake.scene import load_scene, make_scene  # noqa: E402
 
@@ -50,7 +51,7 @@ def fallback_scene():
     return make_scene(knot.vertices, knot.faces, source="<generated torus>")
 
 
-def bare_loop(tracer, points, normals, ids, threads, chunk_rays):
+def bare_loop(tracer, points, normals, ids, threads, chunk_rays, sizes=None):
     """Pre-generate every chunk's rays (not timed), then time building an embreex scene of
     the tracer's mesh and tracing the rays through it.  Returns (rays, build s, trace s)."""
     from embreex import rtcore_scene
@@ -61,7 +62,10 @@ def bare_loop(tracer, points, normals, ids, threads, chunk_rays):
     chunks = []
     for start in range(0, len(order), per_chunk):
         sel = order[start:start + per_chunk]
-        origins = points[sel] + tracer.offset * normals[sel] - tracer.center
+        rebased = points[sel] - tracer.center
+        offsets = point_offsets(rebased, None if sizes is None else sizes[sel],
+                                tracer.config.ray_offset)
+        origins = rebased + offsets[:, None] * normals[sel]
         rays = tracer.generator.rays(origins, normals[sel], ids[sel])
         chunks.append((rays.origins, rays.directions.reshape(-1, 3).copy()))
     total = sum(len(o) for o, _ in chunks)
@@ -106,7 +110,8 @@ def main():
         _, first = np.unique(keys, axis=0, return_index=True)
         valid = first[np.linalg.norm(scene.vertex_normals[first], axis=1) > 0.5]
         n_bare, t_build, t_trace = bare_loop(tracer, scene.vertices[valid], scene.vertex_normals[valid],
-                                             valid.astype(np.int64), args.threads, DEFAULT_CHUNK_RAYS)
+                                             valid.astype(np.int64), args.threads, DEFAULT_CHUNK_RAYS,
+                                             vertex_sizes(scene)[valid])
         assert n_bare == cast, (n_bare, cast)
         rows.append((wall, t_build, t_trace))
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
