@@ -182,6 +182,7 @@ def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, report_p
     UV lightmap, written to --out."""
     logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING,
                         format="aobake: warning: %(message)s", stream=sys.stderr)
+    previous = _catch_signals()
     try:
         _run(mesh, out, target, threads, quiet,
              dict(config, quantities=quantities or DEFAULTS["quantities"],
@@ -191,6 +192,51 @@ def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, report_p
     except (AobakeError, ValueError) as exc:
         click.echo(f"aobake: error: {exc}", err=True)
         sys.exit(1)
+    except KeyboardInterrupt:  # SIGINT; the output transaction has removed its temporary files
+        click.echo("aobake: error: interrupted (SIGINT): no output written", err=True)
+        sys.exit(130)
+    except Terminated as exc:
+        click.echo(f"aobake: error: terminated ({exc.name}): no output written", err=True)
+        sys.exit(128 + exc.signum)
+    finally:
+        _restore_signals(previous)
+
+
+class Terminated(BaseException):
+    """SIGTERM or SIGHUP arrived: unwinds like KeyboardInterrupt (so every temporary file
+    is removed) and exits 128 + the signal number (143 for SIGTERM)."""
+
+    def __init__(self, signum: int):
+        import signal
+
+        super().__init__(signum)
+        self.signum, self.name = signum, signal.Signals(signum).name
+
+
+def _catch_signals() -> dict:
+    """SIGTERM and SIGHUP handled like SIGINT (only in the main thread, where Python can)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+
+    def handler(signum, frame):
+        raise Terminated(signum)
+
+    previous = {}
+    for name in ("SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signum = getattr(signal, name)
+            previous[signum] = signal.signal(signum, handler)
+    return previous
+
+
+def _restore_signals(previous: dict) -> None:
+    import signal
+
+    for signum, handler in previous.items():
+        signal.signal(signum, handler)
 
 
 def _run(mesh, out, target, threads, quiet, config, files):

@@ -108,7 +108,7 @@ def test_bad_input_one_line_error_no_output(tmp_path, name, content, message):
     assert str(path) in lines[0] and message in lines[0]
     assert "Traceback" not in res.output
     assert not out.exists()
-    assert not [p for p in tmp_path.iterdir() if ".tmp" in p.name]
+    assert not [p for p in tmp_path.iterdir() if "aobake-unfinished" in p.name]
 
 
 def test_refuses_to_overwrite_input(mesh_path, box_ply):
@@ -136,3 +136,57 @@ def test_python_m_and_shim(mesh_path, tmp_path, entry):
                            "--quiet"], capture_output=True, text=True, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     assert out.exists()
+
+
+@pytest.mark.parametrize("report_name, out_name", [("x.npz", "x.npz"), ("ao.obj", "ao.exr")])
+def test_outputs_must_be_distinct_files(mesh_path, tmp_path, report_name, out_name):
+    """--report over --out (or over the default --mesh-out) is refused before any work."""
+    out = tmp_path / out_name
+    res = run_cli(mesh_path, "--out", out, "--report", tmp_path / report_name, "--rays", 4,
+                  "--resolution", 32)
+    assert res.exit_code == 1, res.output
+    assert "every output needs its own file" in res.output and "Traceback" not in res.output
+    assert list(tmp_path.iterdir()) == [mesh_path]
+    # Through a symlink too.
+    link = tmp_path / "link.npz"
+    link.symlink_to(tmp_path / "x.npz")
+    res = run_cli(mesh_path, "--out", tmp_path / "x.npz", "--report", link, "--rays", 4)
+    assert res.exit_code == 1 and "every output needs its own file" in res.output
+
+
+def test_failed_output_leaves_nothing_behind(mesh_path, tmp_path, monkeypatch):
+    """The outputs are one transaction: a report that cannot be written takes the already
+    written --out with it (and no temporary file stays)."""
+    from aobake.outputs import report
+
+    def fail(path, data):
+        from aobake.outputs.atomic import atomic_path
+
+        with atomic_path(path) as tmp:
+            tmp.write_text("{")
+            raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(report, "write_report", fail)
+    res = run_cli(mesh_path, "--out", tmp_path / "x.npz", "--report", tmp_path / "r.json",
+                  "--rays", 4)
+    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert res.output.strip() == f"aobake: error: {tmp_path / 'r.json'}: no space left on device"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [mesh_path.name]
+
+
+def test_sigterm_cleans_up_and_exits_143(mesh_path, tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "ao.npz"
+    proc = subprocess.Popen([sys.executable, "-m", "aobake", str(mesh_path), "--out", str(out),
+                             "--rays", "1000000", "--threads", "1"],
+                            stderr=subprocess.PIPE, text=True)
+    time.sleep(3.0)  # imports (~1 s) done, handlers installed, tracing (minutes) under way
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert err.strip().splitlines()[-1] == "aobake: error: terminated (SIGTERM): no output written"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [mesh_path.name]

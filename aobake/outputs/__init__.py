@@ -8,6 +8,7 @@ written atomically (temporary file + rename).
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -55,13 +56,24 @@ def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=Non
     mesh_out = None if mesh_out is None else Path(mesh_out)
     report = None if report is None else Path(report)
     mesh = None if mesh is None or not isinstance(mesh, (str, os.PathLike)) else Path(mesh)
-    for path in (out, mesh_out, report):
+    roles = [("--out", out), ("--mesh-out" if given else "the default --mesh-out (<out>.obj)",
+                              mesh_out), ("--report", report)]
+    seen = {}
+    if mesh is not None:
+        seen[mesh.resolve()] = "the input mesh"
+    for role, path in roles:
         if path is None:
             continue
-        if mesh is not None and mesh.exists() and path.exists() and path.resolve() == mesh.resolve():
-            raise OutputError(f"{path}: refusing to overwrite the input mesh")
         if not path.parent.resolve().is_dir():
             raise OutputError(f"{path}: directory {path.parent} does not exist")
+        where = path.resolve()  # symlinks and .. resolved: one file, one role
+        if where in seen:
+            hint = (" (choose another with --mesh-out PATH)" if "default" in role else "")
+            what = "overwrite " + seen[where] if seen[where] == "the input mesh" else \
+                f"write {role} over {seen[where]}"
+            raise OutputError(f"{path}: refusing to {what}: every output needs its own file"
+                              f"{hint}")
+        seen[where] = role
     return Outputs(out, target, mesh_out, given, report)
 
 
@@ -86,6 +98,7 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
     r_only : see :class:`WriteOptions`; mesh : the input path (never overwritten).
     Returns the paths written, ``out`` first.
     """
+    from aobake.outputs.atomic import transaction
     from aobake.outputs.report import write_report
     from aobake.outputs.texture import write_atlas_mesh
 
@@ -93,15 +106,33 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
     where = plan(out, target, mesh=mesh, mesh_out=mesh_out, report=report)
     options = WriteOptions(half=half, bit_depth=int(bit_depth), r_only=r_only)
     meta = metadata(result)
-    writer_for(where.out, target).write(where.out, result, meta, options)
     written = [where.out]
-    if where.mesh_out is not None and (result.atlas.new or where.mesh_out_given):
-        write_atlas_mesh(where.mesh_out, result, meta)
-        written.append(where.mesh_out)
-    if where.report is not None:
-        full = dict(result.report, outputs=[str(p) for p in written])
-        write_report(where.report, full)
+    # One transaction: the files appear together once all are written, or none does.
+    with transaction():
+        with _naming(where.out):
+            writer_for(where.out, target).write(where.out, result, meta, options)
+        if where.mesh_out is not None and (result.atlas.new or where.mesh_out_given):
+            with _naming(where.mesh_out):
+                write_atlas_mesh(where.mesh_out, result, meta)
+            written.append(where.mesh_out)
+        if where.report is not None:
+            full = dict(result.report, outputs=[str(p) for p in written])
+            with _naming(where.report):
+                write_report(where.report, full)
     return written
+
+
+@contextlib.contextmanager
+def _naming(path):
+    """An operating-system failure while writing ``path`` (a full disk, a lost mount) becomes
+    an OutputError naming the file and the OS's reason (the CLI's one-line message)."""
+    try:
+        yield
+    except OutputError:
+        raise
+    except OSError as exc:
+        reason = (exc.strerror or str(exc)).lower()
+        raise OutputError(f"{path}: {reason}") from None
 
 
 def write_vertices(path: str | os.PathLike, positions: np.ndarray, faces: np.ndarray,

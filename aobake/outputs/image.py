@@ -41,7 +41,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from aobake.errors import OutputError
-from aobake.outputs.atomic import atomic_path
+from aobake.outputs.atomic import atomic_path, outside_transaction
 from aobake.outputs.report import to_jsonable
 
 log = logging.getLogger(__name__)
@@ -189,7 +189,7 @@ def png_bytes(value, coverage, bit_depth: int = 8, r_only: bool = True,
               metadata: Mapping[str, Any] | None = None) -> bytes:
     """Encode a map as PNG file bytes (e.g. to embed in a GLB); see ``write_ldr``."""
     # OIIO's Python binding has no in-memory writer, so go through a temp file.
-    with tempfile.TemporaryDirectory(prefix="aobake-png-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="aobake-png-") as tmp, outside_transaction():
         path = Path(tmp, "image.png")
         write_ldr(path, value, coverage, bit_depth=bit_depth, r_only=r_only, metadata=metadata)
         return path.read_bytes()
