@@ -29,6 +29,8 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
+import math
+
 import numpy as np
 
 from aobake.vectors import normalize
@@ -153,6 +155,13 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray, weighting: str = "an
     return _normalize(accum)
 
 
+#: the largest coordinate magnitude and the smallest extent a scene may have: beyond them
+#: triangle areas (products of two coordinates) leave float64's range.  Tracing itself
+#: works at any scale (aobake.trace rescales the scene for Embree's float32).
+MAX_COORDINATE = 1e150
+MIN_EXTENT = 1e-150
+
+
 def make_scene(
     vertices,
     faces,
@@ -183,14 +192,28 @@ def make_scene(
     faces = faces.astype(np.int64)
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise InputError(f"{source}: face index out of range (have {len(vertices)} vertices)")
-    bad = ~np.isfinite(vertices[np.unique(faces)]).all(axis=1)
+    bad = ~np.isfinite(vertices).all(axis=1)  # unreferenced ones too: nothing unchecked
     if bad.any():
         raise InputError(f"{source}: {int(bad.sum())} vertices have NaN or infinite coordinates")
+    used = vertices[np.unique(faces)]
+    lo, hi = used.min(axis=0), used.max(axis=0)
+    extent = float((hi - lo).max())
+    largest = float(np.abs(used).max())
+    if largest > MAX_COORDINATE or 0 < extent < MIN_EXTENT:
+        raise InputError(f"{source}: coordinates up to {largest:.3g} and extent {extent:.3g} are "
+                         f"outside what aobake bakes: |coordinates| <= {MAX_COORDINATE:g} and "
+                         f"extent >= {MIN_EXTENT:g} scene units (areas are float64; rescale "
+                         "the mesh)")
     warnings = list(warnings or [])
-    tri = vertices[faces]
+    # Normals and areas from coordinates rebased and scaled by a power of two (exact), so
+    # neither the cross products nor their norms under- or overflow at extreme scales.
+    center = 0.5 * (lo + hi)
+    scale = 2.0 ** -math.frexp(extent)[1] if extent > 0 else 1.0
+    local = (vertices - center) * scale
+    tri = local[faces]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     fnormals = _normalize(cross)  # as face_normals(), sharing the cross product with the areas
-    areas = 0.5 * np.linalg.norm(cross, axis=1)
+    areas = 0.5 * np.linalg.norm(cross, axis=1) / (scale * scale)
     n_degenerate = int(np.count_nonzero(~fnormals.any(axis=1)))
     if n_degenerate == len(faces):
         raise InputError(f"{source}: every face has zero area")
@@ -207,10 +230,10 @@ def make_scene(
         else:
             mode = "angle"
     if mode != "file":
-        vnormals = vertex_normals(vertices, faces, mode)
+        vnormals = vertex_normals(local, faces, mode)
     elif not vnormals[np.unique(faces)].any(axis=1).all():
         # Fill the file's missing (zero) normals rather than leaving holes.
-        computed = vertex_normals(vertices, faces, "angle")
+        computed = vertex_normals(local, faces, "angle")
         vnormals = np.where(vnormals.any(axis=1, keepdims=True), vnormals, computed)
     if uv is not None:
         uv = np.asarray(uv, dtype=np.float64)

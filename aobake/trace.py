@@ -77,15 +77,16 @@ def run_chunks(
             raise
 
 
-def point_offsets(rebased: np.ndarray, sizes: np.ndarray | None, fraction: float) -> np.ndarray:
-    """(n,) float64 origin offsets along the normal, in scene units.
+def point_offsets(local: np.ndarray, sizes: np.ndarray | None, fraction: float) -> np.ndarray:
+    """(n,) float64 origin offsets along the normal, in the tracer's local units.
 
-    rebased : (n, 3) float64 points minus the rebase centre, sizes : (n,) float64 the size of
-    each point's own triangles (None: unknown, as for query points), fraction : ray_offset.
-    The offset is ``fraction * size``, at least OFFSET_ULPS float32 ulps of the point's
-    largest rebased coordinate (what Embree's float32 hit distances can resolve there).
+    local : (n, 3) float64 points in the backend's frame (rebased, scaled by a power of two),
+    sizes : (n,) float64 the size of each point's own triangles in the same units (None:
+    unknown, as for query points), fraction : ray_offset.  The offset is
+    ``fraction * size``, at least OFFSET_ULPS float32 ulps of the point's largest local
+    coordinate (what Embree's float32 hit distances can resolve there).
     """
-    magnitude = np.abs(rebased).max(axis=1).astype(np.float32)
+    magnitude = np.abs(local).max(axis=1).astype(np.float32)
     floor = OFFSET_ULPS * np.spacing(magnitude).astype(np.float64)
     if sizes is None:
         return floor
@@ -133,11 +134,16 @@ class Tracer:
             raise ValueError(f"{scene.source}: scene has zero extent")
         self.diagonal = diagonal
         lo, hi = scene.bounds
-        # Rebase on the bbox centre before the float32 cast (far-from-origin scenes).
+        # The backend's frame: rebased on the bbox centre (far-from-origin scenes) and scaled
+        # by a power of two so the scene spans [-1, 1) (tiny and huge scenes).  A power of two
+        # scales float32 values and spacings exactly, so this changes no bit at ordinary
+        # scales, and Embree's float32 arithmetic never meets its under- or overflow.
         self.center = 0.5 * (lo + hi)
+        self.scale = 2.0 ** -math.frexp(float(np.abs(hi - self.center).max()))[1]
         # Stepping past a back face (--backfaces ignore): OFFSET_ULPS ulps of the scene's
-        # largest rebased coordinate, a length any point of the scene can resolve.
-        self.step = OFFSET_ULPS * float(np.spacing(np.float32(np.abs(hi - self.center).max())))
+        # largest local coordinate, a length any point of the scene can resolve.
+        local_extent = float(np.abs(hi - self.center).max()) * self.scale
+        self.step = OFFSET_ULPS * float(np.spacing(np.float32(local_extent)))
         self.offsets = None  # (min, median, max) of the per-point offsets, set by estimate()
         self.max_distance = config.resolve_max_distance(diagonal)
         self.tau = config.resolve_tau(diagonal)
@@ -148,12 +154,13 @@ class Tracer:
         self.generator = RayGenerator(self.samples, config.weighting, config.seed,
                                       compiled=self.kernels is not None)
         self.need_distance = any(q.needs_distance for q in self.quantities)
-        occluders = [BACKENDS[config.backend](scene.vertices, scene.faces, scene.face_normals,
-                                              self.center, self.step)]
+        local = (scene.vertices - self.center) * self.scale
+        occluders = [BACKENDS[config.backend](local, scene.faces, scene.face_normals, self.step)]
         if config.ground_plane:
             axis = AXES.index(config.up_axis)
             self.ground_height = float(lo[axis])
-            occluders.append(PlaneOccluder(axis, self.ground_height - self.center[axis]))
+            occluders.append(PlaneOccluder(axis, (self.ground_height - self.center[axis])
+                                           * self.scale))
         self.occluders = Union(occluders)
         self.query = query_name(self.need_distance, config.backfaces)
 
@@ -187,6 +194,7 @@ class Tracer:
             "query": self.query,
             "backend": self.config.backend,
             "rebase_center": self.center.tolist(),
+            "trace_scale": self.scale,
             "diagonal": self.diagonal,
         }
         if self.config.ground_plane:
@@ -197,20 +205,23 @@ class Tracer:
                        sizes: np.ndarray | None = None) -> dict:
         """points (k, 3) float64, normals (k, 3) float64 unit, ids (k,) int64, sizes (k,) float64
         own triangle sizes | None -> field dict."""
-        # Rebase first, then offset: the offset is then exact relative to the float32 grid
-        # the backend sees, however far the scene is from the origin.
-        rebased = points - self.center
-        origins = rebased + point_offsets(rebased, sizes, self.config.ray_offset)[:, None] * normals
+        # Into the backend's frame first, then offset: the offset is then exact relative to
+        # the float32 grid the backend sees, however far from the origin and at any scale.
+        local = (points - self.center) * self.scale
+        offsets = point_offsets(local, None if sizes is None else sizes * self.scale,
+                                self.config.ray_offset)
+        origins = local + offsets[:, None] * normals
         rays = self.generator.rays(origins, normals, ids)
         k, groups, m, _ = rays.directions.shape
-        tmax = np.float32(min(self.max_distance, 3.0e38))
+        tmax = np.float32(min(self.max_distance * self.scale, 3.0e38))
         occluded, distance = self.occluders.trace(self.query, rays.origins,
                                                   rays.directions.reshape(-1, 3), tmax)
         shape = (k, groups, m)
         traced = Traced(rays.directions, occluded.reshape(shape),
                         None if distance is None else distance.reshape(shape),
-                        normals, self.samples.iid, self.tau, self.kernels, self.config.confidence,
-                        self.max_distance)
+                        # distances stay in local units: tau per local unit
+                        normals, self.samples.iid, self.tau / self.scale, self.kernels,
+                        self.config.confidence, self.max_distance)
         out = {}
         for q in self.quantities:
             out.update(q.estimate(traced))
@@ -250,8 +261,9 @@ class Tracer:
         rays[valid] = self.samples.rays
 
         if len(valid):
-            used = point_offsets(points[valid] - self.center, None if sizes is None else sizes[valid],
-                                 self.config.ray_offset)
+            used = point_offsets((points[valid] - self.center) * self.scale,
+                                 None if sizes is None else sizes[valid] * self.scale,
+                                 self.config.ray_offset) / self.scale  # scene units
             self.offsets = (float(used.min()), float(np.median(used)), float(used.max()))
 
         def work(i):

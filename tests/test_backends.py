@@ -37,7 +37,7 @@ def _rays(seed, n=4000):
 def test_embree_matches_reference_distances_and_occlusion(seed, tmax):
     mesh = _scene(seed)
     v, f = mesh.vertices, mesh.faces.astype(np.int64)
-    occ = EmbreeBackend(v, f, face_normals(v, f), np.zeros(3), step=1e-5)
+    occ = EmbreeBackend(v, f, face_normals(v, f), step=1e-5)
     o, d = _rays(seed)
     o32, d32 = o.astype(np.float32), d.astype(np.float32)
     ref_t = reference.hit_distance(v, f, o32.astype(float), d32.astype(float), tmax)
@@ -52,7 +52,7 @@ def test_backface_ignoring_matches_reference_front_hits():
     mesh = _scene(7)
     v, f = mesh.vertices, mesh.faces.astype(np.int64)
     fn = face_normals(v, f)
-    occ = EmbreeBackend(v, f, fn, np.zeros(3), step=1e-5)
+    occ = EmbreeBackend(v, f, fn, step=1e-5)
     o, d = _rays(7)
     o32, d32 = o.astype(np.float32), d.astype(np.float32)
     got = occ.front_distance(o32, d32, np.float32(np.inf))
@@ -101,7 +101,7 @@ def test_back_face_just_short_of_the_max_distance(backend):
     (the remaining length is clamped at 0, not handed on negative)."""
     sheet = quad([0, 0, 1.0], 1, 1)  # normal +z: from below, a back face
     v, f = sheet.vertices, sheet.faces.astype(np.int64)
-    tracer = BACKENDS[backend](v, f, face_normals(v, f), np.zeros(3), 1e-5)
+    tracer = BACKENDS[backend](v, f, face_normals(v, f), 1e-5)
     o = np.array([[0.1, 0.2, 0.0]], dtype=np.float32)
     d = np.array([[0.0, 0.0, 1.0]], dtype=np.float32)
     tmax = np.float32(1.0 + 5e-6)
@@ -223,15 +223,18 @@ def test_whole_bake_agrees_on_both_backends(backfaces, quantities, monkeypatch):
     queries, o, d, tmax = zip(*_RecordingReference.calls)
     assert set(queries) == {params["query"]}
     o, d, tmax = (np.concatenate(x).astype(np.float64) for x in (o, d, tmax))
-    # Each ray's point: its origin is the point's, offset along the normal and rebased.
-    # (rebased first, then offset; query points have no triangles: the float32-ulp floor)
-    rebased = points - params["rebase_center"]
-    start = rebased + point_offsets(rebased, None, ref.report["config"]["ray_offset"])[:, None] * normals
+    # Each ray's point: its origin is the point's in the tracer's local frame (rebased, scaled
+    # by a power of two), then offset along the normal (query points have no triangles: the
+    # float32-ulp floor).  Recorded rays and tmax are in local units too.
+    scale = params["trace_scale"]
+    local = (points - params["rebase_center"]) * scale
+    start = local + point_offsets(local, None, ref.report["config"]["ray_offset"])[:, None] * normals
     owner = np.argmin(np.linalg.norm(o[:, None] - start[None], axis=2), axis=1)
     assert np.all(np.linalg.norm(o - start[owner], axis=1) < 1e-6)
     n_rays = np.bincount(owner, minlength=len(points))
     np.testing.assert_array_equal(n_rays, ref.rays)
-    rebased = trimesh.Trimesh(mesh.vertices - params["rebase_center"], mesh.faces, process=False)
+    rebased = trimesh.Trimesh((mesh.vertices - params["rebase_center"]) * scale, mesh.faces,
+                              process=False)
     unsure = np.bincount(owner, weights=_ambiguous_rays(rebased, o, d, tmax, backfaces == "ignore"),
                          minlength=len(points))
 
@@ -256,7 +259,7 @@ def test_whole_bake_agrees_on_both_backends(backfaces, quantities, monkeypatch):
         # each moved by <= eps move their spread by <= eps sqrt(n / (n - 1))).  This catches a
         # systematic 1e-4 relative error in the distances (measured gap 2.8e-5); the measured
         # gap between the backends is 4e-8.
-        ulp = np.spacing(np.float32(np.abs(rebased.vertices).max()))
+        ulp = np.spacing(np.float32(np.abs(rebased.vertices).max())) / scale  # scene units
         eps = params["tau"] * 16 * ulp + 4 * np.spacing(np.float32(1))
         gap = np.abs(embree.obscurance - ref.obscurance)
         assert np.all(gap <= unsure / ref.rays + eps), gap.max()

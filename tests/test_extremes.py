@@ -140,3 +140,44 @@ def test_single_ray(sampler):
     assert np.all(res.rays == 1)
     # No spread to measure from one ray: the worst-case bound 1 / (2 sqrt(1)).
     assert np.all(res.ao_stderr == 0.5)
+
+
+@pytest.mark.parametrize("scale, shift", [(1e-140, 0.0), (1e-20, 0.0), (1e15, 0.0), (1e140, 0.0),
+                                          (1.0, 1e12), (1e-30, 1e-20)])
+def test_extreme_scales_bake_the_same_ao(scale, shift):
+    """The tracer rescales every scene by a power of two for Embree's float32: any scale the
+    float64 input can hold bakes the same AO within the error bars (the audit saw 1e-15 give
+    0.34 for 0.48, 1e15 give 1.0 and a 1e12 offset give 0.0 everywhere)."""
+    import warnings
+
+    from aobake.scene import make_scene
+
+    mesh = trimesh.util.concatenate([trimesh.creation.icosphere(subdivisions=2),
+                                     trimesh.creation.box(extents=[4, 0.2, 4])])
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    base = aobake.bake(make_scene(v, f), rays=64, sampler="random")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # and no numpy warning on the way
+        moved = aobake.bake(make_scene(v * scale + shift, f), rays=64, sampler="random")
+    se = np.hypot(base.ao_stderr, moved.ao_stderr)
+    k = z_bound(len(se), None)
+    assert np.all(np.abs(moved.ao - base.ao) <= k * se), np.max(np.abs(moved.ao - base.ao) / se)
+
+
+@pytest.mark.parametrize("scale", [1e-200, 1e200])
+def test_scales_beyond_float64_areas_are_refused_naming_the_limit(scale):
+    from aobake.errors import InputError
+    from aobake.scene import make_scene
+
+    box = trimesh.creation.box()
+    with pytest.raises(InputError, match=r"box\.obj: .*\|coordinates\| <= 1e\+150 and extent >= 1e-150"):
+        make_scene(box.vertices * scale, box.faces, source="box.obj")
+
+
+def test_unreferenced_nan_vertex_is_refused_at_load(tmp_path):
+    path = tmp_path / "nan.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv nan 0 0\nf 1 2 3\n")
+    from aobake.errors import InputError
+
+    with pytest.raises(InputError, match=r"nan\.obj: 1 vertices have NaN"):
+        aobake.load_scene(path)

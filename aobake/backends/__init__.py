@@ -6,5 +6,5 @@ The CLI's ``--backend`` choices come from ``BACKENDS``.
 from aobake.backends.embree import EmbreeBackend
 from aobake.backends.reference import ReferenceBackend
 
-#: backend name -> class built as cls(vertices, faces, face_normals, center, step)
+#: backend name -> class built as cls(local vertices, faces, face_normals, step)
 BACKENDS = {"embree": EmbreeBackend, "reference": ReferenceBackend}

@@ -1,13 +1,16 @@
 """What a tracing backend is, and the registry the CLI's ``--backend`` reads.
 
-A backend is built once per bake from the scene's triangles, already rebased on
-``center`` (so far-from-origin scenes keep their float32 precision):
+A backend is built once per bake from the scene's triangles in the tracer's local
+frame: rebased on the bounding-box centre (far-from-origin scenes keep their
+float32 precision) and scaled by a power of two so the scene spans [-1, 1) (tiny
+and huge scenes stay inside float32's range):
 
-    Backend(vertices (v, 3) float64, faces (f, 3) int64, face_normals (f, 3) float64 unit,
-            center (3,) float64, step float)
+    Backend(vertices (v, 3) float64 local, faces (f, 3) int64, face_normals (f, 3) float64
+            unit, step float local units)
 
 and answers four queries, each on origins (n, 3) float32 (rebased), directions
-(n, 3) float32 unit and tmax (scalar or (n,) float32), returning (n,) arrays:
+(n, 3) float32 unit and tmax (scalar or (n,) float32), all in local units, returning
+(n,) arrays:
 
 * ``occluded`` : bool, any hit with t in (0, tmax] (AO and bent normals: the
   cheapest query there is).

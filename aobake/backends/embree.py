@@ -1,7 +1,8 @@
 """Embree through embreex: float32, rebased coordinates, one-shot queries (the default backend).
 
-The backend owns float32: the scene is recentred on ``center`` before the cast,
-and origins handed in are already rebased.  ``occluded`` is Embree's occlusion
+The backend owns float32: the tracer hands it the scene already in its local
+frame (rebased on the bounding-box centre and scaled by a power of two), and
+origins in the same frame.  ``occluded`` is Embree's occlusion
 (any-hit) query, the cheapest there is; ``distance`` its distance query;
 ``intersect`` the closest-hit query with the primitive id, which the front-face
 queries of ``--backfaces ignore`` need (they cost at least the ~30% more of a
@@ -23,13 +24,13 @@ class EmbreeBackend(TriangleBackend):
 
     name = "embree"
 
-    def __init__(self, vertices, faces, face_normals, center, step):
+    def __init__(self, vertices, faces, face_normals, step):
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
 
         super().__init__(face_normals, step)
         self._scene = rtcore_scene.EmbreeScene()
-        local = (np.asarray(vertices, dtype=np.float64) - center).astype(np.float32)
+        local = np.asarray(vertices, dtype=np.float64).astype(np.float32)
         TriangleMesh(self._scene, local, np.ascontiguousarray(faces, dtype=np.int32))
         # Commit now, on one thread, rather than lazily inside the first worker's run().
         probe = np.zeros((1, 3), dtype=np.float32)

@@ -258,15 +258,15 @@ class ReferenceBackend(TriangleBackend):
     """The float64 numpy intersector as a bake backend (``--backend reference``).
 
     Slow (every ray against every triangle), for validating the Embree backend on
-    small scenes: the geometry is rebased on ``center`` in float64 and the float32
+    small scenes: the geometry stays float64 (in the tracer's local frame) and the float32
     rays are widened to float64, so the only float32 rounding left is the rays'.
     """
 
     name = "reference"
 
-    def __init__(self, vertices, faces, face_normals, center, step):
+    def __init__(self, vertices, faces, face_normals, step):
         super().__init__(face_normals, step)
-        self._vertices = np.asarray(vertices, dtype=np.float64) - center
+        self._vertices = np.asarray(vertices, dtype=np.float64)
         self._faces = np.asarray(faces, dtype=np.int64)
 
     def _first_hit(self, origins, directions, tmax):
