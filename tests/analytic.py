@@ -117,3 +117,15 @@ def dof_for(sampler: str, rays: int) -> float | None:
     if sampler == "random":
         return None if rays > 100 else rays - 1
     return min(REPLICATES, rays) - 1
+
+
+def polygon_form_factors(points, normals, corners) -> np.ndarray:
+    """:func:`polygon_form_factor` of many points at once: points, normals (n, 3), corners (k, 3)
+    (one polygon, wholly above every point's tangent plane) -> (n,) float64."""
+    r = np.asarray(corners, float)[None, :, :] - np.asarray(points, float)[:, None, :]
+    a, b = r, np.roll(r, -1, axis=1)
+    cross = np.cross(a, b)
+    norm = np.linalg.norm(cross, axis=2)
+    angle = np.arctan2(norm, np.einsum("nkc,nkc->nk", a, b))
+    total = np.einsum("nk,nkc,nc->n", angle / norm, cross, np.asarray(normals, float))
+    return np.abs(total) / (2 * np.pi)

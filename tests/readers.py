@@ -183,6 +183,8 @@ def read_image(path) -> tuple[np.ndarray, list[str], dict[str, Any]]:
             raise OutputError(f"{path}: {inp.geterror() or 'cannot read pixels'}")
         attrs = {p.name: p.value for p in spec.extra_attribs}
         attrs["oiio:format"] = str(spec.format)
+        # per-channel formats of a mixed file (--half keeps counts float32); [] when uniform
+        attrs["oiio:channelformats"] = [str(f) for f in spec.channelformats]
         names = list(spec.channelnames)
     finally:
         inp.close()

@@ -53,7 +53,12 @@ def test_exr_round_trip(tmp_path, maps, half):
         else:
             np.testing.assert_array_equal(got[name], value.astype(np.float32))
     np.testing.assert_array_equal(got["rays"], maps["rays"])
-    assert attrs["oiio:format"] == ("half" if half else "float")
+    if half:  # half everywhere but the counts, which stay float32 (exact, finite)
+        formats = dict(zip(names, attrs["oiio:channelformats"]))
+        assert {n: f for n, f in formats.items() if n != "rays"} == dict.fromkeys(
+            [n for n in names if n != "rays"], "half") and formats["rays"] == "float"
+    else:
+        assert attrs["oiio:format"] == "float"
     assert attrs["compression"] == "zip"
     assert attrs["aobake:backend"] == "embree"
     assert attrs["aobake:seed"] == "3" and json.loads(attrs["aobake:sizes"]) == [1, 2]
@@ -165,3 +170,15 @@ def test_png_bytes_decodes(tmp_path):
     assert pixels.shape == (H, W, 4)
     np.testing.assert_array_equal(np.rint(pixels[..., 0] * 255), np.rint(value * 255))
     assert np.all(pixels[..., 1:3] == 0)  # r_only by default for glTF occlusion
+
+
+def test_half_exr_keeps_ray_counts_exact_and_finite(tmp_path):
+    """--half with more than 65,504 rays per texel wrote inf into 'rays' (half's largest
+    finite value): counts stay float32, exact, and nothing non-finite is written."""
+    path = tmp_path / "h.exr"
+    rays = np.full((2, 3), 1_000_001.0)
+    write_exr(path, {"ao": np.full((2, 3), 0.5), "rays": rays}, half=True)
+    pixels, names, attrs = read_image(path)
+    assert np.isfinite(pixels).all()
+    np.testing.assert_array_equal(pixels[..., names.index("rays")], rays)
+    assert pixels[..., names.index("ao")][0, 0] == 0.5

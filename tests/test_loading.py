@@ -139,3 +139,30 @@ def test_obj_faces_keep_their_usemtl(tmp_path):
     np.testing.assert_array_equal(scene.face_material, [2, 0, 1, 0])
     assert scene.materials[1]["base_color_factor"] == [0.2, 0.4, 0.6, 1.0]
     assert scene.materials[2]["base_color_factor"] is None
+
+
+@pytest.mark.parametrize("name, data", [
+    ("latin.stl", b"solid caf\xe9\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"
+                  b"vertex 0 1 0\nendloop\nendfacet\nendsolid caf\xe9\n"),
+    ("latin.off", b"OFF\n# caf\xe9\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"),
+])
+def test_text_meshes_with_latin1_names_read(tmp_path, name, data):
+    """ASCII STL/OFF that are not UTF-8 need trimesh's charset detection (a declared
+    dependency: without it every such file failed with ModuleNotFoundError)."""
+    path = tmp_path / name
+    path.write_bytes(data)
+    assert len(load_scene(path).faces) == 1
+
+
+@pytest.mark.parametrize("name, data", [
+    ("bad.stl", b"solid x\nfacet garbage\n"),
+    ("bad.off", b"OFF\n3 1\n0 0\n"),
+    ("bad.ply", b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n0 0\n"),
+])
+def test_corrupt_text_meshes_are_input_errors_naming_the_file(tmp_path, name, data):
+    from aobake.errors import InputError
+
+    path = tmp_path / name
+    path.write_bytes(data)
+    with pytest.raises(InputError, match=name):
+        load_scene(path)

@@ -47,6 +47,9 @@ from aobake.outputs.report import to_jsonable
 log = logging.getLogger(__name__)
 
 LDR_SUFFIXES = (".png", ".tif", ".tiff")
+#: EXR channels kept float32 under --half: counts, which half would round above 2048 and
+#: turn into inf above 65504
+FULL_PRECISION = ("rays",)
 #: oiio:ColorSpace name that makes OIIO tag a PNG with gAMA = 1.0 (linear).
 LINEAR_COLORSPACE = "lin_rec709_scene"
 
@@ -68,7 +71,8 @@ def _metadata_attributes(metadata: Mapping[str, Any] | None) -> dict[str, str]:
     return attrs
 
 
-def _write(path, pixels: np.ndarray, fmt, channel_names, attributes: Mapping[str, Any]) -> None:
+def _write(path, pixels: np.ndarray, fmt, channel_names, attributes: Mapping[str, Any],
+           channel_formats=None) -> None:
     """Write (H, W, C) pixels to path via a temp file; raise OutputError on failure."""
     oiio = _oiio()
     height, width, n_channels = pixels.shape
@@ -78,6 +82,8 @@ def _write(path, pixels: np.ndarray, fmt, channel_names, attributes: Mapping[str
             raise OutputError(f"{path}: {oiio.geterror() or 'no OpenImageIO writer for this file type'}")
         spec = oiio.ImageSpec(width, height, n_channels, fmt)
         spec.channelnames = tuple(channel_names)
+        if channel_formats is not None:
+            spec.channelformats = tuple(oiio.TypeDesc(f) for f in channel_formats)
         for name, value in attributes.items():
             spec.attribute(name, value)
         try:
@@ -106,7 +112,8 @@ def write_exr(path, channels: Mapping[str, np.ndarray], metadata: Mapping[str, A
     metadata : stored as one string attribute 'aobake:<key>' per key (JSON
         text for non-strings) plus 'aobake:metadata', the whole dict as JSON.
     half : store 16-bit half floats instead of 32-bit floats (about 3 decimal
-        digits; integers such as ray counts are exact only up to 2048).
+        digits, largest finite 65504); the ``FULL_PRECISION`` channels (ray counts) stay
+        float32, so they stay exact and finite at any ray count.
     """
     if not channels:
         raise ValueError("write_exr needs at least one channel")
@@ -120,8 +127,12 @@ def write_exr(path, channels: Mapping[str, np.ndarray], metadata: Mapping[str, A
     attrs: dict[str, Any] = {"compression": "zip", "Software": "aobake"}
     attrs.update(_metadata_attributes(metadata))
     attrs["aobake:channels"] = json.dumps(names)
-    # The pixels are handed over as float32; OIIO converts to half if asked.
-    _write(path, np.stack(arrays, axis=-1), oiio.HALF if half else oiio.FLOAT, names, attrs)
+    # The pixels are handed over as float32; OIIO converts to half where asked.
+    formats = None
+    if half:
+        formats = [oiio.FLOAT if name in FULL_PRECISION else oiio.HALF for name in names]
+    _write(path, np.stack(arrays, axis=-1), oiio.HALF if half else oiio.FLOAT, names, attrs,
+           formats)
 
 
 def quantize(x, bit_depth: int) -> np.ndarray:
