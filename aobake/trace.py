@@ -134,15 +134,18 @@ class Tracer:
             raise ValueError(f"{scene.source}: scene has zero extent")
         self.diagonal = diagonal
         lo, hi = scene.bounds
-        # The backend's frame: rebased on the bbox centre (far-from-origin scenes) and scaled
-        # by a power of two so the scene spans [-1, 1) (tiny and huge scenes).  A power of two
-        # scales float32 values and spacings exactly, so this changes no bit at ordinary
-        # scales, and Embree's float32 arithmetic never meets its under- or overflow.
-        self.center = 0.5 * (lo + hi)
-        self.scale = 2.0 ** -math.frexp(float(np.abs(hi - self.center).max()))[1]
+        # The backend's frame: rebased on the per-axis median of the vertices (far-from-origin
+        # scenes; the median, not the bbox centre, so a stray far-away triangle does not move
+        # the bulk of the scene to large float32 coordinates, where its rays would need larger
+        # offsets) and scaled by a power of two so the scene spans [-1, 1] (tiny and huge
+        # scenes).  A power of two scales float32 values and spacings exactly, so this changes
+        # no bit at ordinary scales, and Embree's float32 arithmetic never under- or overflows.
+        self.center = np.median(scene.vertices[np.unique(scene.faces)], axis=0)
+        reach = float(np.maximum(np.abs(hi - self.center), np.abs(lo - self.center)).max())
+        self.scale = 2.0 ** -math.frexp(reach)[1]
         # Stepping past a back face (--backfaces ignore): OFFSET_ULPS ulps of the scene's
         # largest local coordinate, a length any point of the scene can resolve.
-        local_extent = float(np.abs(hi - self.center).max()) * self.scale
+        local_extent = reach * self.scale
         self.step = OFFSET_ULPS * float(np.spacing(np.float32(local_extent)))
         self.offsets = None  # (min, median, max) of the per-point offsets, set by estimate()
         self.max_distance = config.resolve_max_distance(diagonal)

@@ -31,7 +31,7 @@ from scipy import stats
 
 import aobake
 from aobake.config import OFFSET_ULPS, BakeConfig
-from aobake.samplers import SAMPLERS
+from aobake.samplers import SAMPLERS, sample_set
 from aobake.targets.texels.raster import rasterize
 from analytic import (ceiling_obscurance, combine, floor_and_ceiling, polygon,
                       polygon_form_factors, quad, up)
@@ -98,11 +98,13 @@ RANGES = {"interior": (0.1, 0.9), "near0": (1e-4, 1e-2), "near1": (0.99, 0.9999)
           "elevation": (0.1, 0.9)}
 ELEVATION_AO = (0.15, 0.37, 0.62, 0.86)
 SEEDS = 4
-#: (point, seed) pairs per case.  Power (one-sided alpha = FWER / 60 = 1.7e-6, z = 4.65):
-#: with 4000 pairs the test fails when the observed coverage is below 91.1%; a true coverage
-#: of 90% fails with probability 0.99, 92% with 0.02, and 93% and 95% are 5.8 standard
-#: errors of the count apart.  4096 rays get 2000 pairs (8M rays per case): the test then
-#: fails below 90.3% observed (a true 89% fails with probability 0.97, 92% with 0.002).
+#: (point, seed) pairs per case.  Power (one-sided binomial, alpha = FWER / 60 = 1.7e-6):
+#: with 4000 pairs a case fails when at most 91.0% of its trials are covered; a true coverage
+#: of 90% then fails with probability 0.99, 91% with 0.53, 92% with 0.01 (93% and 95% are
+#: 5.3 standard errors of the observed fraction apart: distinguishable in principle, but the
+#: test only catches coverage clearly below the promise).  4096 rays get 2000 pairs (8M rays
+#: per case): a case fails at <= 90.2% observed (true 89%: probability 0.96, 90%: 0.60,
+#: 92%: 0.002).
 PAIRS = {16: 4000, 64: 4000, 256: 4000, 1024: 4000, 4096: 2000}
 
 
@@ -165,6 +167,10 @@ def test_interval_coverage_at_least_93_percent(sampler, rays, family):
     FWER / (samplers x ray counts x families)).  Also (3.): no stderr is 0, the AO is not
     exact (at AO ~ 1e-4 and ~ 0.9999 all rays often agree: the stderr is then 1/n)."""
     data = coverage_data(family, sampler, rays)
+    if family == "elevation":  # no sampler exact by accident: m AO off the integers
+        m = sample_set(sampler, rays).m
+        frac = np.abs(m * data["exact"] - np.rint(m * data["exact"]))
+        assert frac.min() > 0.03, frac.min()
     lo, hi = RANGES[family]
     assert np.all((data["exact"] > 0.8 * lo) & (data["exact"] < 1 - 0.8 * (1 - hi)))
     assert np.all(data["stderr"] > 0), "a stderr of 0 where the AO is not exact"
@@ -198,7 +204,7 @@ CALIBRATION_RAYS = (64, 256, 1024)
 def test_ao_stderr_rms_calibrated_on_interior_points(sampler, rays):
     """RMS(error) / RMS(stderr) in [0.9, 1.1]: asserted as 'the ratio's sampling interval
     (two-sided, FWER / 9) overlaps [0.9, 1.1]', i.e. the point estimate lies in [0.9, 1.1]
-    widened by z of its sampling errors.  With 4000 pairs the interval is about +-4%."""
+    widened by z of its sampling errors.  With 4000 pairs the interval is about +-5%."""
     data = coverage_data("interior", sampler, rays)
     z = z_two_sided(len(SAMPLERS) * len(CALIBRATION_RAYS))
     ratio, lo, hi = rms_ratio_interval(data["ao"] - data["exact"], data["stderr"], z)
@@ -390,8 +396,10 @@ def test_texel_stderr_and_interval(texel_scene, sampler, texel_samples):
         ch = {name: image[floor].astype(np.float64) for name, image in res.channels.items()}
         errors.append(ch["ao"] - expected[floor])
         variances.append(ch["ao_stderr"] ** 2)
-        covered.append((ch["ao_ci_low"] <= expected[floor]) & (expected[floor] <= ch["ao_ci_high"]))
-    e2, s2, covered = np.square(np.concatenate(errors)), np.concatenate(variances), np.concatenate(covered)
+        inside = (ch["ao_ci_low"] <= expected[floor]) & (expected[floor] <= ch["ao_ci_high"])
+        covered.append(inside)
+    e2, s2 = np.square(np.concatenate(errors)), np.concatenate(variances)
+    covered = np.concatenate(covered)
     checks = len(SAMPLERS) * len(TEXEL_K) * 2
     assert np.all(s2 > 0)
     q = e2.sum() / s2.sum()
@@ -432,21 +440,25 @@ def window_bake(sampler: str):
 
 
 def test_bent_normal_stderr_is_pi_over_2_with_fewer_than_two_escapes(sampler):
+    """pi/2 below two escaping rays; with QMC also below two replicates with an escape
+    (escapes inside one replicate show no spread), which the outputs cannot show, so there
+    the test asks only that two or more escaping rays never give 0."""
     res, escaped = window_bake(sampler)
     few = escaped < 2
     assert few.sum() > 500 and (~few).sum() > 200, np.bincount(escaped)
     assert np.all(res.bent_normal_stderr[few] == np.pi / 2)
-    assert np.all(res.bent_normal_stderr[~few] < np.pi / 2)
+    if sampler == "random":
+        assert np.all(res.bent_normal_stderr[~few] < np.pi / 2)
+    else:
+        assert np.all(res.bent_normal_stderr[~few] > 0)
+        assert np.mean(res.bent_normal_stderr[~few] < np.pi / 2) > 0.5
 
 
 @pytest.mark.parametrize("sampler", [
     "random",
-    pytest.param("stratified", marks=pytest.mark.xfail(strict=True, reason=(
-        "library bug: with >= 2 escaping rays all in ONE replicate the replicate spread of "
-        "the bent normal is parallel to it, so bent_normal_stderr is 0 (the one-escape "
-        "argument of quantities/bent_normal.py applies, but it counts rays, not replicates "
-        "with an escape); stratified's 2x4 grid puts 2 of the 8 rays of a replicate near "
-        "the zenith, sobol's net never does"))),
+    # stratified's 2 x 4 grid has only 2 elevation strata, so two rays of one replicate can
+    # both reach the window: the case that needs two replicates with an escape, not two rays.
+    "stratified",
     "sobol"])
 def test_bent_normal_stderr_is_positive_where_two_rays_escape(sampler):
     res, escaped = window_bake(sampler)
@@ -502,8 +514,9 @@ def stray_bakes(kind: str, sampler: str, target: str):
 @pytest.mark.parametrize("target", ["points", "vertices"])
 @pytest.mark.parametrize("kind", ["zero-area", "tiny"])
 def test_stray_far_triangle_changes_ao_only_within_its_errors(sampler, kind, target):
-    """Not bit-identical: the rebase centre moves ~500 units, so the float32 geometry, the
-    origins and the 64-ulp offset floor all change (see the xfail below).  Each point's two
+    """Not bit-identical: the stray triangle's three vertices move the rebase centre (the
+    per-axis median of the vertices) a little and the power-of-two scale a lot, so the
+    float32 geometry may round differently.  Each point's two
     estimates must then agree within their errors: |a - b| <= z sqrt(se_a^2 + se_b^2)
     (conservative: the two share their rays, so their difference varies less), Bonferroni
     over points x samplers x kinds x targets."""
@@ -517,11 +530,12 @@ def test_stray_far_triangle_changes_ao_only_within_its_errors(sampler, kind, tar
 
 def test_stray_far_triangle_query_offsets_follow_the_rule():
     """Query points have no triangles: their offset is OFFSET_ULPS float32 ulps of their
-    coordinates rebased on the bounding-box centre (which the stray triangle moves)."""
+    coordinates rebased on the per-axis median of the vertices (robust to a stray one)."""
     for mesh in (disc_scene(), combine(disc_scene(), stray("tiny"))):
         res = aobake.bake_points(mesh, STRAY_POINTS, up(len(STRAY_POINTS)), rays=16, threads=1)
-        lo, hi = mesh.bounds
-        assert np.allclose(res.report["parameters"]["rebase_center"], 0.5 * (lo + hi))
+        used = np.unique(np.asarray(mesh.faces))
+        assert np.allclose(res.report["parameters"]["rebase_center"],
+                           np.median(np.asarray(mesh.vertices)[used], axis=0))
         expected = query_offsets(STRAY_POINTS, res.report)
         params = res.report["parameters"]
         assert params["ray_offset"] == pytest.approx(float(np.median(expected)), rel=1e-12)
@@ -529,20 +543,19 @@ def test_stray_far_triangle_query_offsets_follow_the_rule():
                                                            rel=1e-12)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "library bug (docs/conventions.md 'Geometry', config.DEFAULT_RAY_OFFSET comment): 'a "
-    "stray far-away triangle changes no point's offset' -- but the OFFSET_ULPS floor is taken "
-    "on coordinates rebased on the bounding-box centre, which the stray triangle moves ~500 "
-    "units: every vertex offset grows from <= 7.6e-6 to 1.95e-3 (x256), the floor dominating "
-    "1e-5 x triangle size"))
 def test_stray_far_triangle_changes_no_vertex_offset():
+    """docs/conventions.md: 'a stray far-away triangle changes no point's offset' (the
+    float32 floor is taken about the median of the vertices, which one triangle barely
+    moves; a bbox centre would move ~500 units and the offsets x256)."""
     base, moved = stray_bakes("tiny", "sobol", "vertices")
-    before = base.report["parameters"]["ray_offset_range"]
-    after = moved.report["parameters"]["ray_offset_range"]
-    # 'Unchanged within float32 granularity': by at most one ulp of the largest coordinate
-    # of the scene without the stray triangle.
+    before, after = base.report["parameters"], moved.report["parameters"]
+    # The scene's own vertices keep their offsets (the stray triangle's three vertices,
+    # 1e3 away, have large float32 ulps and so large offsets of their own: the range's
+    # maximum is theirs).  The smallest offset and the median (3 more of 459 vertices move
+    # it by less than a rank) stay, within one float32 ulp of the scene's largest coordinate.
     ulp = float(np.spacing(np.float32(np.abs(disc_scene().vertices).max())))
-    assert abs(after[1] - before[1]) <= ulp, (before, after)
+    assert abs(after["ray_offset_range"][0] - before["ray_offset_range"][0]) <= ulp
+    assert abs(after["ray_offset"] - before["ray_offset"]) <= ulp, (before, after)
 
 
 def test_ground_plane_far_below_changes_nothing(sampler):
@@ -576,11 +589,13 @@ def test_intervals_nest_by_confidence(sampler, tmp_path):
     opts = dict(rays=64, seed=2, sampler=sampler, threads=1)
     runs = [aobake.bake(path, confidence=c, **opts) for c in (0.5, 0.95, 0.99)]
     for run in runs[1:]:
-        assert np.array_equal(run.ao, runs[0].ao) and np.array_equal(run.ao_stderr, runs[0].ao_stderr)
+        assert np.array_equal(run.ao, runs[0].ao)
+        assert np.array_equal(run.ao_stderr, runs[0].ao_stderr)
     low = [r.ao_ci_low for r in runs]
     high = [r.ao_ci_high for r in runs]
-    assert np.all(low[2] <= low[1]) and np.all(low[1] <= low[0]) and np.all(low[0] <= runs[0].ao)
-    assert np.all(runs[0].ao <= high[0]) and np.all(high[0] <= high[1]) and np.all(high[1] <= high[2])
+    assert np.all(low[2] <= low[1]) and np.all(low[1] <= low[0])
+    assert np.all(low[0] <= runs[0].ao) and np.all(runs[0].ao <= high[0])
+    assert np.all(high[0] <= high[1]) and np.all(high[1] <= high[2])
     # strictly wider somewhere (the levels are not ignored)
     assert np.any(low[2] < low[0]) and np.any(high[2] > high[0])
     for confidence, run in ((0.5, runs[0]), (0.99, runs[2])):

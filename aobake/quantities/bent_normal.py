@@ -28,9 +28,9 @@ def estimate(traced: Traced) -> dict:
     P = I - b b^T / |b|^2 (the expected squared angle to the true bent normal).
     Cov(b) comes from the same source as the AO error: i.i.d. per-ray
     contributions (``random``) or the spread of the R replicate means.  Capped at
-    pi/2, which is also the value when fewer than two rays escape (one escaping ray
-    fixes the direction of b exactly in every replicate that has it, so the spread says
-    nothing about the error, which is then up to 90 degrees) or there is no spread.
+    pi/2, which is also the value when fewer than two rays (i.i.d.) or two replicates
+    (QMC) have an escaping ray (then the spread says nothing about the error, which can
+    be 90 degrees) or there is no spread.
     """
     directions, occluded, normals = traced.directions, traced.occluded, traced.normals
     k, groups, m, _ = directions.shape
@@ -55,7 +55,10 @@ def estimate(traced: Traced) -> dict:
         var = np.maximum(perp2, 0.0) / (count * (count - 1))
         with np.errstate(divide="ignore", invalid="ignore"):
             angle = np.sqrt(var) / length
-        escaped = k_escaped(occluded)
+        # A spread needs two independent contributions with an escape: two rays (i.i.d.) or
+        # two replicates (QMC: escapes inside one replicate tell nothing about its error).
+        escaped = k_escaped(occluded) if traced.iid else \
+            np.count_nonzero((~occluded).any(axis=2), axis=1)
         known = ok & (escaped >= 2)
         stderr = np.where(known, np.minimum(angle, NO_INFORMATION_ANGLE), NO_INFORMATION_ANGLE)
     return {"bent_normal": bent, "bent_normal_stderr": stderr}
