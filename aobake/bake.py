@@ -17,6 +17,7 @@ from typing import Callable
 
 from aobake import report as reports
 from aobake.config import BakeConfig
+from aobake.errors import InputError
 from aobake.results import BakeResult, TexelResult
 from aobake.scene import load_scene
 from aobake.targets import PointsTarget, TexelTarget, VertexTarget
@@ -41,6 +42,10 @@ def run(
     """
     if getattr(target, "check", None):
         target.check(config)
+    if threads is not None and (isinstance(threads, bool) or int(threads) != threads or threads < 1):
+        raise InputError(f"threads must be a positive integer (or None: all cores), got {threads}")
+    if int(chunk_rays) != chunk_rays or chunk_rays < 1:
+        raise InputError(f"chunk_rays must be a positive integer, got {chunk_rays}")
     threads = threads or default_threads()
     timings: dict = {}
     start = clock = time.perf_counter()

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import click
 
-from aobake.config import CHOICES, DEFAULTS, parse_distance
+from aobake.config import CHOICES, DEFAULTS, parse_distance, parse_resolution
 from aobake.errors import AobakeError
 from aobake.outputs.registry import MESH_OUTPUTS, suffixes
 from aobake.quantities import QUANTITIES
@@ -59,6 +59,19 @@ class TauType(click.ParamType):
         return tau
 
 
+class ResolutionType(click.ParamType):
+    """N or WxH texels (a usage error, exit 2, when it is not)."""
+
+    name = "resolution"
+
+    def convert(self, value, param, ctx):
+        try:
+            parse_resolution(value)
+        except ValueError as exc:
+            self.fail(str(exc), param, ctx)
+        return value
+
+
 class QuantityType(click.Choice):
     """A registry quantity; ``bent-normal`` is accepted for ``bent_normal``."""
 
@@ -95,7 +108,7 @@ _VERTEX, _TEXEL = ", ".join(suffixes("vertices")), ", ".join(suffixes("texels"))
 
 
 @click.command(epilog=EPILOG, context_settings={"help_option_names": ["-h", "--help"]})
-@click.argument("mesh", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("mesh", type=click.Path(path_type=Path))
 @click.option("--out", "-o", "out", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help=f"Output file; the extension picks the format. Per vertex: {_VERTEX}. "
                    f"Lightmap: {_TEXEL} (.glb with --target texels: occlusionTexture).")
@@ -149,7 +162,7 @@ _VERTEX, _TEXEL = ", ".join(suffixes("vertices")), ", ".join(suffixes("texels"))
 @click.option("--threads", default=None, type=click.IntRange(min=1),
               help="Worker threads. Default: all cores.")
 @click.option("--resolution", default=str(DEFAULTS["resolution"][0]), show_default=True,
-              help="Lightmap size: N (square) or WxH.")
+              type=ResolutionType(), help="Lightmap size: N (square) or WxH.")
 @click.option("--padding", default=DEFAULTS["padding"], show_default=True,
               type=click.IntRange(min=0),
               help="Texels of dilation into the gutters (seamless bilinear/mip lookups).")
@@ -182,6 +195,7 @@ def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, report_p
     UV lightmap, written to --out."""
     logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING,
                         format="aobake: warning: %(message)s", stream=sys.stderr)
+    _route_python_warnings(quiet)
     previous = _catch_signals()
     try:
         _run(mesh, out, target, threads, quiet,
@@ -200,6 +214,18 @@ def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, report_p
         sys.exit(128 + exc.signum)
     finally:
         _restore_signals(previous)
+
+
+def _route_python_warnings(quiet: bool) -> None:
+    """A Python or numpy warning that escapes the library reaches the user as one
+    ``aobake: warning:`` line (never a source line and a stack position)."""
+    import warnings
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if not quiet:
+            click.echo(f"aobake: warning: {category.__name__}: {message}", err=True)
+
+    warnings.showwarning = show
 
 
 class Terminated(BaseException):

@@ -11,6 +11,8 @@ from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
+from aobake.errors import InputError
+
 from aobake.backends import BACKENDS
 from aobake.quantities import QUANTITIES, canonical
 from aobake.samplers import SAMPLERS
@@ -33,6 +35,10 @@ DEFAULT_RAY_OFFSET = 1e-5
 #: float32 ulps of a point's (rebased) coordinates its origin is lifted at least: Embree's
 #: hit distances carry a few ulps of error, so 64 keeps a ray off its own triangle.
 OFFSET_ULPS = 64
+#: largest rays per point (vertex, query point or texel): one point's rays are made and
+#: traced in one piece (about 40 bytes each: 0.7 GB at this limit), so more is refused up
+#: front rather than failing for memory half-way.
+MAX_RAYS = 1 << 24
 #: default tau for obscurance, in units of 1 / diagonal: rho reaches 1 - 1/e at a tenth of the scene size.
 DEFAULT_TAU_DIAGONALS = 10.0
 
@@ -42,7 +48,7 @@ def parse_resolution(value) -> tuple[int, int]:
     if isinstance(value, str):
         parts = value.lower().split("x")
         if len(parts) not in (1, 2) or not all(p.strip().isdigit() for p in parts):
-            raise ValueError(f"resolution must be N or WxH, got {value!r}")
+            raise InputError(f"resolution must be N or WxH, got {value!r}")
         dims = [int(p) for p in parts]
     elif isinstance(value, (int, np.integer)) and not isinstance(value, bool):
         dims = [int(value)]
@@ -50,12 +56,12 @@ def parse_resolution(value) -> tuple[int, int]:
         try:
             dims = [int(v) for v in value]
         except (TypeError, ValueError):
-            raise ValueError(f"resolution must be N or WxH, got {value!r}") from None
+            raise InputError(f"resolution must be N or WxH, got {value!r}") from None
     if len(dims) not in (1, 2):
-        raise ValueError(f"resolution must be N or WxH, got {value!r}")
+        raise InputError(f"resolution must be N or WxH, got {value!r}")
     width, height = (dims[0], dims[0]) if len(dims) == 1 else dims
     if width < 1 or height < 1:
-        raise ValueError(f"resolution must be at least 1x1, got {width}x{height}")
+        raise InputError(f"resolution must be at least 1x1, got {width}x{height}")
     return width, height
 
 
@@ -64,17 +70,26 @@ def parse_distance(value) -> float | str:
 
     Returns a float or the string 'P%' unchanged; raises ValueError otherwise.
     """
+    try:
+        return _parse_distance(value)
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise InputError(f"max distance must be a number, 'inf' or 'P%', got {value!r}") from None
+
+
+def _parse_distance(value) -> float | str:
     if isinstance(value, str):
         text = value.strip().lower()
         if text.endswith("%"):
             percent = float(text[:-1])
             if not math.isfinite(percent) or percent < 0:
-                raise ValueError(f"max distance {value!r}: percentage must be finite and >= 0")
+                raise InputError(f"max distance {value!r}: percentage must be finite and >= 0")
             return f"{percent:g}%"
         value = float(text)  # accepts 'inf'
     value = float(value)
     if math.isnan(value) or value < 0:
-        raise ValueError(f"max distance must be >= 0 (or inf), got {value}")
+        raise InputError(f"max distance must be >= 0 (or inf), got {value}")
     return value
 
 
@@ -128,29 +143,41 @@ class BakeConfig:
             if isinstance(value, bool) or not isinstance(value, (int, np.integer, float)) \
                     or int(value) != value or value < low:
                 what = "a positive" if low else "a non-negative"
-                raise ValueError(f"{name.replace('_', ' ')} must be {what} integer, got {value}")
+                raise InputError(f"{name.replace('_', ' ')} must be {what} integer, got {value}")
             object.__setattr__(self, name, int(value))
+        if self.rays > MAX_RAYS:
+            raise InputError(f"rays {self.rays} per point would need about "
+                             f"{self.rays * 40 / 2**30:.1f} GiB for one point's rays; the limit "
+                             f"is {MAX_RAYS} rays per point")
         object.__setattr__(self, "max_distance", parse_distance(self.max_distance))
         object.__setattr__(self, "resolution", parse_resolution(self.resolution))
         if self.tau is not None:
-            tau = float(self.tau)
+            try:
+                tau = float(self.tau)
+            except (TypeError, ValueError):
+                raise InputError(f"tau must be a number >= 0 (or inf), got {self.tau!r}") from None
             if math.isnan(tau) or tau < 0:
-                raise ValueError(f"tau must be >= 0 (or inf), got {self.tau}")
+                raise InputError(f"tau must be >= 0 (or inf), got {self.tau}")
             object.__setattr__(self, "tau", tau)
-        if int(self.seed) != self.seed or not 0 <= self.seed < 2**63:
-            raise ValueError(f"seed must be an integer in [0, 2^63), got {self.seed}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) \
+                or not 0 <= self.seed < 2**63:
+            raise InputError(f"seed must be an integer in [0, 2^63), got {self.seed}")
         object.__setattr__(self, "seed", int(self.seed))
         for name, allowed in CHOICES.items():
             if getattr(self, name) not in allowed:
-                raise ValueError(f"{name} must be one of {sorted(allowed)}, got {getattr(self, name)!r}")
-        offset = float(self.ray_offset)
+                raise InputError(f"{name} must be one of {sorted(allowed)}, got {getattr(self, name)!r}")
+        try:
+            offset = float(self.ray_offset)
+            confidence = float(self.confidence)
+        except (TypeError, ValueError):
+            raise InputError(f"ray_offset and confidence must be numbers, got "
+                             f"{self.ray_offset!r}, {self.confidence!r}") from None
         if not (math.isfinite(offset) and 0 < offset < 0.1):
-            raise ValueError(f"ray_offset must be in (0, 0.1) of the triangle size, got {self.ray_offset}")
+            raise InputError(f"ray_offset must be in (0, 0.1) of the triangle size, got {self.ray_offset}")
         object.__setattr__(self, "ray_offset", offset)
         object.__setattr__(self, "ground_plane", bool(self.ground_plane))
-        confidence = float(self.confidence)
         if not (0.5 <= confidence < 1.0):
-            raise ValueError(f"confidence must be in [0.5, 1), got {self.confidence}")
+            raise InputError(f"confidence must be in [0.5, 1), got {self.confidence}")
         object.__setattr__(self, "confidence", confidence)
 
     def resolve_max_distance(self, diagonal: float) -> float:
@@ -177,7 +204,7 @@ class BakeConfig:
         names = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - names)
         if unknown:
-            raise ValueError(f"unknown configuration keys {unknown}")
+            raise InputError(f"unknown configuration keys {unknown}")
         data = dict(data)
         if isinstance(data.get("ray_offset"), str):
             data["ray_offset"] = float(data["ray_offset"])

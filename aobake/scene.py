@@ -439,6 +439,8 @@ def load_scene(source, normals_mode: str = "file") -> Scene:
                           uv=uv if uv is not None and len(uv) == len(source.vertices) else None)
     path = Path(source)
     suffix = path.suffix.lower()
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, not a mesh file")
     if suffix not in MESH_EXTENSIONS:
         raise InputError(f"{path}: unsupported mesh format {suffix or '(no extension)'!r}; "
                          f"use one of {', '.join(MESH_EXTENSIONS)}")

@@ -190,3 +190,77 @@ def test_sigterm_cleans_up_and_exits_143(mesh_path, tmp_path):
     assert proc.returncode == 143, err
     assert err.strip().splitlines()[-1] == "aobake: error: terminated (SIGTERM): no output written"
     assert sorted(p.name for p in tmp_path.iterdir()) == [mesh_path.name]
+
+
+@pytest.mark.parametrize("value", ["0", "10x0", "abc", "3x4x5"])
+def test_bad_resolution_is_a_usage_error(mesh_path, tmp_path, value):
+    res = run_cli(mesh_path, "--out", tmp_path / "ao.exr", "--resolution", value)
+    assert res.exit_code == 2 and "--resolution" in res.output
+    assert not (tmp_path / "ao.exr").exists()
+
+
+def test_directory_as_mesh_gets_the_one_line_error(tmp_path):
+    res = run_cli(tmp_path, "--out", tmp_path / "ao.npz")
+    assert res.exit_code == 1
+    assert res.output.strip() == f"aobake: error: {tmp_path}: is a directory, not a mesh file"
+
+
+def test_unsupported_out_lists_the_formats_of_both_targets(mesh_path, tmp_path):
+    res = run_cli(mesh_path, "--out", tmp_path / "ao.xyz")
+    assert res.exit_code == 1
+    assert "per vertex .npz, .ply, .glb" in res.output and "lightmap .exr, .png" in res.output
+
+
+def test_absurd_ray_counts_are_refused_up_front(mesh_path, tmp_path):
+    import time
+
+    start = time.perf_counter()
+    res = run_cli(mesh_path, "--out", tmp_path / "ao.npz", "--rays", 10**12)
+    assert res.exit_code == 1 and "GiB" in res.output and "limit" in res.output
+    assert time.perf_counter() - start < 5  # refused before any work (the audit: 41 s, then a crash)
+
+
+def test_huge_tau_gives_no_stray_warning(mesh_path, tmp_path):
+    res = run_cli(mesh_path, "--out", tmp_path / "ao.npz", "-q", "obscurance", "--tau", "1e308",
+                  "--rays", 8)
+    assert res.exit_code == 0 and "Warning" not in res.output
+
+
+@pytest.mark.parametrize("options, message", [
+    (dict(rays=0), "rays must be a positive integer"),
+    (dict(max_distance=-1), "max distance"),
+    (dict(tau="x"), "tau must be a number"),
+    (dict(seed=-1), "seed"),
+    (dict(sampler="halton"), "sampler"),
+    (dict(quantities=("gi",)), "quantities"),
+    (dict(resolution="0"), "at least 1x1"),
+    (dict(padding=-1), "padding"),
+    (dict(texel_samples=0), "texel samples"),
+    (dict(unwrap="sometimes"), "unwrap"),
+])
+def test_api_raises_input_error_for_bad_options(options, message):
+    import aobake
+
+    with pytest.raises(aobake.InputError, match=message):
+        aobake.BakeConfig(**options)
+
+
+@pytest.mark.parametrize("threads", [0, -1, 1.5])
+def test_api_rejects_bad_thread_counts(threads):
+    import trimesh
+
+    import aobake
+
+    with pytest.raises(aobake.InputError, match="threads"):
+        aobake.bake(trimesh.creation.box(), rays=4, threads=threads)
+
+
+@pytest.mark.parametrize("points", [np.zeros((2, 3), complex), np.array([["a", "b", "c"]] * 2),
+                                    np.zeros((2, 4))])
+def test_bake_points_rejects_bad_arrays(points):
+    import trimesh
+
+    import aobake
+
+    with pytest.raises(aobake.InputError, match="points"):
+        aobake.bake_points(trimesh.creation.box(), points, np.zeros((2, 3)), rays=4)

@@ -118,7 +118,9 @@ def writer_for(path, target: str) -> Writer:
             return writer
     kind = "a vertex bake" if target == "vertices" else "a lightmap"
     raise OutputError(f"{path}: unsupported output format {suffix or '(none)'!r} for {kind} "
-                      f"(--target {target}); use one of {', '.join(suffixes(target))}")
+                      f"(--target {target}); use one of {', '.join(suffixes(target))}; "
+                      f"formats: per vertex {', '.join(suffixes('vertices'))}, lightmap "
+                      f"{', '.join(suffixes('texels'))} (.glb lightmap with --target texels)")
 
 
 def markdown_table() -> str:

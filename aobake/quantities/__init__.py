@@ -42,7 +42,9 @@ def canonical(names) -> tuple:
     names = tuple(str(n).replace("-", "_") for n in names)
     unknown = [n for n in names if n not in QUANTITIES]
     if unknown or not names:
-        raise ValueError(f"quantities must be some of {tuple(QUANTITIES)}, got {names}")
+        from aobake.errors import InputError
+
+        raise InputError(f"quantities must be some of {tuple(QUANTITIES)}, got {names}")
     return tuple(n for n in QUANTITIES if n in names)
 
 

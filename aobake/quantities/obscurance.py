@@ -23,8 +23,13 @@ def rho(distance: np.ndarray, tau: float) -> np.ndarray:
     hit_l = np.where(miss, 0.0, distance).astype(np.float32)
     if np.isinf(tau):
         value = (hit_l > 0).astype(np.float32)
+    elif tau > float(np.finfo(np.float32).max):
+        # tau beyond float32 (e.g. --tau 1e308): tau L overflows to inf for every L > 0,
+        # rho = 1 there, as for tau = inf (no stray overflow warning on the way).
+        value = (hit_l > 0).astype(np.float32)
     else:
-        value = -np.expm1(np.float32(-tau) * hit_l)
+        with np.errstate(over="ignore"):  # tau L beyond float32: -expm1(-inf) = 1, exact
+            value = -np.expm1(np.float32(-tau) * hit_l)
     return np.where(miss, np.float32(1.0), value)
 
 

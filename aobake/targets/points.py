@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from aobake.errors import InputError
+
 from aobake.results import BakeResult
 from aobake.targets.base import Finished, SamplePoints
 from aobake.vectors import check_rows, normalize
@@ -20,13 +22,13 @@ class PointsTarget:
         points = check_rows("points", points)
         normals = check_rows("normals", normals, n=len(points))
         if not (np.isfinite(points).all() and np.isfinite(normals).all()):
-            raise ValueError("points and normals must be finite")
+            raise InputError("points and normals must be finite")
         self.points = points
         self.normals = normalize(normals)[0]
         ids = (np.arange(len(points), dtype=np.int64) if point_ids is None
                else np.asarray(point_ids, np.int64))
         if ids.shape != (len(points),):
-            raise ValueError(f"point_ids must be ({len(points)},), got {ids.shape}")
+            raise InputError(f"point_ids must be ({len(points)},), got {ids.shape}")
         self.ids = ids
 
     def rays_per_point(self, config) -> int:

@@ -52,14 +52,14 @@ def check_texture_budget(width: int, height: int, texel_samples: int) -> int:
     """Refuse absurd sizes with the memory they would need; returns the estimate in bytes."""
     need = width * height * (texel_samples * _BYTES_PER_SAMPLE + 64)
     if max(width, height) > MAX_RESOLUTION:
-        raise ValueError(f"resolution {width}x{height} is larger than {MAX_RESOLUTION} per side "
+        raise InputError(f"resolution {width}x{height} is larger than {MAX_RESOLUTION} per side "
                          f"(it would need about {need / 2**30:.1f} GiB)")
     try:
         total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):  # pragma: no cover
         total = None
     if total and need > total // 2:
-        raise ValueError(f"resolution {width}x{height} with {texel_samples} samples per texel needs "
+        raise InputError(f"resolution {width}x{height} with {texel_samples} samples per texel needs "
                          f"about {need / 2**30:.1f} GiB, more than half of this machine's "
                          f"{total / 2**30:.1f} GiB")
     return need
