@@ -30,6 +30,7 @@ from functools import cached_property
 from pathlib import Path
 
 import math
+import warnings
 
 import numpy as np
 
@@ -380,7 +381,11 @@ def _load_with_trimesh(path: Path):
     import trimesh
 
     try:
-        loaded = trimesh.load(str(path), process=False)
+        # trimesh's parsers cast whatever a corrupt file holds (NaN, overflow) with numpy
+        # warnings; make_scene validates every value, so the warnings tell the user nothing.
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            loaded = trimesh.load(str(path), process=False)
     except Exception as exc:  # trimesh raises many types for corrupt files
         raise InputError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from None
     if isinstance(loaded, trimesh.Scene):

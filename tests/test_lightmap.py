@@ -421,3 +421,42 @@ def test_new_atlas_in_a_non_square_image(tmp_path, box_ply):
     assert coverage[:, 32:].max() == 0 and coverage[:, :32].max() > 0  # the top-left 32 x 32
     report = json.loads(rep.read_text())
     assert any("top-left 32x32" in w for w in report["warnings"])
+
+
+def test_uvs_at_one_point_are_not_baked_into(tmp_path):
+    """Own UVs that all sit at one point passed the check and gave an all-black map: now
+    they count as unusable and a new atlas is made, with a warning that says why."""
+    box = trimesh.creation.box()
+    lines = [f"v {x} {y} {z}" for x, y, z in box.vertices] + ["vt 0.5 0.5"]
+    lines += [f"f {a + 1}/1 {b + 1}/1 {c + 1}/1" for a, b, c in box.faces]
+    path = tmp_path / "point_uv.obj"
+    path.write_text("\n".join(lines) + "\n")
+    res = bake_texels(path, rays=4, resolution=64, padding=1)
+    assert res.report["texture"]["atlas"] == "xatlas" and res.covered.any()
+    assert any("cover 0 texel centres" in w for w in res.report["warnings"])
+
+
+def test_charts_of_a_few_texels_warn_with_the_density(tmp_path):
+    """150 separate triangles (one chart each) in a 96^2 map: about 8 texels per chart."""
+    rng = np.random.default_rng(0)
+    centres = rng.uniform(-2, 2, (150, 1, 3))
+    corners = (centres + rng.normal(scale=0.2, size=(150, 3, 3))).reshape(-1, 3)
+    mesh = trimesh.Trimesh(corners, np.arange(450).reshape(150, 3), process=False)
+    path = tmp_path / "m.ply"
+    mesh.export(path)
+    res = bake_texels(path, rays=4, resolution=96, padding=2)
+    (warning,) = [w for w in res.report["warnings"] if "raise --resolution" in w]
+    assert "for 150 charts" in warning and "texels per scene unit" in warning
+    density = res.report["texture"]["texel_density"]
+    assert density == pytest.approx(np.sqrt(res.report["texture"]["texels_covered"] / mesh.area))
+
+
+def test_unwrap_failure_names_the_mesh(tmp_path):
+    rng = np.random.default_rng(0)
+    corners = (rng.uniform(-2, 2, (150, 1, 3)) + rng.normal(scale=0.2, size=(150, 3, 3))).reshape(-1, 3)
+    path = tmp_path / "many.ply"
+    trimesh.Trimesh(corners, np.arange(450).reshape(150, 3), process=False).export(path)
+    res = run_cli(path, "--out", tmp_path / "ao.exr", "--resolution", 32, "--padding", 2,
+                  "--rays", 4)
+    assert res.exit_code == 1
+    assert res.output.startswith(f"aobake: error: {path}: unwrapping") and "--resolution" in res.output

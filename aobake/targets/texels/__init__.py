@@ -9,6 +9,7 @@ errors, gutters).  Texel conventions: see ``aobake.targets.texels.raster``.
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -20,6 +21,10 @@ from aobake.targets.base import Finished, SamplePoints
 from aobake.targets.texels.atlas import check_texture_budget, make_atlas, split_corners
 from aobake.targets.texels.gather import channels as gather_channels
 from aobake.targets.texels.surface import surface_points
+
+
+#: fewer covered texels per chart (new atlas) or per face (own UVs) than this draws a warning
+MIN_TEXELS_PER_CHART = 16
 
 
 class TexelTarget:
@@ -86,6 +91,18 @@ class TexelTarget:
         texture = _texture_stats(images, covered, filled, shared, width, height, config.padding,
                                  config.texel_samples, state["atlas"], state["check"],
                                  config.bent_space)
+        # Texels per scene unit along the surface, and a warning where charts shrink to a few
+        # texels (the map then holds little more than one value per chart).
+        area = float(scene.areas().sum())
+        texture["texel_density"] = math.sqrt(texture["texels_covered"] / area) if area > 0 else None
+        pieces = state["atlas"].charts or len(scene.faces)
+        per_piece = texture["texels_covered"] / max(pieces, 1)
+        if per_piece < MIN_TEXELS_PER_CHART:
+            what = "charts" if state["atlas"].charts else "faces"
+            warnings.append(
+                f"{scene.source}: the lightmap covers {texture['texels_covered']} texels for "
+                f"{pieces} {what} ({per_piece:.1f} each, {texture['texel_density'] or 0:.3g} "
+                f"texels per scene unit): raise --resolution or lower --padding")
         result = TexelResult(images, covered, state["atlas"], {})
         return Finished(result, values, rays, len(plan.points),
                         report={"texture": texture, "timings": timings},

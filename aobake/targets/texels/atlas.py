@@ -128,7 +128,10 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
                         f"top-left {min(width, height)}x{min(width, height)} of the "
                         f"{width}x{height} image")
     clock = time.perf_counter()
-    unwrapped = xatlas_unwrap(scene.vertices, scene.faces, (width, height), padding)
+    try:
+        unwrapped = xatlas_unwrap(scene.vertices, scene.faces, (width, height), padding)
+    except InputError as exc:  # name the mesh: the unwrapper knows only its triangles
+        raise InputError(f"{scene.source}: {exc}") from None
     timings["unwrap_s"] = time.perf_counter() - clock
     if not np.array_equal(unwrapped.vmapping[unwrapped.faces], scene.faces):
         raise RuntimeError("xatlas changed the face order")  # the texel->face mapping relies on it

@@ -22,8 +22,9 @@ class UVCheck:
     """Result of checking a mesh's own UVs for baking.
 
     valid : bool
-        True when no face has a corner outside [0, 1]^2 and no texel centre is
-        covered by more than one triangle.
+        True when no face has a corner outside [0, 1]^2, no texel centre is
+        covered by more than one triangle, and the UVs cover something (some texel
+        centre, and at most half the faces without UV area).
     out_of_range_faces : int
         Faces with any corner outside [0, 1]^2 (or non-finite).
     overlapping_texels : int
@@ -83,7 +84,12 @@ def check_uvs(uv, faces, width: int, height: int, shared: np.ndarray | None = No
         raise ValueError(f"shared must be ({height}, {width}), got {np.shape(shared)}")
     overlapping = int(np.count_nonzero(np.asarray(shared) > 1))
 
-    valid = out_of_range == 0 and overlapping == 0
+    covered = int(np.count_nonzero(np.asarray(shared) > 0))
+    n_degenerate = int(degenerate.sum())
+    # UVs that cover (almost) nothing cannot hold a lightmap, however valid they are
+    # otherwise: every face at one point, or most faces without area.
+    empty = covered == 0 or n_degenerate > len(faces) // 2
+    valid = out_of_range == 0 and overlapping == 0 and not empty
     parts = []
     if out_of_range:
         parts.append(f"{out_of_range} faces have UVs outside [0, 1]")
@@ -91,8 +97,10 @@ def check_uvs(uv, faces, width: int, height: int, shared: np.ndarray | None = No
         parts.append(f"{overlapping} texels are covered by more than one face")
     if mirrored:
         parts.append(f"{mirrored} faces are mirrored in UV")
-    if int(degenerate.sum()):
-        parts.append(f"{int(degenerate.sum())} faces have zero UV area")
+    if n_degenerate:
+        parts.append(f"{n_degenerate} faces have zero UV area")
+    if empty:
+        parts.append(f"the UVs cover {covered} texel centres of {width}x{height}")
     head = "UVs usable for baking" if valid else "UVs not usable for baking"
     message = head + (": " + "; ".join(parts) if parts else "")
     return UVCheck(
