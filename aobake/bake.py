@@ -39,6 +39,9 @@ def run(
 
     Returns the target's result (BakeResult or TexelResult) with its report.
     ``threads`` and ``chunk_rays`` change the speed and memory, never the numbers.
+    ``progress(done, total)`` is called as points are traced; if it has a ``phase(name)``
+    attribute, that is called as each stage starts ("loading", "unwrapping", "rasterising",
+    "tracing", ...), so a long unwrap shows too.
     """
     if getattr(target, "check", None):
         target.check(config)
@@ -47,14 +50,17 @@ def run(
     if int(chunk_rays) != chunk_rays or chunk_rays < 1:
         raise InputError(f"chunk_rays must be a positive integer, got {chunk_rays}")
     threads = threads or default_threads()
+    phase = getattr(progress, "phase", None) or (lambda name: None)
     timings: dict = {}
     start = clock = time.perf_counter()
+    phase("loading")
     scene = load_scene(mesh, config.normals)
     tracer = Tracer(scene, config, rays=target.rays_per_point(config))
     timings["load_s"] = time.perf_counter() - clock
 
     warnings: list = []
-    plan = target.sample(scene, config, threads, timings, warnings)
+    plan = target.sample(scene, config, threads, timings, warnings, phase)
+    phase("tracing")
     clock = time.perf_counter()
     values, rays = tracer.estimate(plan.points, plan.normals, plan.ids, threads, chunk_rays,
                                    progress, sizes=plan.sizes)

@@ -84,22 +84,32 @@ def _choice(name):
 
 
 def _progress_bar(quiet: bool):
-    """(callback, finish) drawing a progress bar on stderr when it is a terminal."""
+    """(callback, finish) drawing progress on stderr when it is a terminal: each stage's name
+    as it starts (unwrapping and rasterising can take seconds), then a bar while tracing."""
     if quiet or not sys.stderr.isatty():
         return None, lambda: None
     state = {}
 
     def callback(done, total):
         if "bar" not in state:
-            state["bar"] = click.progressbar(length=total, label="baking", file=sys.stderr)
+            click.echo("\r\033[K", nl=False, err=True)
+            state["bar"] = click.progressbar(length=total, label="tracing", file=sys.stderr)
             state["bar"].__enter__()
             state["last"] = 0
         state["bar"].update(done - state["last"])
         state["last"] = done
 
+    def phase(name):
+        if "bar" not in state and name != "tracing":
+            click.echo(f"\r\033[Kaobake: {name} ...", nl=False, err=True)
+
+    callback.phase = phase
+
     def finish():
         if "bar" in state:
             state["bar"].__exit__(None, None, None)
+        else:
+            click.echo("\r\033[K", nl=False, err=True)
 
     return callback, finish
 

@@ -264,3 +264,35 @@ def test_bake_points_rejects_bad_arrays(points):
 
     with pytest.raises(aobake.InputError, match="points"):
         aobake.bake_points(trimesh.creation.box(), points, np.zeros((2, 3)), rays=4)
+
+
+@pytest.fixture
+def tiny_disk(tmp_path):
+    """A 64 KiB tmpfs, where the test may mount one (root in a sandbox); else skipped.  A
+    full disk found the writers raising raw OSError tracebacks."""
+    import shutil
+    import subprocess
+
+    where = tmp_path / "tiny"
+    where.mkdir()
+    if shutil.which("mount") is None or subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(where)],
+            capture_output=True).returncode != 0:
+        pytest.skip("cannot mount a small tmpfs here")
+    yield where
+    subprocess.run(["umount", str(where)], check=False)
+
+
+@pytest.mark.parametrize("ext", ["ply", "glb", "exr", "png", "tif"])
+def test_full_disk_is_one_line_and_leaves_nothing(tmp_path, tiny_disk, ext):
+    import trimesh
+
+    mesh = tmp_path / "ico.ply"
+    trimesh.creation.icosphere(subdivisions=4).export(mesh)
+    res = run_cli(mesh, "--out", tiny_disk / f"ao.{ext}", "--rays", 4, "--resolution", 512,
+                  "--quiet")
+    assert res.exit_code == 1, res.output
+    (line,) = res.output.strip().splitlines()
+    assert line.startswith(f"aobake: error: {tiny_disk}/ao.") and "no space left on device" in line
+    assert "aobake-unfinished" not in line and "Traceback" not in res.output
+    assert list(tiny_disk.iterdir()) == []

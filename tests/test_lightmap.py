@@ -460,3 +460,17 @@ def test_unwrap_failure_names_the_mesh(tmp_path):
                   "--rays", 4)
     assert res.exit_code == 1
     assert res.output.startswith(f"aobake: error: {path}: unwrapping") and "--resolution" in res.output
+
+
+def test_progress_reports_every_stage(tmp_path, box_ply):
+    """Unwrapping and rasterising are reported as they start (xatlas ran 4-9 s with nothing
+    shown), then the tracing progress."""
+    seen, ticks = [], []
+
+    def progress(done, total):
+        ticks.append((done, total))
+
+    progress.phase = seen.append
+    bake_texels(box_ply, rays=4, resolution=64, padding=1, progress=progress)
+    assert seen == ["loading", "unwrapping", "rasterising", "tracing"]
+    assert ticks and ticks[-1][0] == ticks[-1][1]

@@ -71,6 +71,20 @@ def _metadata_attributes(metadata: Mapping[str, Any] | None) -> dict[str, str]:
     return attrs
 
 
+def _failure(path, tmp, message: str, nbytes: int) -> str:
+    """One line for an OpenImageIO failure: the output's name (not the temporary file's) and,
+    where the disk is what failed, the operating system's reason (OpenImageIO only says
+    that a write failed)."""
+    message = " ".join(str(message).replace(str(tmp), str(path)).split())
+    try:
+        import shutil
+
+        full = shutil.disk_usage(Path(path).parent).free < nbytes + (1 << 16)
+    except OSError:  # pragma: no cover
+        full = False
+    return f"{path}: no space left on device ({message})" if full else f"{path}: {message}"
+
+
 def _write(path, pixels: np.ndarray, fmt, channel_names, attributes: Mapping[str, Any],
            channel_formats=None) -> None:
     """Write (H, W, C) pixels to path via a temp file; raise OutputError on failure."""
@@ -88,9 +102,11 @@ def _write(path, pixels: np.ndarray, fmt, channel_names, attributes: Mapping[str
             spec.attribute(name, value)
         try:
             if not out.open(str(tmp), spec):
-                raise OutputError(f"{path}: {out.geterror() or 'cannot open for writing'}")
+                raise OutputError(_failure(path, tmp, out.geterror() or "cannot open for writing",
+                                           pixels.nbytes))
             if not out.write_image(np.ascontiguousarray(pixels)):
-                raise OutputError(f"{path}: {out.geterror() or 'write failed'}")
+                raise OutputError(_failure(path, tmp, out.geterror() or "write failed",
+                                           pixels.nbytes))
         finally:
             # Close before atomic_path renames or deletes the temp file; a close
             # after a failed write may still flush a partial file, which the

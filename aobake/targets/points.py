@@ -34,7 +34,7 @@ class PointsTarget:
     def rays_per_point(self, config) -> int:
         return config.rays
 
-    def sample(self, scene, config, threads, timings, warnings) -> SamplePoints:
+    def sample(self, scene, config, threads, timings, warnings, phase=None) -> SamplePoints:
         return SamplePoints(self.points, self.normals, self.ids)
 
     def finish(self, scene, config, plan, values, rays, timings, warnings) -> Finished:

@@ -26,7 +26,7 @@ class VertexTarget:
     def rays_per_point(self, config) -> int:
         return config.rays
 
-    def sample(self, scene, config, threads, timings, warnings) -> SamplePoints:
+    def sample(self, scene, config, threads, timings, warnings, phase=None) -> SamplePoints:
         # Vertices that share position and normal get the same point id, hence the same
         # samples and identical values (no noise seam where a file splits vertices at UV seams).
         keys = np.ascontiguousarray(np.concatenate([scene.vertices, scene.vertex_normals], axis=1))

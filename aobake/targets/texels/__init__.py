@@ -41,13 +41,13 @@ class TexelTarget:
     def rays_per_point(self, config) -> int:
         return -(-config.rays // config.texel_samples)
 
-    def sample(self, scene, config, threads, timings, warnings) -> SamplePoints:
+    def sample(self, scene, config, threads, timings, warnings, phase=None) -> SamplePoints:
         width, height = config.resolution
         phases: dict = {}
         compiled = _native.kernels() is not None  # decided once, recorded as decided
         atlas, bake_uv, bake_faces_uv, check, samples = make_atlas(
             scene, config.unwrap, width, height, config.padding, config.texel_samples,
-            config.seed, threads, warnings, phases, compiled)
+            config.seed, threads, warnings, phases, compiled, phase or (lambda name: None))
         timings["uv_check_s"] = phases["uv_check_s"]
         timings["unwrap_s"] = phases["unwrap_s"]
         clock = time.perf_counter()

@@ -76,7 +76,8 @@ def split_corners(*corner_indices):
 
 
 def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_samples: int,
-               seed: int, threads: int, warnings: list, timings: dict, compiled: bool | None):
+               seed: int, threads: int, warnings: list, timings: dict, compiled: bool | None,
+               phase=lambda name: None):
     """Choose the UVs to bake into (the mesh's own when valid, else a fresh xatlas atlas)
     and rasterise them.
 
@@ -85,6 +86,7 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
     """
 
     def raster(uv, faces_uv):
+        phase("rasterising")
         clock = time.perf_counter()
         samples = rasterize(uv, faces_uv, width, height, texel_samples, seed, threads=threads,
                             compiled=compiled)
@@ -127,6 +129,7 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
         warnings.append(f"{scene.source}: xatlas packs square layouts: the new atlas uses the "
                         f"top-left {min(width, height)}x{min(width, height)} of the "
                         f"{width}x{height} image")
+    phase("unwrapping")
     clock = time.perf_counter()
     try:
         unwrapped = xatlas_unwrap(scene.vertices, scene.faces, (width, height), padding)
