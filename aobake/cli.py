@@ -17,7 +17,7 @@ from pathlib import Path
 
 import click
 
-from aobake.config import CHOICES, DEFAULTS, parse_distance, parse_resolution
+from aobake.config import CHOICES, DEFAULTS, MAX_CONFIDENCE, parse_distance, parse_resolution
 from aobake.errors import AobakeError
 from aobake.outputs.registry import MESH_OUTPUTS, suffixes
 from aobake.quantities import QUANTITIES
@@ -166,7 +166,7 @@ _VERTEX, _TEXEL = ", ".join(suffixes("vertices")), ", ".join(suffixes("texels"))
               help="Tracing backend: embree, or reference (float64 numpy, every ray against "
                    "every triangle: slow, for validating on small scenes).")
 @click.option("--confidence", default=DEFAULTS["confidence"], show_default=True,
-              type=click.FloatRange(0.5, 1.0, max_open=True),
+              type=click.FloatRange(0.5, MAX_CONFIDENCE),
               help="Level of the *_ci_low / *_ci_high interval every ao and obscurance value "
                    "carries.")
 @click.option("--threads", default=None, type=click.IntRange(min=1),
@@ -280,7 +280,7 @@ def _run(mesh, out, target, threads, quiet, config, files):
 
     config = aobake.BakeConfig(**config)  # validated before any file is touched
     where = aobake.outputs.plan(out, target, mesh=mesh, mesh_out=files["mesh_out"],
-                                report=files["report"])
+                                report=files["report"], quantities=config.quantities)
     progress, finish = _progress_bar(quiet)
     bake = aobake.bake if where.target == "vertices" else aobake.bake_texels
     try:

@@ -39,6 +39,9 @@ OFFSET_ULPS = 64
 #: traced in one piece (about 40 bytes each: 0.7 GB at this limit), so more is refused up
 #: front rather than failing for memory half-way.
 MAX_RAYS = 1 << 24
+#: highest interval level: a two-sided tail of 1e-12 (a family-wise level over 10^10 points);
+#: nearer 1 the Student quantiles are not computable to a useful precision in float64.
+MAX_CONFIDENCE = 1.0 - 1e-12
 #: default tau for obscurance, in units of 1 / diagonal: rho reaches 1 - 1/e at a tenth of the scene size.
 DEFAULT_TAU_DIAGONALS = 10.0
 
@@ -176,8 +179,8 @@ class BakeConfig:
             raise InputError(f"ray_offset must be in (0, 0.1) of the triangle size, got {self.ray_offset}")
         object.__setattr__(self, "ray_offset", offset)
         object.__setattr__(self, "ground_plane", bool(self.ground_plane))
-        if not (0.5 <= confidence < 1.0):
-            raise InputError(f"confidence must be in [0.5, 1), got {self.confidence}")
+        if not (0.5 <= confidence <= MAX_CONFIDENCE):
+            raise InputError(f"confidence must be in [0.5, {MAX_CONFIDENCE}], got {self.confidence}")
         object.__setattr__(self, "confidence", confidence)
 
     def resolve_max_distance(self, diagonal: float) -> float:

@@ -3,7 +3,7 @@
 splitmix64's finaliser (Steele, Lea & Flood 2014) applied to integer ids: a
 bijective avalanche on uint64, so a random number is a pure function of the ids
 it is keyed on and never of scheduling.  ``aobake/_kernels.c`` mirrors
-:func:`mix` once (``mix64``) for the azimuth shifts and the texel jitter; both
+:func:`mix` once (``mix``) for the per-point sample keys and the texel jitter; both
 give identical bits.
 """
 
@@ -50,7 +50,7 @@ def hash_uniform(seed: int, stream: int, index, dim: int) -> np.ndarray:
     """Uniform float64 in [0,1) as a pure function of (seed, stream, index, dim).
 
     index : (n,) integer array (or scalar); returns (n,) float64.
-    (aobake/_kernels.c computes the azimuth shifts with the same arithmetic.)
+    (Used by tests; the samplers key their hashes per point, ``samplers.base``.)
     """
     with np.errstate(over="ignore"):
         x = mix(np.uint64(hash_key(seed, stream)) ^ np.asarray(index, dtype=np.uint64))

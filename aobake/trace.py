@@ -82,12 +82,15 @@ def point_offsets(local: np.ndarray, sizes: np.ndarray | None, fraction: float) 
 
     local : (n, 3) float64 points in the backend's frame (rebased, scaled by a power of two),
     sizes : (n,) float64 the size of each point's own triangles in the same units (None:
-    unknown, as for query points), fraction : ray_offset.  The offset is
-    ``fraction * size``, at least OFFSET_ULPS float32 ulps of the point's largest local
-    coordinate (what Embree's float32 hit distances can resolve there).
+    unknown: the floor alone), fraction : ray_offset.  The offset is ``fraction * size``,
+    at least OFFSET_ULPS float32 ulps of the point's largest local coordinate plus its
+    triangle size: Embree's float32 hit distances carry the rounding of the triangle's
+    vertex coordinates, which reach that far even where the point sits at the origin.
     """
-    magnitude = np.abs(local).max(axis=1).astype(np.float32)
-    floor = OFFSET_ULPS * np.spacing(magnitude).astype(np.float64)
+    magnitude = np.abs(local).max(axis=1)
+    if sizes is not None:
+        magnitude = magnitude + sizes
+    floor = OFFSET_ULPS * np.spacing(magnitude.astype(np.float32)).astype(np.float64)
     if sizes is None:
         return floor
     return np.maximum(floor, fraction * sizes)
@@ -158,6 +161,11 @@ class Tracer:
                                       compiled=self.kernels is not None)
         self.need_distance = any(q.needs_distance for q in self.quantities)
         local = (scene.vertices - self.center) * self.scale
+        # Vertices no face uses never reach a ray; zero them so a far-off one cannot overflow
+        # the backend's float32 cast.
+        unused = np.ones(len(local), dtype=bool)
+        unused[scene.faces.ravel()] = False
+        local[unused] = 0.0
         occluders = [BACKENDS[config.backend](local, scene.faces, scene.face_normals, self.step)]
         if config.ground_plane:
             axis = AXES.index(config.up_axis)
@@ -184,7 +192,8 @@ class Tracer:
             "ray_offset": None if self.offsets is None else self.offsets[1],
             "ray_offset_range": None if self.offsets is None else [self.offsets[0], self.offsets[2]],
             "ray_offset_rule": f"max({self.config.ray_offset:g} x own triangle size, "
-                               f"{OFFSET_ULPS} float32 ulps of the rebased coordinates)",
+                               f"{OFFSET_ULPS} float32 ulps of |local coordinate| + that size); "
+                               "query points: the scene's median triangle size",
             "rays_per_point": self.samples.rays,
             "replicates": self.samples.groups,
             "stderr_method": "max(per-ray spread (iid), 1/n)" if self.samples.iid

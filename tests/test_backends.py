@@ -224,11 +224,13 @@ def test_whole_bake_agrees_on_both_backends(backfaces, quantities, monkeypatch):
     assert set(queries) == {params["query"]}
     o, d, tmax = (np.concatenate(x).astype(np.float64) for x in (o, d, tmax))
     # Each ray's point: its origin is the point's in the tracer's local frame (rebased, scaled
-    # by a power of two), then offset along the normal (query points have no triangles: the
-    # float32-ulp floor).  Recorded rays and tmax are in local units too.
+    # by a power of two), then offset along the normal (query points stand in the scene's
+    # median triangle size for their own).  Recorded rays and tmax are in local units too.
     scale = params["trace_scale"]
     local = (points - params["rebase_center"]) * scale
-    start = local + point_offsets(local, None, ref.report["config"]["ray_offset"])[:, None] * normals
+    size = np.sqrt(2.0 * np.median(mesh.area_faces)) * scale
+    offsets = point_offsets(local, np.full(len(points), size), ref.report["config"]["ray_offset"])
+    start = local + offsets[:, None] * normals
     owner = np.argmin(np.linalg.norm(o[:, None] - start[None], axis=2), axis=1)
     assert np.all(np.linalg.norm(o - start[owner], axis=1) < 1e-6)
     n_rays = np.bincount(owner, minlength=len(points))

@@ -296,3 +296,61 @@ def test_full_disk_is_one_line_and_leaves_nothing(tmp_path, tiny_disk, ext):
     assert line.startswith(f"aobake: error: {tiny_disk}/ao.") and "no space left on device" in line
     assert "aobake-unfinished" not in line and "Traceback" not in res.output
     assert list(tiny_disk.iterdir()) == []
+
+
+def test_output_that_is_a_directory_is_refused_before_work(mesh_path, tmp_path):
+    """The CLI refuses it as usage (click, exit 2); the library's write() before writing
+    anything (it used to write x.npz, then fail on the directory with a traceback)."""
+    import aobake
+
+    (tmp_path / "rep.json").mkdir()
+    res = run_cli(mesh_path, "--out", tmp_path / "x.npz", "--report", tmp_path / "rep.json",
+                  "--rays", 4)
+    assert res.exit_code == 2 and "directory" in res.output and "Traceback" not in res.output
+    result = aobake.bake(mesh_path, rays=4)
+    with pytest.raises(aobake.OutputError, match=r"rep\.json: is a directory"):
+        aobake.write(result, tmp_path / "x.npz", report=tmp_path / "rep.json")
+    assert not (tmp_path / "x.npz").exists()
+
+
+def test_commit_failure_restores_what_was_there(tmp_path, monkeypatch):
+    """If a rename fails while the transaction commits, the outputs already renamed are
+    undone (an overwritten file comes back) and the error names the output."""
+    import os
+
+    from aobake.errors import OutputError
+    from aobake.outputs import atomic
+
+    first, second = tmp_path / "a.txt", tmp_path / "b.txt"
+    first.write_text("old")
+    real = os.replace
+
+    def flaky(src, dst):
+        if str(dst) == str(second):
+            raise PermissionError(13, "Permission denied")
+        return real(src, dst)
+
+    monkeypatch.setattr(atomic.os, "replace", flaky)
+    with pytest.raises(OutputError, match=r"b\.txt: permission denied"):
+        with atomic.transaction():
+            for path in (first, second):
+                with atomic.atomic_path(path) as tmp:
+                    tmp.write_text("new")
+    assert first.read_text() == "old" and not second.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]
+
+
+def test_confidence_is_capped_where_quantiles_stay_exact(mesh_path, tmp_path):
+    res = run_cli(mesh_path, "--out", tmp_path / "x.npz", "--confidence", "0.9999999999999999",
+                  "--rays", 3)
+    assert res.exit_code == 2 and "--confidence" in res.output
+    import aobake
+
+    r = aobake.bake(mesh_path, rays=3, confidence=1 - 1e-12)
+    assert np.all(r.ao_ci_low <= r.ao) and np.all(r.ao <= r.ao_ci_high)
+
+
+def test_image_without_ao_is_refused_before_the_bake(mesh_path, tmp_path):
+    res = run_cli(mesh_path, "--out", tmp_path / "ao.png", "-q", "bent_normal", "--rays", 4)
+    assert res.exit_code == 1 and "add -q ao" in res.output
+    assert list(tmp_path.iterdir()) == [mesh_path]

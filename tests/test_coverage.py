@@ -64,17 +64,23 @@ def disc(center, radius, sides, tilt_deg=0.0, tilt_axis=(1.0, 0.0, 0.0)) -> trim
                            process=False)
 
 
-def query_offsets(points, report) -> np.ndarray:
-    """The documented offset of query points (no own triangles): OFFSET_ULPS float32 ulps of
-    their largest coordinate rebased on the report's rebase centre."""
-    rebased = np.asarray(points, float) - np.asarray(report["parameters"]["rebase_center"])
-    magnitude = np.abs(rebased).max(axis=1).astype(np.float32)
-    return OFFSET_ULPS * np.spacing(magnitude).astype(np.float64)
+def query_offsets(points, report, mesh) -> np.ndarray:
+    """The documented offset of query points, in scene units (aobake.trace.point_offsets):
+    the scene's median triangle size stands in for their own; OFFSET_ULPS float32 ulps of
+    |local coordinate| + size in the report's frame (rebase centre, power-of-two scale)."""
+    from aobake.trace import point_offsets
+
+    params = report["parameters"]
+    scale = params["trace_scale"]
+    local = (np.asarray(points, float) - np.asarray(params["rebase_center"])) * scale
+    size = np.sqrt(2.0 * np.median(np.asarray(mesh.area_faces))) * scale
+    sizes = np.full(len(local), size)
+    return point_offsets(local, sizes, report["config"]["ray_offset"]) / scale
 
 
-def exact_ao(ring, points, normals, report) -> np.ndarray:
+def exact_ao(ring, points, normals, report, mesh) -> np.ndarray:
     """1 - form factor of the polygon ``ring`` from the ray origins of ``points``."""
-    origins = points + query_offsets(points, report)[:, None] * normals
+    origins = points + query_offsets(points, report, mesh)[:, None] * normals
     return 1.0 - polygon_form_factors(origins, normals, ring)
 
 
@@ -155,7 +161,7 @@ def coverage_data(family: str, sampler: str, rays: int) -> dict:
             out["stderr"].append(res.ao_stderr)
             out["low"].append(res.ao_ci_low)
             out["high"].append(res.ao_ci_high)
-            out["exact"].append(exact_ao(mesh.vertices[1:], points, normals, res.report))
+            out["exact"].append(exact_ao(mesh.vertices[1:], points, normals, res.report, mesh))
     return {k: np.concatenate(v) for k, v in out.items()}
 
 
@@ -228,7 +234,7 @@ def test_obscurance_stderr_calibrated_and_interval_covers(sampler):
         res = aobake.bake_points(mesh, points, normals, rays=rays, seed=seed, sampler=sampler,
                                  quantities=("obscurance",), max_distance=d, tau=tau,
                                  threads=THREADS)
-        lifted = h - query_offsets(points, res.report)  # ceiling distance from the origin
+        lifted = h - query_offsets(points, res.report, mesh)  # ceiling distance from the origin
         value.append(res.obscurance)
         stderr.append(res.obscurance_stderr)
         low.append(res.obscurance_ci_low)
@@ -299,7 +305,7 @@ def test_errors_of_different_points_are_independent(sampler):
     for seed in range(S):
         res = aobake.bake_points(mesh, points, normals, rays=64, seed=seed, sampler=sampler,
                                  threads=1)
-        exact = exact_ao(mesh.vertices[1:], points, normals, res.report)
+        exact = exact_ao(mesh.vertices[1:], points, normals, res.report, mesh)
         assert np.all((exact > 0.1) & (exact < 0.9))
         errors[seed], variances[seed] = res.ao - exact, res.ao_stderr ** 2
     checks = len(SAMPLERS) * 3
@@ -529,14 +535,14 @@ def test_stray_far_triangle_changes_ao_only_within_its_errors(sampler, kind, tar
 
 
 def test_stray_far_triangle_query_offsets_follow_the_rule():
-    """Query points have no triangles: their offset is OFFSET_ULPS float32 ulps of their
-    coordinates rebased on the per-axis median of the vertices (robust to a stray one)."""
+    """Query points have no triangles: the scene's median triangle size stands in, and the
+    frame is rebased on the per-axis median of the vertices (both robust to a stray one)."""
     for mesh in (disc_scene(), combine(disc_scene(), stray("tiny"))):
         res = aobake.bake_points(mesh, STRAY_POINTS, up(len(STRAY_POINTS)), rays=16, threads=1)
         used = np.unique(np.asarray(mesh.faces))
         assert np.allclose(res.report["parameters"]["rebase_center"],
                            np.median(np.asarray(mesh.vertices)[used], axis=0))
-        expected = query_offsets(STRAY_POINTS, res.report)
+        expected = query_offsets(STRAY_POINTS, res.report, mesh)
         params = res.report["parameters"]
         assert params["ray_offset"] == pytest.approx(float(np.median(expected)), rel=1e-12)
         assert params["ray_offset_range"] == pytest.approx([expected.min(), expected.max()],

@@ -182,3 +182,23 @@ def test_half_exr_keeps_ray_counts_exact_and_finite(tmp_path):
     assert np.isfinite(pixels).all()
     np.testing.assert_array_equal(pixels[..., names.index("rays")], rays)
     assert pixels[..., names.index("ao")][0, 0] == 0.5
+
+
+def test_image_metadata_is_strict_json(tmp_path):
+    """The image writer emitted a bare Infinity (non-JSON) for an unbounded max distance; every
+    writer now shares the one strict encoder (non-finite floats as strings)."""
+    import math
+
+    def strict(text):
+        return json.loads(text, parse_constant=lambda c: (_ for _ in ()).throw(ValueError(c)))
+
+    meta = {"config": {"max_distance": math.inf, "tau": None}, "parameters": {"x": float("nan")}}
+    for name in ("m.exr", "m.png", "m.tif"):
+        path = tmp_path / name
+        if name.endswith(".exr"):
+            write_exr(path, {"ao": np.full((2, 2), 0.5)}, meta)
+        else:
+            write_ldr(path, np.full((2, 2), 0.5), np.ones((2, 2)), metadata=meta)
+        _, _, attrs = read_image(path)
+        data = strict(attrs.get("aobake:metadata") or attrs["ImageDescription"])
+        assert data["config"]["max_distance"] == "inf" and data["parameters"]["x"] == "nan"

@@ -474,3 +474,16 @@ def test_progress_reports_every_stage(tmp_path, box_ply):
     bake_texels(box_ply, rays=4, resolution=64, padding=1, progress=progress)
     assert seen == ["loading", "unwrapping", "rasterising", "tracing"]
     assert ticks and ticks[-1][0] == ticks[-1][1]
+
+
+def test_texel_bent_normal_error_stays_no_information_where_a_sample_has_none(tmp_path):
+    """An inside-out box (every ray blocked): each sample's angle error is the pi/2
+    sentinel, and so is the texel's (it was pi/(2 sqrt(K)), as if averaging measured errors)."""
+    box = trimesh.creation.box()
+    box.invert()
+    path = tmp_path / "inside.ply"
+    box.export(path)
+    res = bake_texels(path, rays=16, resolution=32, padding=0, texel_samples=4,
+                      quantities=("ao", "bent_normal"))
+    se = res.channels["bent_normal_stderr"][res.covered]
+    np.testing.assert_allclose(se, np.pi / 2, rtol=1e-6)

@@ -1,7 +1,7 @@
 """What a tracing backend is, and the registry the CLI's ``--backend`` reads.
 
 A backend is built once per bake from the scene's triangles in the tracer's local
-frame: rebased on the bounding-box centre (far-from-origin scenes keep their
+frame: rebased on the per-axis median of the vertices (far-from-origin scenes keep their
 float32 precision) and scaled by a power of two so the scene spans [-1, 1) (tiny
 and huge scenes stay inside float32's range):
 

@@ -1,7 +1,7 @@
 """Embree through embreex: float32, rebased coordinates, one-shot queries (the default backend).
 
 The backend owns float32: the tracer hands it the scene already in its local
-frame (rebased on the bounding-box centre and scaled by a power of two), and
+frame (rebased on the vertices' median and scaled by a power of two), and
 origins in the same frame.  ``occluded`` is Embree's occlusion
 (any-hit) query, the cheapest there is; ``distance`` its distance query;
 ``intersect`` the closest-hit query with the primitive id, which the front-face

@@ -35,15 +35,21 @@ class Outputs:
     report: Path | None
 
 
-def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=None) -> Outputs:
+def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=None,
+         quantities=None) -> Outputs:
     """Resolve and check a bake's output paths before baking (fail before any work).
 
     target : 'vertices' | 'texels' | None (from the extension); mesh : the input path, which
-    no output may overwrite.  Raises OutputError naming the path and the problem.
+    no output may overwrite; quantities : what will be baked (an image needs ao or
+    obscurance).  Raises OutputError naming the path and the problem.
     """
     out = Path(out)
     target = target or default_target(out)
     writer_for(out, target)  # the format exists for this target
+    if target == "texels" and quantities is not None and out.suffix.lower() != ".exr" \
+            and not {"ao", "obscurance"} & set(quantities):
+        raise OutputError(f"{out}: a {out.suffix} lightmap holds ao or obscurance; add -q ao "
+                          "(or write .exr, which holds every channel)")
     given = mesh_out is not None
     if target == "texels":
         if given and Path(mesh_out).suffix.lower() not in MESH_OUTPUTS:
@@ -66,6 +72,8 @@ def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=Non
             continue
         if not path.parent.resolve().is_dir():
             raise OutputError(f"{path}: directory {path.parent} does not exist")
+        if path.is_dir():
+            raise OutputError(f"{path}: is a directory; {role} needs a file name")
         where = path.resolve()  # symlinks and .. resolved: one file, one role
         if where in seen:
             hint = (" (choose another with --mesh-out PATH)" if "default" in role else "")

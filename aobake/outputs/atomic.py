@@ -23,13 +23,15 @@ from typing import Iterator
 from aobake.errors import OutputError
 
 _state = threading.local()
+# Read once, at import (single-threaded): os.umask can only be read by setting it, which
+# is process-wide and would race with files other threads create.
+_UMASK = os.umask(0)
+os.umask(_UMASK)
 
 
 def _mode(tmp: Path) -> None:
     # mkstemp makes the file 0600; give the output the mode a plain open() would.
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
+    os.chmod(tmp, 0o666 & ~_UMASK)
 
 
 @contextlib.contextmanager
@@ -77,8 +79,7 @@ def transaction() -> Iterator[None]:
     _state.pending = []
     try:
         yield
-        for tmp, path in _state.pending:
-            os.replace(tmp, path)
+        _commit(_state.pending)
     except BaseException:
         for tmp, _ in _state.pending:
             with contextlib.suppress(FileNotFoundError):
@@ -86,6 +87,35 @@ def transaction() -> Iterator[None]:
         raise
     finally:
         _state.pending = None
+
+
+def _commit(pending: list) -> None:
+    """Rename every temporary file onto its output; if one rename fails, undo the ones done
+    (files they replaced are restored from a backup) and raise OutputError naming the output."""
+    done = []  # (path, backup or None)
+    try:
+        for tmp, path in pending:
+            backup = None
+            if path.exists():
+                backup = path.with_name(f".{path.name}.aobake-backup-{os.getpid()}")
+                os.replace(path, backup)
+            done.append((path, backup))
+            try:
+                os.replace(tmp, path)
+            except OSError as exc:
+                raise OutputError(f"{path}: {(exc.strerror or str(exc)).lower()}") from None
+    except BaseException:
+        for path, backup in reversed(done):
+            with contextlib.suppress(OSError):
+                if backup is not None:
+                    os.replace(backup, path)
+                else:
+                    path.unlink()
+        raise
+    for _, backup in done:
+        if backup is not None:
+            with contextlib.suppress(OSError):
+                backup.unlink()
 
 
 @contextlib.contextmanager

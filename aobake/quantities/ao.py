@@ -29,7 +29,7 @@ def estimate(traced: Traced) -> dict:
     counts = escape_counts(traced.occluded, traced.kernels)
     k, groups, m = traced.occluded.shape
     mean, se, dof = stats.binary_spread(counts, m, traced.iid)
-    if traced.max_distance == 0:  # nothing can be hit within no distance: AO = 1 exactly
+    if traced.max_distance == 0:  # every ray gives the same answer (1, or 0 inside the ground)
         return fields_of(FIELDS, mean, *stats.exact(mean))
     return fields_of(FIELDS, mean, *stats.error_bars(mean, se, groups * m, dof, traced.confidence))
 

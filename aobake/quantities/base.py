@@ -44,7 +44,7 @@ class Traced:
     directions : (k, R, m, 3) float32 unit ray directions (R replicates of m rays),
     occluded : (k, R, m) bool (a hit within the max distance),
     distance : (k, R, m) float32 hit distance, inf on a miss | None (when no quantity needs it),
-    normals : (k, 3) float64 unit, iid : bool (samples.iid), tau : float per scene unit,
+    normals : (k, 3) float64 unit, iid : bool (samples.iid), tau : float per unit of the distances (the tracer's local frame),
     kernels : the compiled module or None (numpy formulations),
     confidence : the two-sided level of the intervals (0.95),
     max_distance : the max distance in scene units (0: every ray misses by definition).

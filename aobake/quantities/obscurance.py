@@ -10,7 +10,7 @@ import numpy as np
 
 from aobake import stats
 from aobake.quantities import ao
-from aobake.quantities.base import Field, Quantity, Traced
+from aobake.quantities.base import Quantity, Traced
 
 
 def rho(distance: np.ndarray, tau: float) -> np.ndarray:

@@ -35,7 +35,11 @@ class PointsTarget:
         return config.rays
 
     def sample(self, scene, config, threads, timings, warnings, phase=None) -> SamplePoints:
-        return SamplePoints(self.points, self.normals, self.ids)
+        # A query point's own triangle is unknown: the scene's median triangle size stands in
+        # (robust to a few stray triangles), for the offset rule of aobake.trace.point_offsets.
+        size = float(np.sqrt(2.0 * np.median(scene.areas())))
+        return SamplePoints(self.points, self.normals, self.ids,
+                            sizes=np.full(len(self.points), size))
 
     def finish(self, scene, config, plan, values, rays, timings, warnings) -> Finished:
         result = BakeResult(self.points, None, self.normals, rays, values)

@@ -98,6 +98,13 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
         # for directions).
         variance = error ** 2
         out[q.error.exr[0]] = stats.texel_stderr(splat(sub, variance)[..., 0], count)
+        if q.texel == "direction":
+            # A sample with no information (its angle error is the pi/2 sentinel) leaves the
+            # texel's direction without a measurable error too: pi/2, not an average of it.
+            from aobake.quantities.bent_normal import NO_INFORMATION_ANGLE
+
+            blind = splat(sub, (error >= NO_INFORMATION_ANGLE).astype(np.float64))[..., 0] > 0
+            out[q.error.exr[0]] = np.where(blind, NO_INFORMATION_ANGLE, out[q.error.exr[0]])
         if q.interval:
             out.update(_texel_interval(q, sub, out[q.value.exr[0]], out[q.error.exr[0]],
                                        variance, rays[traced], count, dof, confidence))
