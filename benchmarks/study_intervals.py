@@ -197,7 +197,7 @@ class Sampler:
 # --------------------------------------------------------------------------- simulation
 def simulate(sampler, cases, trials, seed):
     """Per case: group sums (T, G) and sum of squares over all rays (T,)."""
-    G, m = sampler.G, sampler.m
+    G = sampler.G
     rng = np.random.default_rng(seed)
     tb = max(1, min(trials, (1 << 19) // sampler.rays))
     gs = [np.empty((trials, G)) for _ in cases]
@@ -770,9 +770,9 @@ def main():
           f"has efficiency {e[('sobol_owen', 'ceil', 100)][1]:.3f} vs m=16 ({e[('sobol_owen', 'pow2', 100)][0]} rays) "
           f"{e[('sobol_owen', 'pow2', 100)][1]:.3f} and m=8 ({e[('sobol_owen', 'pow2down', 100)][0]} rays) "
           f"{e[('sobol_owen', 'pow2down', 100)][1]:.3f}: round m = n/R to a power of two.")
-    print(f"6. **[0,1]-valued (obscurance)**: the same interval and stderr; the h0 term is what "
-          f"covers rare large contributions (horizon tail, rare hits), at the cost of intervals "
-          f"never narrower than ±3/n (Table 9b).")
+    print("6. **[0,1]-valued (obscurance)**: the same interval and stderr; the h0 term is what "
+          "covers rare large contributions (horizon tail, rare hits), at the cost of intervals "
+          "never narrower than ±3/n (Table 9b).")
     print(f"\n(runtime: simulation {t_sim:.0f} s, exact tables {t_ex:.0f} s, pow2 study "
           f"{t_p2:.0f} s, total {time.time() - t_start:.0f} s)")
 
