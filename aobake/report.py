@@ -20,7 +20,7 @@ def _versions() -> dict:
     from importlib.metadata import PackageNotFoundError, version
 
     out = {}
-    for name in ("aobake", "embreex", "trimesh", "numpy", "xatlas", "OpenImageIO", "scipy"):
+    for name in ("aobake", "embreex", "trimesh", "numpy", "xatlas", "OpenImageIO"):
         try:
             out[name] = version(name)
         except PackageNotFoundError:

@@ -138,7 +138,8 @@ def t_quantile(confidence: float, dof):
     Non-integer dof are rounded down (a larger, conservative t).  Hand-written rather than
     scipy.stats.t.ppf: importing scipy.stats costs 0.66 s (scipy.special 0.19 s) per
     process, measured, most of a small bake; this is the exact quantile (Newton on the
-    regularized incomplete beta, tested against scipy to 1e-10) in plain Python.
+    regularized incomplete beta, tested against scipy to 1e-8) in plain Python, so
+    scipy is not a dependency of the package (only of its tests).
     """
     dof = np.floor(np.asarray(dof, dtype=np.float64)).clip(1.0, None)
     levels, inverse = np.unique(dof, return_inverse=True)
