@@ -196,13 +196,14 @@ class Tracer:
                                "query points: the scene's median triangle size",
             "rays_per_point": self.samples.rays,
             "replicates": self.samples.groups,
-            "stderr_method": "max(per-ray spread (iid), 1/n)" if self.samples.iid
-            else f"max(spread of {self.samples.groups} independent replicates, 1/n)",
+            "stderr_method": ("per-ray spread (iid)" if self.samples.iid
+                              else f"spread of {self.samples.groups} independent replicates")
+                             + "; 1/n where the spread is 0",
             "confidence": self.config.confidence,
             "interval_method": "clip(mean -+ sqrt((t se)^2 + h0^2), 0, 1): t Student with "
                                + ("n - 1" if self.samples.iid else f"{self.samples.groups - 1}")
-                               + " degrees of freedom, h0 = 1 - (1 - confidence)^(1/n) "
-                                 "(rule of three)",
+                               + " degrees of freedom (texels: Welch-Satterthwaite over "
+                                 "their samples), h0 = 1 - (1 - confidence)^(1/n) (rule of three)",
             "query": self.query,
             "backend": self.config.backend,
             "rebase_center": self.center.tolist(),

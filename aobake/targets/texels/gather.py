@@ -82,6 +82,8 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     sub = samples if traced.all() else subset(samples, traced)
     count = np.bincount(sub.texel, minlength=width * height).reshape(height, width)
     covered = count > 0
+    rays_img = np.bincount(sub.texel, weights=rays[traced].astype(np.float64),
+                           minlength=width * height).reshape(height, width)
     out = {}
     for q in quantities:
         value, error = values[q.value.name][traced], values[q.error.name][traced]
@@ -97,7 +99,8 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
         # The texel averages its s independent samples: stderr sqrt(sum se^2) / s (an angle
         # for directions).
         variance = error ** 2
-        out[q.error.exr[0]] = stats.texel_stderr(splat(sub, variance)[..., 0], count)
+        mean_variance = splat(sub, variance)[..., 0]
+        out[q.error.exr[0]] = stats.texel_stderr(mean_variance, count)
         if q.texel == "direction":
             # A sample with no information (its angle error is the pi/2 sentinel) leaves the
             # texel's direction without a measurable error too: pi/2, not an average of it.
@@ -107,9 +110,8 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
             out[q.error.exr[0]] = np.where(blind, NO_INFORMATION_ANGLE, out[q.error.exr[0]])
         if q.interval:
             out.update(_texel_interval(q, sub, out[q.value.exr[0]], out[q.error.exr[0]],
-                                       variance, rays[traced], count, dof, confidence))
-    rays_img = np.bincount(sub.texel, weights=rays[traced].astype(np.float64),
-                           minlength=width * height).reshape(height, width)
+                                       mean_variance, variance, rays_img, count, dof,
+                                       confidence))
     names = list(out)
     stack = np.stack([out[n] for n in names], axis=-1)
     stack, filled = dilate(stack, covered, padding)
@@ -121,20 +123,18 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
             covered, filled)
 
 
-def _texel_interval(q, sub, value, stderr, variance, rays, count, dof, confidence) -> dict:
+def _texel_interval(q, sub, value, stderr, mean_variance, variance, texel_rays, count, dof,
+                    confidence) -> dict:
     """The interval of a texel that averages its s samples' estimates.
 
     t quantile with the Welch-Satterthwaite degrees of freedom of the sum of the samples'
     variances, (sum v)^2 / sum(v^2 / dof), rounded down (conservative), and the
     rule-of-three floor of all the texel's rays (see ``aobake.stats.error_bars``).
     """
-    shape = value.shape
-    total = splat(sub, variance)[..., 0] * count  # sum of v
+    total = mean_variance * count  # sum of v
     squares = splat(sub, variance ** 2)[..., 0] * count  # sum of v^2
     with np.errstate(divide="ignore", invalid="ignore"):
         welch = np.where(squares > 0, dof * total ** 2 / squares, dof)
-    texel_rays = np.bincount(sub.texel, weights=rays.astype(np.float64),
-                             minlength=value.size).reshape(shape)
     covered = count > 0
     _, low, high = stats.error_bars(value, stderr, np.where(covered, texel_rays, 1.0),
                                     np.where(covered, welch, 0.0), confidence)
