@@ -113,7 +113,7 @@ __attribute__((target_clones("avx2", "default")))
 #endif
 static void ray_loop(const float *o, const double *n, const uint64_t *keys, const uint32_t *tb,
                      int sampler, int weighting, Py_ssize_t nx, Py_ssize_t ny, Py_ssize_t k,
-                     Py_ssize_t R, Py_ssize_t m, float *oo, float *od)
+                     Py_ssize_t R, Py_ssize_t js, Py_ssize_t mp, float *oo, float *od)
 {
     const double below_one = nextafter(1.0, 0.0);
     for (Py_ssize_t p = 0; p < k; ++p) {
@@ -131,8 +131,9 @@ static void ray_loop(const float *o, const double *n, const uint64_t *keys, cons
             const uint32_t s1 = (uint32_t)(mix(key + SALT1) >> 32);
             /* In blocks, one stage at a time: each loop is branch-free and the
              * compiler vectorises the square roots and the polynomial. */
-            for (Py_ssize_t j0 = 0; j0 < m; j0 += BLOCK) {
-                const Py_ssize_t nb = m - j0 < BLOCK ? m - j0 : BLOCK;
+            /* Samples js .. js + mp - 1 of the replicate (tb: their constants). */
+            for (Py_ssize_t j0 = 0; j0 < mp; j0 += BLOCK) {
+                const Py_ssize_t nb = mp - j0 < BLOCK ? mp - j0 : BLOCK;
                 double u0[BLOCK], u1[BLOCK], r[BLOCK], zz[BLOCK], c[BLOCK], s[BLOCK];
                 if (sampler == 2) {
                     for (Py_ssize_t i = 0; i < nb; ++i) {
@@ -141,13 +142,13 @@ static void ray_loop(const float *o, const double *n, const uint64_t *keys, cons
                     }
                 } else {
                     for (Py_ssize_t i = 0; i < nb; ++i) {
-                        const uint64_t h = mix(key + (uint64_t)(j0 + i + 1) * SAMPLE_STEP);
+                        const uint64_t h = mix(key + (uint64_t)(js + j0 + i + 1) * SAMPLE_STEP);
                         u0[i] = unit53(mix(h + SALT0));
                         u1[i] = unit53(mix(h + SALT1));
                     }
                     if (sampler == 1) {
                         for (Py_ssize_t i = 0; i < nb; ++i) {
-                            const Py_ssize_t jj = j0 + i;
+                            const Py_ssize_t jj = js + j0 + i;
                             u0[i] = ((double)(jj % nx) + u0[i]) / (double)nx;
                             u1[i] = ((double)(jj / nx) + u1[i]) / (double)ny;
                             if (u0[i] > below_one) u0[i] = below_one;
@@ -184,18 +185,21 @@ static void ray_loop(const float *o, const double *n, const uint64_t *keys, cons
     }
 }
 
-/* fill_rays(origins, normals, keys, table, sampler, weighting, nx, ny, k, R, m,
+/* fill_rays(origins, normals, keys, table, sampler, weighting, nx, ny, k, R, m, js, mp,
  *           out_origins, out_directions)
+ *
+ * Samples js .. js + mp - 1 of the m of each replicate (a streamed point's piece; js = 0,
+ * mp = m for a whole point).
  *
  * origins   (k, 3)    float32   ray origin of each point
  * normals   (k, 3)    float64   unit normal of each point
  * keys      (k, R)    uint64    aobake.samplers.replicate_keys
- * table     (m, 2)    uint32    bit-reversed Sobol points (sampler 2), else empty
+ * table     (mp, 2)   uint32    bit-reversed Sobol points js.. (sampler 2), else empty
  * sampler   0 random, 1 stratified (nx * ny = m cells), 2 sobol (Owen-scrambled)
  * weighting 0 cosine (r = sqrt(u0), z = sqrt(1 - u0)), 1 uniform (z = 1 - u0,
  *           r = sqrt(u0 (2 - u0)))
- * out_origins    (k*R*m, 3) float32  written: origins[p] repeated R*m times
- * out_directions (k*R*m, 3) float32  written: float((r cos phi T + r sin phi B) + z N)
+ * out_origins    (k*R*mp, 3) float32  written: origins[p] repeated R*mp times
+ * out_directions (k*R*mp, 3) float32  written: float((r cos phi T + r sin phi B) + z N)
  *
  * Operation for operation as aobake.rays.RayGenerator's numpy path.
  */
@@ -203,13 +207,13 @@ static PyObject *fill_rays(PyObject *self, PyObject *args)
 {
     Py_buffer org = {0}, nrm = {0}, keyb = {0}, tab = {0}, out_o = {0}, out_d = {0};
     int sampler, weighting;
-    Py_ssize_t nx, ny, k, R, m;
+    Py_ssize_t nx, ny, k, R, m, js, mp;
     PyObject *result = NULL;
     (void)self;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*iinnnnnw*w*", &org, &nrm, &keyb, &tab, &sampler,
-                          &weighting, &nx, &ny, &k, &R, &m, &out_o, &out_d))
+    if (!PyArg_ParseTuple(args, "y*y*y*y*iinnnnnnnw*w*", &org, &nrm, &keyb, &tab, &sampler,
+                          &weighting, &nx, &ny, &k, &R, &m, &js, &mp, &out_o, &out_d))
         return NULL;
-    if (k < 0 || R < 0 || m < 0) {
+    if (k < 0 || R < 0 || m < 0 || js < 0 || mp < 0 || js + mp > m) {
         PyErr_SetString(PyExc_ValueError, "negative size");
         goto done;
     }
@@ -219,9 +223,9 @@ static PyObject *fill_rays(PyObject *self, PyObject *args)
         goto done;
     }
     if (check(&org, "origins", 4, 3 * k) || check(&nrm, "normals", 8, 3 * k) ||
-        check(&keyb, "keys", 8, k * R) || check(&tab, "table", 4, sampler == 2 ? 2 * m : 0) ||
-        check(&out_o, "out_origins", 4, k * R * m * 3) ||
-        check(&out_d, "out_directions", 4, k * R * m * 3))
+        check(&keyb, "keys", 8, k * R) || check(&tab, "table", 4, sampler == 2 ? 2 * mp : 0) ||
+        check(&out_o, "out_origins", 4, k * R * mp * 3) ||
+        check(&out_d, "out_directions", 4, k * R * mp * 3))
         goto done;
 
     {
@@ -232,7 +236,7 @@ static PyObject *fill_rays(PyObject *self, PyObject *args)
         float *oo = (float *)out_o.buf, *od = (float *)out_d.buf;
 
         Py_BEGIN_ALLOW_THREADS
-        ray_loop(o, n, keys, tb, sampler, weighting, nx, ny, k, R, m, oo, od);
+        ray_loop(o, n, keys, tb, sampler, weighting, nx, ny, k, R, js, mp, oo, od);
         Py_END_ALLOW_THREADS
     }
     Py_INCREF(Py_None);
@@ -446,7 +450,7 @@ done:
 
 static PyMethodDef methods[] = {
     {"fill_rays", fill_rays, METH_VARARGS,
-     "fill_rays(origins, normals, keys, table, sampler, weighting, nx, ny, k, R, m, "
+     "fill_rays(origins, normals, keys, table, sampler, weighting, nx, ny, k, R, m, js, mp, "
      "out_origins, out_directions): write point-major ray origins and directions."},
     {"raster_pairs", raster_pairs, METH_VARARGS,
      "raster_pairs(ax, ay, dx, dy, owner, corner, vmax, t, row, col, width, n_sub, seed_key, q, g, "

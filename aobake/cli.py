@@ -17,7 +17,8 @@ from pathlib import Path
 
 import click
 
-from aobake.config import CHOICES, DEFAULTS, MAX_CONFIDENCE, parse_distance, parse_resolution
+from aobake.config import (CHOICES, DEFAULTS, MAX_CONFIDENCE, MAX_RAYS, parse_distance,
+                           parse_resolution)
 from aobake.errors import AobakeError
 from aobake.outputs.registry import MESH_OUTPUTS, suffixes
 from aobake.quantities import QUANTITIES
@@ -127,9 +128,11 @@ _VERTEX, _TEXEL = ", ".join(suffixes("vertices")), ", ".join(suffixes("texels"))
                    f"{_VERTEX}, texels otherwise.")
 @click.option("--quantity", "-q", "quantities", multiple=True, type=QuantityType(list(QUANTITIES)),
               help="What to bake (repeatable). Default: ao.")
-@click.option("--rays", default=DEFAULTS["rays"], show_default=True, type=click.IntRange(min=1),
-              help="Rays per vertex, or per texel (split over --texel-samples). stratified "
-                   "rounds up to a multiple of 8 replicates, sobol to 8 x 2^k.")
+@click.option("--rays", default=DEFAULTS["rays"], show_default=True,
+              type=click.IntRange(min=1, max=MAX_RAYS),
+              help="Rays per vertex, or per texel (split over --texel-samples); at most 2^24. "
+                   "stratified rounds up to a multiple of 8 replicates, sobol to 8 x 2^k. "
+                   "Above 65536 a point's rays stream in pieces: memory does not grow.")
 @click.option("--max-distance", default="inf", show_default=True, type=DistanceType(),
               help="Occluder search distance: scene units, 'inf', or 'P%' of the bounding-box "
                    "diagonal. Default inf: AO as defined, with no cut-off.")

@@ -35,9 +35,10 @@ DEFAULT_RAY_OFFSET = 1e-5
 #: float32 ulps of a point's (rebased) coordinates its origin is lifted at least: Embree's
 #: hit distances carry a few ulps of error, so 64 keeps a ray off its own triangle.
 OFFSET_ULPS = 64
-#: largest rays per point (vertex, query point or texel): one point's rays are made and
-#: traced in one piece (about 40 bytes each: 0.7 GB at this limit), so more is refused up
-#: front rather than failing for memory half-way.
+#: largest rays per point (vertex, query point or texel).  Not a memory limit (a point's
+#: rays stream in pieces of samplers.base.PIECE_RAYS, whatever their number): ray counts are
+#: stored as float32 in glTF and EXR, exact up to 2^24, and at this count the error is
+#: already ~1e-6; more is refused up front.
 MAX_RAYS = 1 << 24
 #: highest interval level: a two-sided tail of 1e-12 (a family-wise level over 10^10 points);
 #: nearer 1 the Student quantiles are not computable to a useful precision in float64.
@@ -149,9 +150,8 @@ class BakeConfig:
                 raise InputError(f"{name.replace('_', ' ')} must be {what} integer, got {value}")
             object.__setattr__(self, name, int(value))
         if self.rays > MAX_RAYS:
-            raise InputError(f"rays {self.rays} per point would need about "
-                             f"{self.rays * 40 / 2**30:.1f} GiB for one point's rays; the limit "
-                             f"is {MAX_RAYS} rays per point")
+            raise InputError(f"rays {self.rays} per point is above the limit of {MAX_RAYS} "
+                             "(2^24: ray counts are stored exactly as float32 in glTF and EXR)")
         object.__setattr__(self, "max_distance", parse_distance(self.max_distance))
         object.__setattr__(self, "resolution", parse_resolution(self.resolution))
         if self.tau is not None:

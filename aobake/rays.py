@@ -57,28 +57,32 @@ class RayGenerator:
         self.samples, self.weighting, self.seed = samples, weighting, seed
         self._key = point_key(seed)
 
-    def rays(self, origins: np.ndarray, normals: np.ndarray, point_ids: np.ndarray) -> Rays:
-        """origins (k, 3) float64 (offset, rebased), normals (k, 3) float64 unit, point_ids (k,) int64."""
+    def rays(self, origins: np.ndarray, normals: np.ndarray, point_ids: np.ndarray,
+             j0: int = 0, count: int | None = None) -> Rays:
+        """origins (k, 3) float64 (offset, rebased), normals (k, 3) float64 unit, point_ids (k,)
+        int64; samples j0 .. j0 + count - 1 of every replicate (default all m: a streamed
+        point traces one piece of them at a time).  directions: (k, R, count, 3)."""
         samples = self.samples
         groups, m = samples.groups, samples.m
+        count = m - j0 if count is None else count
         k = len(normals)
         origins32 = np.ascontiguousarray(origins, dtype=np.float32)
         keys = replicate_keys(self._key, point_ids, groups)  # (k, R) uint64
         if self.compiled:
-            flat_origins = np.empty((k * groups * m, 3), dtype=np.float32)
-            directions = np.empty((k, groups, m, 3), dtype=np.float32)
+            flat_origins = np.empty((k * groups * count, 3), dtype=np.float32)
+            directions = np.empty((k, groups, count, 3), dtype=np.float32)
             nx, ny = samples.grid
             self._kernels.fill_rays(origins32, np.ascontiguousarray(normals, dtype=np.float64),
-                                    np.ascontiguousarray(keys), np.ascontiguousarray(samples.table),
+                                    np.ascontiguousarray(keys), samples.table_for(j0, count),
                                     samples.kernel, _WEIGHTING_CODES[self.weighting], nx, ny,
-                                    k, groups, m, flat_origins, directions)
+                                    k, groups, m, j0, count, flat_origins, directions)
             return Rays(flat_origins, directions)
         # Reference formulation (and the fallback), operation for operation as the kernel.
-        u = samples.values(keys, m)  # (k, R, m, 2)
+        u = samples.values(keys, j0, count)  # (k, R, count, 2)
         r, z = WEIGHTINGS[self.weighting](u[..., 0])
         c, s = cos_sin_2pi(u[..., 1])
         x, y = r * c, r * s
         tangent, bitangent = frames(normals)
         axes = [a[:, None, None, :] for a in (tangent, bitangent, normals)]
         directions = (x[..., None] * axes[0] + y[..., None] * axes[1]) + z[..., None] * axes[2]
-        return Rays(np.repeat(origins32, groups * m, axis=0), directions.astype(np.float32))
+        return Rays(np.repeat(origins32, groups * count, axis=0), directions.astype(np.float32))

@@ -27,16 +27,40 @@ def mean_and_spread(f: np.ndarray, iid: bool):
     ``se`` is the measured standard error (0 when every ray or replicate agrees), ``dof``
     its degrees of freedom (n - 1 i.i.d., R - 1 replicates; 0 = nothing to measure).
     """
-    k, groups, m = f.shape
+    total, m2 = sums(f, iid)
+    return spread_of_sums(total, m2, f.shape[2], iid)
+
+
+def sums(f: np.ndarray, iid: bool):
+    """f (k, R, m) -> (total (k, R), m2 (k, R)) float64: the additive statistics of each
+    replicate's m contributions, their sum and (i.i.d. only, else 0) the sum of squared
+    deviations from their mean.  Rays streamed in pieces combine with :func:`merge_sums`."""
+    m = f.shape[2]
+    f = f.astype(np.float64)
+    total = f.sum(axis=2)
+    if not iid:
+        return total, np.zeros_like(total)
+    return total, np.square(f - (total / m)[..., None]).sum(axis=2)
+
+
+def merge_sums(a: tuple, b: tuple, na: int, nb: int) -> tuple:
+    """The (total, m2) of na contributions ``a`` followed by nb contributions ``b`` (Chan et
+    al.'s pairwise update: no cancellation, whatever the count)."""
+    delta = b[0] / nb - a[0] / na
+    return a[0] + b[0], a[1] + b[1] + np.square(delta) * (na * nb / (na + nb))
+
+
+def spread_of_sums(total: np.ndarray, m2: np.ndarray, m: int, iid: bool):
+    """(mean, se, dof) of replicates of m contributions from their :func:`sums`."""
+    k, groups = total.shape
     n = groups * m
     if iid:
-        flat = f.reshape(k, n).astype(np.float64)
-        mean = flat.sum(axis=1) / n
+        mean = total.sum(axis=1) / n
         if n < 2:
             return mean, np.full(k, 1.0 / (2.0 * np.sqrt(n))), 0
-        var = np.square(flat - mean[:, None]).sum(axis=1) / (n - 1)
+        var = m2.sum(axis=1) / (n - 1)
         return mean, np.sqrt(var / n), n - 1
-    return replicate_spread(f.astype(np.float64).sum(axis=2) / m, n)
+    return replicate_spread(total / m, n)
 
 
 def replicate_spread(group_means: np.ndarray, n: int):

@@ -214,27 +214,35 @@ class Tracer:
             params["ground_plane"] = {"axis": self.config.up_axis, "height": self.ground_height}
         return params
 
-    def estimate_chunk(self, points: np.ndarray, normals: np.ndarray, ids: np.ndarray,
-                       sizes: np.ndarray | None = None) -> dict:
-        """points (k, 3) float64, normals (k, 3) float64 unit, ids (k,) int64, sizes (k,) float64
-        own triangle sizes | None -> field dict."""
+    def traced(self, points: np.ndarray, normals: np.ndarray, ids: np.ndarray,
+               sizes: np.ndarray | None = None, j0: int = 0, count: int | None = None) -> Traced:
+        """Trace samples j0 .. j0 + count - 1 (default all) of every replicate of k points.
+
+        points (k, 3) float64, normals (k, 3) float64 unit, ids (k,) int64, sizes (k,) float64
+        own triangle sizes | None."""
         # Into the backend's frame first, then offset: the offset is then exact relative to
         # the float32 grid the backend sees, however far from the origin and at any scale.
         local = (points - self.center) * self.scale
         offsets = point_offsets(local, None if sizes is None else sizes * self.scale,
                                 self.config.ray_offset)
         origins = local + offsets[:, None] * normals
-        rays = self.generator.rays(origins, normals, ids)
+        rays = self.generator.rays(origins, normals, ids, j0, count)
         k, groups, m, _ = rays.directions.shape
         tmax = np.float32(min(self.max_distance * self.scale, 3.0e38))
         occluded, distance = self.occluders.trace(self.query, rays.origins,
                                                   rays.directions.reshape(-1, 3), tmax)
         shape = (k, groups, m)
-        traced = Traced(rays.directions, occluded.reshape(shape),
-                        None if distance is None else distance.reshape(shape),
-                        # distances stay in local units: tau per local unit
-                        normals, self.samples.iid, self.tau / self.scale, self.kernels,
-                        self.config.confidence, self.max_distance)
+        return Traced(rays.directions, occluded.reshape(shape),
+                      None if distance is None else distance.reshape(shape),
+                      # distances stay in local units: tau per local unit
+                      normals, self.samples.iid, self.tau / self.scale, self.kernels,
+                      self.config.confidence, self.max_distance)
+
+    def estimate_chunk(self, points: np.ndarray, normals: np.ndarray, ids: np.ndarray,
+                       sizes: np.ndarray | None = None) -> dict:
+        """points (k, 3) float64, normals (k, 3) float64 unit, ids (k,) int64, sizes (k,) float64
+        own triangle sizes | None -> field dict."""
+        traced = self.traced(points, normals, ids, sizes)
         out = {}
         for q in self.quantities:
             out.update(q.estimate(traced))
@@ -279,6 +287,10 @@ class Tracer:
                                  self.config.ray_offset) / self.scale  # scene units
             self.offsets = (float(used.min()), float(np.median(used)), float(used.max()))
 
+        if self.samples.piece < self.samples.m:
+            self._stream(points, normals, ids, sizes, order, out, threads, progress)
+            return out, rays
+
         def work(i):
             sel = order[i * per_chunk:(i + 1) * per_chunk]
             return sel, self.estimate_chunk(points[sel], normals[sel], ids[sel],
@@ -298,3 +310,46 @@ class Tracer:
 
         run_chunks(n_chunks, work, land, threads or default_threads(), tick)
         return out, rays
+
+    def _stream(self, points, normals, ids, sizes, order, out, threads, progress) -> None:
+        """Points whose rays exceed one piece: each work item traces one piece (samples j0 ..
+        j0 + piece - 1 of every replicate) of one point into its quantities' moments, and the
+        pieces of a point are folded in piece order (items land out of order; at most the
+        2 * threads in flight wait), so memory is bounded by the piece size, never by the ray
+        count, and the sums are the same whatever the threads.  Fills ``out`` in place."""
+        m, piece = self.samples.m, self.samples.piece
+        pieces = -(-m // piece)
+        quantities = self.quantities
+        pending: dict = {}
+        state = {"next": 0, "moments": None, "done": 0}
+
+        def work(i):
+            p, j0 = order[i // pieces], (i % pieces) * piece
+            sel = slice(p, p + 1)
+            traced = self.traced(points[sel], normals[sel], ids[sel],
+                                 None if sizes is None else sizes[sel], j0, min(piece, m - j0))
+            return [q.moments(traced) for q in quantities], traced
+
+        def land(i, result):
+            pending[i] = result
+            while state["next"] in pending:  # fold in item order, whatever the arrival order
+                i = state["next"]
+                moments, traced = pending.pop(i)
+                b = i % pieces
+                if b == 0:
+                    state["moments"] = moments
+                else:
+                    na, nb = b * piece, min(piece, m - b * piece)
+                    state["moments"] = [q.extend(a, new, na, nb)
+                                        for q, a, new in zip(quantities, state["moments"], moments)]
+                if b == pieces - 1:
+                    p = order[i // pieces]
+                    for q, moment in zip(quantities, state["moments"]):
+                        for name, array in q.finish(moment, traced, m).items():
+                            out[name][p] = array[0]
+                    state["done"] += 1
+                    if progress:
+                        progress(state["done"], len(order))
+                state["next"] += 1
+
+        run_chunks(len(order) * pieces, work, land, threads or default_threads())

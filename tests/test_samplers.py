@@ -36,7 +36,7 @@ def test_sobol_matches_scipy():
 def _values(sampler, n_rays, ids, seed=1):
     """(k, R, m, 2) sample values of points ``ids`` and their SampleSet."""
     s = sample_set(sampler, n_rays)
-    return s.values(replicate_keys(point_key(seed), np.asarray(ids), s.groups), s.m), s
+    return s.values(replicate_keys(point_key(seed), np.asarray(ids), s.groups), 0, s.m), s
 
 
 def test_samples_are_uniform(sampler):

@@ -24,10 +24,18 @@ def escape_counts(occluded: np.ndarray, kernels=None) -> np.ndarray:
     return (m - blocked).reshape(k, groups).astype(np.float64)
 
 
-def estimate(traced: Traced) -> dict:
+def moments(traced: Traced) -> dict:
     # Contributions are 0/1: escape counts are exact and cheaper than float sums.
-    counts = escape_counts(traced.occluded, traced.kernels)
-    k, groups, m = traced.occluded.shape
+    return {"escapes": escape_counts(traced.occluded, traced.kernels)}  # (k, R)
+
+
+def extend(a: dict, b: dict, na: int, nb: int) -> dict:
+    return {"escapes": a["escapes"] + b["escapes"]}  # exact: integers below 2^53
+
+
+def finish(moments: dict, traced: Traced, m: int) -> dict:
+    counts = moments["escapes"]
+    groups = counts.shape[1]
     mean, se, dof = stats.binary_spread(counts, m, traced.iid)
     if traced.max_distance == 0:  # every ray gives the same answer (1, or 0 inside the ground)
         return fields_of(FIELDS, mean, *stats.exact(mean))
@@ -71,7 +79,9 @@ QUANTITY = Quantity(
     value=FIELDS[0],
     error=FIELDS[1],
     interval=FIELDS[2:],
-    estimate=estimate,
+    moments=moments,
+    extend=extend,
+    finish=finish,
     no_information=no_information_of(FIELDS),
     conventions={
         "cosine": {"ao": "cosine-weighted visibility (1/pi) int V(w) cos dw: 1 = fully open, "

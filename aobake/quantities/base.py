@@ -69,7 +69,12 @@ class Quantity:
     value, error : its two fields (the estimate and its one-standard-error)
     interval : (low, high) fields of its confidence interval, or () (bent normals: the
         error is an angle)
-    estimate : Traced -> {field name: (k,) | (k, 3) float64} for all its fields
+    moments : Traced -> dict of additive statistics of these rays, each (k, R, ...) float64
+        per replicate (escape counts, sums, squared deviations)
+    extend : (a, b, na, nb) -> the moments of a's na samples per replicate followed by b's nb
+        (a streamed point's pieces, folded in order)
+    finish : (moments, traced, m) -> {field name: (k,) | (k, 3) float64} for all its fields,
+        from the moments of m samples per replicate (``traced`` for its normals and settings)
     no_information : normals (k, 3) -> the same dict for points that cast no rays
     conventions : weighting -> {metadata key: text} (what 0 and 1 mean)
     texel : "scalar" (texel = mean of its samples) | "direction" (normalised mean,
@@ -82,7 +87,9 @@ class Quantity:
     name: str
     value: Field
     error: Field
-    estimate: Callable
+    moments: Callable
+    extend: Callable
+    finish: Callable
     no_information: Callable
     conventions: dict
     texel: str = "scalar"
@@ -90,6 +97,10 @@ class Quantity:
     kernels: tuple = ()
     summary: Callable | None = field(default=None)
     interval: tuple = ()
+
+    def estimate(self, traced: Traced) -> dict:
+        """Traced (all m samples of each replicate) -> {field name: (k,) | (k, 3) float64}."""
+        return self.finish(self.moments(traced), traced, traced.occluded.shape[2])
 
     @property
     def fields(self) -> tuple:

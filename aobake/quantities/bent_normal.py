@@ -17,8 +17,32 @@ from aobake.vectors import normalize
 NO_INFORMATION_ANGLE = np.pi / 2
 
 
-def estimate(traced: Traced) -> dict:
-    """Bent normal and its angular standard error for k points.
+def moments(traced: Traced) -> dict:
+    """Per replicate: total (k, R, 3) sum of f = d [ray escapes], escapes (k, R) count, and
+    (i.i.d. only) scatter (k, R, 3, 3) sum of (f - mean)(f - mean)^T."""
+    directions, occluded = traced.directions, traced.occluded
+    m = directions.shape[2]
+    f = (directions * ~occluded[..., None]).astype(np.float64)  # (k, R, m, 3)
+    total = f.sum(axis=2)
+    out = {"total": total,
+           "escapes": (m - np.count_nonzero(occluded, axis=2)).astype(np.float64)}
+    if traced.iid:
+        dev = f - (total / m)[:, :, None, :]
+        out["scatter"] = np.einsum("krmi,krmj->krij", dev, dev)
+    return out
+
+
+def extend(a: dict, b: dict, na: int, nb: int) -> dict:
+    out = {"total": a["total"] + b["total"], "escapes": a["escapes"] + b["escapes"]}
+    if "scatter" in a:  # Chan et al.'s pairwise update of the scatter matrix
+        delta = b["total"] / nb - a["total"] / na
+        out["scatter"] = a["scatter"] + b["scatter"] \
+            + np.einsum("kri,krj->krij", delta, delta) * (na * nb / (na + nb))
+    return out
+
+
+def finish(moments: dict, traced: Traced, m: int) -> dict:
+    """Bent normal and its angular standard error for k points, from m samples per replicate.
 
     Returns {bent_normal: (k, 3) float64 unit, bent_normal_stderr: (k,) float64 radians}.
 
@@ -32,42 +56,38 @@ def estimate(traced: Traced) -> dict:
     (QMC) have an escaping ray (then the spread says nothing about the error, which can
     be 90 degrees) or there is no spread.
     """
-    directions, occluded, normals = traced.directions, traced.occluded, traced.normals
-    k, groups, m, _ = directions.shape
-    n = groups * m
-    f = directions * ~occluded[..., None]  # (k, R, m, 3) float32
+    total, escapes, normals = moments["total"], moments["escapes"], traced.normals
+    k, groups = escapes.shape
     if traced.iid:
-        per = f.reshape(k, n, 3).astype(np.float64)
-        count = n
+        count = groups * m
+        b = total.sum(axis=1) / count  # (k, 3)
     else:
-        per = f.sum(axis=2, dtype=np.float64) / m  # replicate means (k, R, 3)
+        per = total / m  # replicate means (k, R, 3)
         count = groups
-    b = per.sum(axis=1) / count  # (k, 3)
+        b = per.sum(axis=1) / count
     unit, length = normalize(b)
     length = length[:, 0]
     ok = length > 0
     bent = np.where(ok[:, None], unit, normals)
     stderr = np.full(k, NO_INFORMATION_ANGLE)
     if count >= 2:
-        dev = per - b[:, None, :]
-        along = np.einsum("kjc,kc->kj", dev, unit)
-        perp2 = (np.square(dev).sum(axis=2) - np.square(along)).sum(axis=1)  # sum |dev_perp|^2
+        if traced.iid:  # sum over rays of |dev_perp|^2 = tr(S) - u^T S u
+            scatter = moments["scatter"].sum(axis=1)  # (k, 3, 3); R = 1
+            perp2 = np.trace(scatter, axis1=1, axis2=2) \
+                - np.einsum("ki,kij,kj->k", unit, scatter, unit)
+        else:
+            dev = per - b[:, None, :]
+            along = np.einsum("kjc,kc->kj", dev, unit)
+            perp2 = (np.square(dev).sum(axis=2) - np.square(along)).sum(axis=1)
         var = np.maximum(perp2, 0.0) / (count * (count - 1))
         with np.errstate(divide="ignore", invalid="ignore"):
             angle = np.sqrt(var) / length
         # A spread needs two independent contributions with an escape: two rays (i.i.d.) or
         # two replicates (QMC: escapes inside one replicate tell nothing about its error).
-        escaped = k_escaped(occluded) if traced.iid else \
-            np.count_nonzero((~occluded).any(axis=2), axis=1)
+        escaped = escapes.sum(axis=1) if traced.iid else np.count_nonzero(escapes > 0, axis=1)
         known = ok & (escaped >= 2)
         stderr = np.where(known, np.minimum(angle, NO_INFORMATION_ANGLE), NO_INFORMATION_ANGLE)
     return {"bent_normal": bent, "bent_normal_stderr": stderr}
-
-
-def k_escaped(occluded: np.ndarray) -> np.ndarray:
-    """(k, R, m) bool occluded -> (k,) int64 rays that escaped per point."""
-    k = occluded.shape[0]
-    return occluded.size // max(k, 1) - np.count_nonzero(occluded.reshape(k, -1), axis=1)
 
 
 def no_information(normals: np.ndarray) -> dict:
@@ -87,7 +107,9 @@ QUANTITY = Quantity(
                 "mean unoccluded direction (unit)"),
     error=Field("bent_normal_stderr", 1, np.float32, ("bent_normal_stderr",), "_BENT_NORMAL_STDERR",
                 ("bent_normal_stderr",), "angular standard error of bent_normal (radians)"),
-    estimate=estimate,
+    moments=moments,
+    extend=extend,
+    finish=finish,
     no_information=no_information,
     conventions={
         "cosine": {

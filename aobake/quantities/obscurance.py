@@ -33,9 +33,19 @@ def rho(distance: np.ndarray, tau: float) -> np.ndarray:
     return np.where(miss, np.float32(1.0), value)
 
 
-def estimate(traced: Traced) -> dict:
-    k, groups, m = traced.distance.shape
-    mean, se, dof = stats.mean_and_spread(rho(traced.distance, traced.tau), traced.iid)
+def moments(traced: Traced) -> dict:
+    total, m2 = stats.sums(rho(traced.distance, traced.tau), traced.iid)
+    return {"total": total, "m2": m2}  # (k, R) each
+
+
+def extend(a: dict, b: dict, na: int, nb: int) -> dict:
+    total, m2 = stats.merge_sums((a["total"], a["m2"]), (b["total"], b["m2"]), na, nb)
+    return {"total": total, "m2": m2}
+
+
+def finish(moments: dict, traced: Traced, m: int) -> dict:
+    groups = moments["total"].shape[1]
+    mean, se, dof = stats.spread_of_sums(moments["total"], moments["m2"], m, traced.iid)
     # Exact by construction: with no max distance nothing is hit (rho = 1 for every ray);
     # with tau = inf every ray has rho = 1 (any hit at L > 0, or a miss) or every ray has
     # rho = 0 (an origin inside the ground plane, L = 0): the rays cannot disagree.
@@ -53,7 +63,9 @@ QUANTITY = Quantity(
     value=FIELDS[0],
     error=FIELDS[1],
     interval=FIELDS[2:],
-    estimate=estimate,
+    moments=moments,
+    extend=extend,
+    finish=finish,
     no_information=ao.no_information_of(FIELDS),
     conventions={
         "cosine": {"obscurance": "(1/pi) int rho(L) cos dw with rho(L) = 1 - exp(-tau L); "

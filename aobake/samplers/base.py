@@ -30,6 +30,12 @@ from aobake.rng import GOLDEN, dim_salt, hash_key, mix, to_unit
 #: replicates for the randomised-QMC samplers' standard error.
 REPLICATES = 8
 
+#: rays of one point traced at once: a point with more streams them in pieces of
+#: PIECE_RAYS // R samples per replicate (a power of two), so memory is bounded whatever
+#: the ray count.  A constant, never derived from the chunk size or the thread count: the
+#: pieces fix the order in which a point's statistics are summed, hence its bits.
+PIECE_RAYS = 1 << 16
+
 #: hash stream of the per-point keys (distinct from every other stream of aobake)
 STREAM_POINT = 0x5EED_0004
 #: uint64 salts of the two sample dimensions (u0: elevation, u1: azimuth)
@@ -42,12 +48,15 @@ class SampleSet:
 
     name : the sampler, groups : R replicates, m : samples per replicate
     (rays per point = R m), iid : True when all R m samples of a point are i.i.d.,
-    values : (keys (k, R) uint64, m) -> u (k, R, m, 2) float64 in [0, 1)^2, with
-    u0 < 1 strictly (the numpy formulation; the compiled kernel mirrors it bit for bit),
+    values : (keys (k, R) uint64, j0, count) -> u (k, R, count, 2) float64 in [0, 1)^2
+    of samples j0 .. j0 + count - 1 of every replicate, with u0 < 1 strictly (the numpy
+    formulation; the compiled kernel mirrors it bit for bit),
     kernel : the compiled kernel's code for this sampler, or None (numpy only),
-    table : (m, 2) uint32 per-sampler constants handed to the kernel (bit-reversed Sobol
-    points),
-    grid : (nx, ny) of a stratified sampler, (0, 0) otherwise.
+    table : (min(m, piece), 2) uint32 per-sampler constants handed to the kernel
+    (bit-reversed Sobol points; empty for the others),
+    grid : (nx, ny) of a stratified sampler, (0, 0) otherwise,
+    shift : j0 -> (2,) uint32 that turns ``table`` into the constants of samples
+    j0 .. j0 + len(table) - 1 by xor (Sobol: the net's digital shift), or None.
     """
 
     name: str
@@ -58,10 +67,24 @@ class SampleSet:
     kernel: int | None = None
     table: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.uint32))
     grid: tuple = (0, 0)
+    shift: Callable | None = None
 
     @property
     def rays(self) -> int:
         return self.groups * self.m
+
+    @property
+    def piece(self) -> int:
+        """Samples per replicate traced at once for one point: all m when the point's rays fit
+        in PIECE_RAYS, else PIECE_RAYS // R (the point streams in ceil(m / piece) pieces)."""
+        return self.m if self.rays <= PIECE_RAYS else max(1, PIECE_RAYS // self.groups)
+
+    def table_for(self, j0: int, count: int) -> np.ndarray:
+        """(count, 2) uint32 kernel constants of samples j0 .. j0 + count - 1 (j0 a multiple
+        of the piece size); empty for samplers without a table."""
+        if len(self.table) == 0 or j0 + count <= len(self.table):
+            return np.ascontiguousarray(self.table[j0:j0 + count])
+        return np.ascontiguousarray(self.table[:count] ^ self.shift(j0)[None, :])
 
 
 def point_key(seed: int) -> int:
@@ -82,10 +105,12 @@ def replicate_keys(key: int, point_ids: np.ndarray, groups: int) -> np.ndarray:
         return mix(per_point[:, None] + g[None, :])
 
 
-def sample_hashes(keys: np.ndarray, m: int) -> np.ndarray:
-    """(k, R, m) uint64: one hash per sample of every replicate (i.i.d. and jitter samplers)."""
+def sample_hashes(keys: np.ndarray, j0: int, count: int) -> np.ndarray:
+    """(k, R, count) uint64: one hash per sample j0 .. j0 + count - 1 of every replicate
+    (i.i.d. and jitter samplers)."""
     with np.errstate(over="ignore"):
-        j = (np.arange(m, dtype=np.uint64) + np.uint64(1)) * np.uint64(0xD1B54A32D192ED03)
+        j = (np.arange(j0, j0 + count, dtype=np.uint64) + np.uint64(1)) \
+            * np.uint64(0xD1B54A32D192ED03)
         return mix(keys[:, :, None] + j[None, None, :])
 
 

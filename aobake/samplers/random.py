@@ -8,9 +8,9 @@ from aobake.samplers.base import SampleSet, sample_hashes, uniforms
 KERNEL = 0
 
 
-def values(keys, m):
+def values(keys, j0, count):
     """u = two 53-bit uniforms from the hash of (replicate key, j)."""
-    return uniforms(sample_hashes(keys, m))
+    return uniforms(sample_hashes(keys, j0, count))
 
 
 def sample(n_rays: int) -> SampleSet:

@@ -23,9 +23,9 @@ KERNEL = 2
 _TWO_POW_M32 = 2.0**-32
 
 
-def sobol_ints(m: int) -> np.ndarray:
-    """(m, 2) uint32: the first m points of the 2-D Sobol sequence as 32-bit integers
-    (Gray-code order; point / 2^32 in [0, 1)).
+def sobol_ints(m: int, start: int = 0) -> np.ndarray:
+    """(m, 2) uint32: points start .. start + m - 1 of the 2-D Sobol sequence as 32-bit
+    integers (Gray-code order; point / 2^32 in [0, 1)).
 
     Dimension 0 is the base-2 radical inverse; dimension 1 uses the direction
     numbers of the primitive polynomial x + 1: v_1 = 1/2, v_k = v_{k-1} xor (v_{k-1} / 2).
@@ -36,7 +36,7 @@ def sobol_ints(m: int) -> np.ndarray:
     v2[0] = 1 << (bits - 1)
     for k in range(1, bits):
         v2[k] = v2[k - 1] ^ (v2[k - 1] >> np.uint64(1))
-    index = np.arange(m, dtype=np.uint64)
+    index = np.arange(start, start + m, dtype=np.uint64)
     i = index ^ (index >> np.uint64(1))  # Gray-code order, the standard Sobol enumeration
     x = np.zeros(m, dtype=np.uint64)
     y = np.zeros(m, dtype=np.uint64)
@@ -91,12 +91,24 @@ def sample(n_rays: int) -> SampleSet:
     104 rays as 8 x 13 are about as accurate as 64, benchmarks/study_intervals.py)."""
     groups, m = split(n_rays)
     m = 1 << (m - 1).bit_length()
-    table = reverse_bits(sobol_ints(m))  # stored reversed: owen_scramble reverses first
+    piece = SampleSet("sobol", groups, m, False, None).piece  # a power of two, <= m
+    # Stored reversed (owen_scramble reverses first), only the first piece: the Sobol
+    # points are a linear (xor) function of the Gray code of their index, and for j0 a
+    # multiple of the power of two P > t, gray(j0 + t) = gray(j0) ^ gray(t); so points
+    # j0 .. j0 + P - 1 are the first P xor point j0 (``shift``), and a streamed point needs
+    # no table larger than one piece.
+    table = reverse_bits(sobol_ints(piece))
 
-    def values(keys, m):
+    def shift(j0):
+        return reverse_bits(sobol_ints(1, start=j0))[0]
+
+    def values(keys, j0, count):
         seeds = scramble_seeds(keys)  # (k, R, 2)
-        x = owen_scramble_reversed(table[None, None, :, :], seeds[:, :, None, :])  # (k, R, m, 2)
+        constants = samples.table_for(j0, count)
+        x = owen_scramble_reversed(constants[None, None, :, :], seeds[:, :, None, :])
         # The centre of the 2^-32 cell: exactly uniform mean, and u0 < 1 (cos theta > 0).
-        return (x.astype(np.float64) + 0.5) * _TWO_POW_M32
+        return (x.astype(np.float64) + 0.5) * _TWO_POW_M32  # (k, R, count, 2)
 
-    return SampleSet("sobol", groups, m, False, values, kernel=KERNEL, table=table)
+    samples = SampleSet("sobol", groups, m, False, values, kernel=KERNEL, table=table,
+                        shift=shift)
+    return samples

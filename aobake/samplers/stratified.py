@@ -22,9 +22,9 @@ def sample(n_rays: int) -> SampleSet:
     groups, m = split(n_rays)
     nx, ny = grid(m)
 
-    def values(keys, m):
-        jitter = uniforms(sample_hashes(keys, m))
-        j = np.arange(m)
+    def values(keys, j0, count):
+        jitter = uniforms(sample_hashes(keys, j0, count))
+        j = np.arange(j0, j0 + count)
         u0 = (j % nx + jitter[..., 0]) / nx
         u1 = (j // nx + jitter[..., 1]) / ny
         # (cell + jitter) / n can round up to 1.0: keep u0 < 1 (cos theta > 0).
