@@ -15,6 +15,7 @@ import time
 from dataclasses import replace
 from typing import Callable
 
+from aobake import adaptive
 from aobake import report as reports
 from aobake.config import BakeConfig
 from aobake.errors import InputError
@@ -62,8 +63,14 @@ def run(
     plan = target.sample(scene, config, threads, timings, warnings, phase)
     phase("tracing")
     clock = time.perf_counter()
-    values, rays = tracer.estimate(plan.points, plan.normals, plan.ids, threads, chunk_rays,
-                                   progress, sizes=plan.sizes)
+    if config.tolerance is None:
+        values, rays = tracer.estimate(plan.points, plan.normals, plan.ids, threads, chunk_rays,
+                                       progress, sizes=plan.sizes)
+        adaptive_summary = None
+    else:
+        values, rays, adaptive_summary = adaptive.estimate(
+            tracer, plan.points, plan.normals, plan.ids, threads, chunk_rays, progress,
+            plan.sizes)
     timings["trace_s"] = time.perf_counter() - clock
     done = target.finish(scene, config, plan, values, rays, timings, warnings)
     wall = time.perf_counter() - start
@@ -75,6 +82,13 @@ def run(
     if done.rays_key != "rays_per_point":  # what a "point" is for this target
         report["parameters"][done.rays_key] = report["parameters"].pop("rays_per_point")
     report.update(done.report)
+    if adaptive_summary is not None:
+        report["tolerance"] = adaptive_summary
+        log.info("tolerance %g: %d points met it, %d missed, %d capped at %d rays; %d rays "
+                 "(a fixed count for the same worst case: %d)", config.tolerance,
+                 adaptive_summary["points_met"], adaptive_summary["points_missed"],
+                 adaptive_summary["points_capped"], config.max_rays,
+                 adaptive_summary["rays_total"], adaptive_summary["fixed_budget_rays"])
     for message in warnings:
         log.warning(message)
     done.result.report = report

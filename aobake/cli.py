@@ -172,6 +172,14 @@ _VERTEX, _TEXEL = ", ".join(suffixes("vertices")), ", ".join(suffixes("texels"))
               type=click.FloatRange(0.5, MAX_CONFIDENCE),
               help="Level of the *_ci_low / *_ci_high interval every ao and obscurance value "
                    "carries.")
+@click.option("--tolerance", default=None, type=click.FloatRange(0.0, 0.5, max_open=True),
+              help="Ask for an accuracy instead of a ray count: every ao/obscurance value "
+                   "within E of the truth at --confidence. --rays is then a pilot; each point "
+                   "casts fresh rays chosen from it (up to --max-rays). The report counts the "
+                   "points that met E.")
+@click.option("--max-rays", default=DEFAULTS["max_rays"], show_default=True,
+              type=click.IntRange(min=1, max=MAX_RAYS),
+              help="--tolerance: the most rays a point's final stage may cast.")
 @click.option("--threads", default=None, type=click.IntRange(min=1),
               help="Worker threads. Default: all cores.")
 @click.option("--resolution", default=str(DEFAULTS["resolution"][0]), show_default=True,
@@ -294,6 +302,13 @@ def _run(mesh, out, target, threads, quiet, config, files):
     if not quiet:
         report = result.report
         what = "vertices" if where.target == "vertices" else "texel samples"
+        if "tolerance" in report:
+            t = report["tolerance"]
+            click.echo(f"aobake: tolerance {t['tolerance']:g}: {t['points_met']} points met "
+                       f"it, {t['points_missed']} missed, {t['points_capped']} capped at "
+                       f"{t['max_rays']} rays; {t['rays_total']} rays, "
+                       f"{t['saving_vs_fixed'] or 0:.1f}x fewer than a fixed count for the "
+                       "same worst case", err=True)
         click.echo(f"aobake: {report['points']} {what}, {report['rays_cast']} rays "
                    f"in {report['wall_time_s']:.2f} s ({report['rays_per_second'] / 1e6:.2f} Mrays/s) "
                    f"-> {', '.join(map(str, written))}", err=True)

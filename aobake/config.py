@@ -112,6 +112,10 @@ class BakeConfig:
                  size (at least OFFSET_ULPS float32 ulps of its coordinates)
     backend      tracing backend (BACKENDS): embree, or the slow float64 reference
     confidence   two-sided level of every ``*_ci_low`` / ``*_ci_high`` interval
+    tolerance    None (``rays`` per point) or E in [0, 0.5): each point casts ``rays`` as a
+                 pilot, then a fresh fixed count chosen from it so that the half-width of
+                 its intervals (ao, obscurance) is at most E (``aobake.adaptive``)
+    max_rays     --tolerance's cap on a point's final rays (the pilot's come on top)
     Lightmaps only (ignored per vertex):
     resolution   (width, height) texels
     padding      texels of gutter dilation
@@ -134,6 +138,8 @@ class BakeConfig:
     ray_offset: float = DEFAULT_RAY_OFFSET
     backend: str = "embree"
     confidence: float = 0.95
+    tolerance: float | None = None
+    max_rays: int = 65536
     resolution: tuple = (1024, 1024)
     padding: int = 8
     texel_samples: int = 4
@@ -142,16 +148,29 @@ class BakeConfig:
 
     def __post_init__(self):
         object.__setattr__(self, "quantities", canonical(self.quantities))
-        for name, low in (("rays", 1), ("padding", 0), ("texel_samples", 1)):
+        for name, low in (("rays", 1), ("padding", 0), ("texel_samples", 1), ("max_rays", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer, float)) \
                     or int(value) != value or value < low:
                 what = "a positive" if low else "a non-negative"
                 raise InputError(f"{name.replace('_', ' ')} must be {what} integer, got {value}")
             object.__setattr__(self, name, int(value))
-        if self.rays > MAX_RAYS:
-            raise InputError(f"rays {self.rays} per point is above the limit of {MAX_RAYS} "
-                             "(2^24: ray counts are stored exactly as float32 in glTF and EXR)")
+        for name in ("rays", "max_rays"):
+            if getattr(self, name) > MAX_RAYS:
+                raise InputError(f"{name.replace('_', ' ')} {getattr(self, name)} per point is "
+                                 f"above the limit of {MAX_RAYS} (2^24: ray counts are stored "
+                                 "exactly as float32 in glTF and EXR)")
+        if self.tolerance is not None:
+            try:
+                tolerance = float(self.tolerance)
+            except (TypeError, ValueError):
+                raise InputError(f"tolerance must be a number in [0, 0.5), got "
+                                 f"{self.tolerance!r}") from None
+            # Every interval lies in [0, 1]: a half-width of 0.5 is met by knowing nothing.
+            if not 0 <= tolerance < 0.5:
+                raise InputError(f"tolerance must be in [0, 0.5) (a half-width of 0.5 is met "
+                                 f"by the interval [0, 1] without a ray), got {self.tolerance}")
+            object.__setattr__(self, "tolerance", tolerance)
         object.__setattr__(self, "max_distance", parse_distance(self.max_distance))
         object.__setattr__(self, "resolution", parse_resolution(self.resolution))
         if self.tau is not None:

@@ -38,6 +38,8 @@ PIECE_RAYS = 1 << 16
 
 #: hash stream of the per-point keys (distinct from every other stream of aobake)
 STREAM_POINT = 0x5EED_0004
+#: hash stream of the final stage of a --tolerance bake (independent of its pilot's rays)
+STREAM_FINAL = 0x5EED_0005
 #: uint64 salts of the two sample dimensions (u0: elevation, u1: azimuth)
 SALTS = (np.uint64(dim_salt(0)), np.uint64(dim_salt(1)))
 
@@ -87,9 +89,10 @@ class SampleSet:
         return np.ascontiguousarray(self.table[:count] ^ self.shift(j0)[None, :])
 
 
-def point_key(seed: int) -> int:
-    """The bake's uint64 key of the per-point stream."""
-    return hash_key(seed, STREAM_POINT)
+def point_key(seed: int, stage: int = 0) -> int:
+    """The bake's uint64 key of the per-point stream (stage 1: a --tolerance bake's final
+    rays, independent of its pilot's)."""
+    return hash_key(seed, STREAM_FINAL if stage else STREAM_POINT)
 
 
 def replicate_keys(key: int, point_ids: np.ndarray, groups: int) -> np.ndarray:

@@ -79,6 +79,10 @@ class TexelTarget:
         # Degrees of freedom of one sample's stderr: n - 1 rays (i.i.d.) or R - 1 replicates.
         sampling = sample_set(config.sampler, self.rays_per_point(config))
         dof = sampling.rays - 1 if sampling.iid else sampling.groups - 1
+        if config.tolerance is not None:  # samples end with different counts: the fewest
+            from aobake.adaptive import min_final_dof
+
+            dof = min_final_dof(config)
         images, covered, filled = gather_channels(quantities, samples, values, rays,
                                                   config.padding, to_tangent, dof,
                                                   config.confidence)
