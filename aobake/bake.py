@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import logging
 import time
+
+import numpy as np
 from dataclasses import replace
 from typing import Callable
 
@@ -61,6 +63,8 @@ def run(
 
     warnings: list = []
     plan = target.sample(scene, config, threads, timings, warnings, phase)
+    if config.keep_distances:
+        _check_kept(len(plan.points), tracer.samples.rays)
     phase("tracing")
     clock = time.perf_counter()
     if config.tolerance is None:
@@ -92,7 +96,24 @@ def run(
     for message in warnings:
         log.warning(message)
     done.result.report = report
+    if config.keep_distances:
+        mapping = plan.state if plan.state is not None else np.arange(len(plan.points))
+        done.result.kept = {"ray_distances": tracer.distances.reshape(len(plan.points), -1),
+                            "ray_point": np.asarray(mapping, dtype=np.int32)}
     return done.result
+
+
+#: the most bytes of kept ray distances a bake may hold (float32: 4 bytes per ray)
+MAX_KEPT_BYTES = 4 << 30
+
+
+def _check_kept(points: int, rays: int) -> None:
+    """Refuse --keep-distances up front when the distances would not fit."""
+    need = 4 * points * rays
+    if need > MAX_KEPT_BYTES:
+        raise InputError(f"keeping every ray's distance needs {need / 2**30:.1f} GiB "
+                         f"({points} points x {rays} rays x 4 bytes); the limit is "
+                         f"{MAX_KEPT_BYTES / 2**30:.0f} GiB: use fewer rays")
 
 
 def _config(config: BakeConfig | None, options: dict) -> BakeConfig:

@@ -118,7 +118,35 @@ def _progress_bar(quiet: bool):
 _VERTEX, _TEXEL = ", ".join(suffixes("vertices")), ", ".join(suffixes("texels"))
 
 
-@click.command(epilog=EPILOG, context_settings={"help_option_names": ["-h", "--help"]})
+class _WithSubcommands(click.Command):
+    """``aobake MESH --out ...`` bakes (unchanged); ``aobake compare ...`` and
+    ``aobake refit ...`` run those tools.  A mesh named like a sub-command is ``./compare``."""
+
+    def main(self, args=None, prog_name=None, **extra):
+        args = list(sys.argv[1:] if args is None else args)
+        if args and args[0] in SUBCOMMANDS:
+            command = SUBCOMMANDS[args[0]]()
+            return command.main(args[1:], prog_name=f"{prog_name or 'aobake'} {args[0]}",
+                                **extra)
+        return super().main(args, prog_name=prog_name, **extra)
+
+
+def _compare_command():
+    from aobake.compare import main as compare
+
+    return compare
+
+
+def _refit_command():
+    return refit_main
+
+
+#: sub-command name -> function returning its click command (imported when used)
+SUBCOMMANDS = {"compare": _compare_command, "refit": _refit_command}
+
+
+@click.command(cls=_WithSubcommands, epilog=EPILOG,
+               context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("mesh", type=click.Path(path_type=Path))
 @click.option("--out", "-o", "out", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help=f"Output file; the extension picks the format. Per vertex: {_VERTEX}. "
@@ -180,6 +208,10 @@ _VERTEX, _TEXEL = ", ".join(suffixes("vertices")), ", ".join(suffixes("texels"))
 @click.option("--max-rays", default=DEFAULTS["max_rays"], show_default=True,
               type=click.IntRange(min=1, max=MAX_RAYS),
               help="--tolerance: the most rays a point's final stage may cast.")
+@click.option("--keep-distances", is_flag=True, default=False,
+              help="NPZ: keep every ray's hit distance (4 bytes per ray), so that 'aobake "
+                   "refit' recomputes ao/obscurance for another --max-distance (up to this "
+                   "one) or --tau without tracing.")
 @click.option("--threads", default=None, type=click.IntRange(min=1),
               help="Worker threads. Default: all cores.")
 @click.option("--resolution", default=str(DEFAULTS["resolution"][0]), show_default=True,
@@ -292,6 +324,8 @@ def _run(mesh, out, target, threads, quiet, config, files):
     config = aobake.BakeConfig(**config)  # validated before any file is touched
     where = aobake.outputs.plan(out, target, mesh=mesh, mesh_out=files["mesh_out"],
                                 report=files["report"], quantities=config.quantities)
+    if config.keep_distances and where.out.suffix.lower() != ".npz":
+        raise click.UsageError(f"--keep-distances needs an .npz --out (got {where.out.name})")
     progress, finish = _progress_bar(quiet)
     bake = aobake.bake if where.target == "vertices" else aobake.bake_texels
     try:
@@ -312,3 +346,46 @@ def _run(mesh, out, target, threads, quiet, config, files):
         click.echo(f"aobake: {report['points']} {what}, {report['rays_cast']} rays "
                    f"in {report['wall_time_s']:.2f} s ({report['rays_per_second'] / 1e6:.2f} Mrays/s) "
                    f"-> {', '.join(map(str, written))}", err=True)
+
+
+@click.command(context_settings={"help_option_names": ["-h", "--help"]})
+@click.argument("bake", type=click.Path(path_type=Path))
+@click.option("--out", "-o", "out", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Where to write the refitted bake (any per-vertex format; .npz keeps the "
+                   "distances for another refit).")
+@click.option("--tau", default=None, type=click.FloatRange(min=0.0),
+              help="New obscurance decay per scene unit (adds obscurance if it was not baked).")
+@click.option("--max-distance", default=None, type=DistanceType(),
+              help="New max distance (scene units or P%), at most the baked one.")
+@click.option("--quantity", "-q", "quantities", multiple=True,
+              type=click.Choice(["ao", "obscurance"]),
+              help="What to recompute (repeatable). Default: what was baked.")
+@click.option("--report", "report_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="Write the JSON report here.")
+@click.option("--quiet", is_flag=True, help="No summary line.")
+def refit_main(bake, out, tau, max_distance, quantities, report_path, quiet):
+    """Recompute ao/obscurance of BAKE (an NPZ written with --keep-distances) at another
+    --max-distance or --tau, without tracing: the same numbers as a fresh bake of that seed."""
+    import time
+
+    import aobake
+    from aobake.refit import refit
+
+    logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING,
+                        format="aobake: warning: %(message)s", stream=sys.stderr)
+    _route_python_warnings(quiet)
+    try:
+        start = time.perf_counter()
+        result = refit(bake, tau=tau, max_distance=max_distance,
+                       quantities=list(quantities) or None)
+        written = aobake.write(result, out, mesh=bake, report=report_path)
+    except (AobakeError, ValueError) as exc:
+        click.echo(f"aobake: error: {exc}", err=True)
+        sys.exit(1)
+    except KeyboardInterrupt:
+        click.echo("aobake: error: interrupted (SIGINT): no output written", err=True)
+        sys.exit(130)
+    if not quiet:
+        click.echo(f"aobake: refit {len(result.positions)} vertices in "
+                   f"{time.perf_counter() - start:.3f} s, no rays traced -> "
+                   f"{', '.join(map(str, written))}", err=True)

@@ -116,6 +116,9 @@ class BakeConfig:
                  pilot, then a fresh fixed count chosen from it so that the half-width of
                  its intervals (ao, obscurance) is at most E (``aobake.adaptive``)
     max_rays     --tolerance's cap on a point's final rays (the pilot's come on top)
+    keep_distances keep every ray's hit distance in the result (NPZ ``ray_distances``), so
+                 that ``aobake refit`` recomputes AO and obscurance for another max distance
+                 or tau without tracing (per vertex / point, not with a tolerance)
     Lightmaps only (ignored per vertex):
     resolution   (width, height) texels
     padding      texels of gutter dilation
@@ -140,6 +143,7 @@ class BakeConfig:
     confidence: float = 0.95
     tolerance: float | None = None
     max_rays: int = 65536
+    keep_distances: bool = False
     resolution: tuple = (1024, 1024)
     padding: int = 8
     texel_samples: int = 4
@@ -198,6 +202,10 @@ class BakeConfig:
             raise InputError(f"ray_offset must be in (0, 0.1) of the triangle size, got {self.ray_offset}")
         object.__setattr__(self, "ray_offset", offset)
         object.__setattr__(self, "ground_plane", bool(self.ground_plane))
+        object.__setattr__(self, "keep_distances", bool(self.keep_distances))
+        if self.keep_distances and self.tolerance is not None:
+            raise InputError("keep_distances needs one ray count for every point; it cannot "
+                             "be combined with a tolerance")
         if not (0.5 <= confidence <= MAX_CONFIDENCE):
             raise InputError(f"confidence must be in [0.5, {MAX_CONFIDENCE}], got {self.confidence}")
         object.__setattr__(self, "confidence", confidence)

@@ -19,7 +19,10 @@ class BakeResult:
     values : field name -> (n,) / (n, 3) float64 for the quantities baked (see
     ``aobake.quantities.FIELDS``); each is also an attribute (``result.ao``,
     ``result.ao_stderr``, ``result.bent_normal`` ...), None when not baked,
-    report : dict (configuration, parameters used, statistics, versions).
+    report : dict (configuration, parameters used, statistics, versions),
+    kept : with ``keep_distances``, {"ray_distances": (p, R m) float32 every traced point's
+    hit distances in the tracer's local units (inf on a miss; ``parameters.trace_scale``
+    converts), "ray_point": (n,) int32 the row of each result point}, else {}.
     """
 
     positions: np.ndarray
@@ -28,6 +31,7 @@ class BakeResult:
     rays: np.ndarray
     values: dict = field(default_factory=dict)
     report: dict = field(default_factory=dict)
+    kept: dict = field(default_factory=dict)
 
     def __getattr__(self, name):
         if name in FIELDS and name != "values":

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import os
+from dataclasses import replace
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from typing import Callable
 
@@ -159,7 +160,13 @@ class Tracer:
         self.kernels = _native.kernels()
         self.generator = RayGenerator(self.samples, config.weighting, config.seed,
                                       compiled=self.kernels is not None)
-        self.need_distance = any(q.needs_distance for q in self.quantities)
+        # --keep-distances: every ray's nearest-hit distance is kept (for aobake.refit), so
+        # its queries are distance queries whatever the quantities.
+        self.need_distance = config.keep_distances or any(q.needs_distance
+                                                          for q in self.quantities)
+        #: (n, R, m) float32 local-unit hit distances of the last estimate() (inf on a miss
+        #: and for untraced points) when config.keep_distances, else None
+        self.distances = None
         local = (scene.vertices - self.center) * self.scale
         # Vertices no face uses never reach a ray; zero them so a far-off one cannot overflow
         # the backend's float32 cast.
@@ -242,7 +249,10 @@ class Tracer:
                        sizes: np.ndarray | None = None) -> dict:
         """points (k, 3) float64, normals (k, 3) float64 unit, ids (k,) int64, sizes (k,) float64
         own triangle sizes | None -> field dict."""
-        traced = self.traced(points, normals, ids, sizes)
+        return self.estimate_traced(self.traced(points, normals, ids, sizes))
+
+    def estimate_traced(self, traced: Traced) -> dict:
+        """The field dict of k points' traced rays (all m samples of every replicate)."""
         out = {}
         for q in self.quantities:
             out.update(q.estimate(traced))
@@ -287,19 +297,26 @@ class Tracer:
                                  self.config.ray_offset) / self.scale  # scene units
             self.offsets = (float(used.min()), float(np.median(used)), float(used.max()))
 
+        keep = self.config.keep_distances
+        if keep:
+            self.distances = np.full((n, self.samples.groups, self.samples.m), np.inf,
+                                     dtype=np.float32)
         if self.samples.piece < self.samples.m:
             self._stream(points, normals, ids, sizes, order, out, threads, progress)
             return out, rays
 
         def work(i):
             sel = order[i * per_chunk:(i + 1) * per_chunk]
-            return sel, self.estimate_chunk(points[sel], normals[sel], ids[sel],
-                                            None if sizes is None else sizes[sel])
+            traced = self.traced(points[sel], normals[sel], ids[sel],
+                                 None if sizes is None else sizes[sel])
+            return sel, self.estimate_traced(traced), traced.distance if keep else None
 
         def land(i, result):
-            sel, values = result
+            sel, values, distance = result
             for name, array in values.items():
                 out[name][sel] = array
+            if distance is not None:
+                self.distances[sel] = distance
 
         done = [0]
 
@@ -328,7 +345,10 @@ class Tracer:
             sel = slice(p, p + 1)
             traced = self.traced(points[sel], normals[sel], ids[sel],
                                  None if sizes is None else sizes[sel], j0, min(piece, m - j0))
-            return [q.moments(traced) for q in quantities], traced
+            moments = [q.moments(traced) for q in quantities]
+            if self.distances is None:  # keep only what the fold needs (normals, settings)
+                traced = replace(traced, directions=None, occluded=None, distance=None)
+            return moments, traced
 
         def land(i, result):
             pending[i] = result
@@ -336,6 +356,10 @@ class Tracer:
                 i = state["next"]
                 moments, traced = pending.pop(i)
                 b = i % pieces
+                if self.distances is not None:
+                    j0 = b * piece
+                    self.distances[order[i // pieces], :, j0:j0 + traced.distance.shape[2]] = \
+                        traced.distance[0]
                 if b == 0:
                     state["moments"] = moments
                 else:

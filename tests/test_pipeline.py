@@ -2,6 +2,7 @@
 bake, ``aobake.write`` gives the CLI's files, the report names the kernels that ran."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -64,8 +65,11 @@ def test_config_round_trips_through_a_report_with_every_field_changed():
                          resolution="48x32", padding=3,
                          texel_samples=9,
                          unwrap="always", bent_space="tangent")
-    assert all(getattr(changed, k) != v for k, v in DEFAULTS.items()), "change every field"
-    for config in (BakeConfig(), changed, BakeConfig(max_distance=0.5)):
+    # keep_distances cannot go with a tolerance: the second config changes it
+    kept = replace(changed, tolerance=None, keep_distances=True)
+    assert all(getattr(changed, k) != v or getattr(kept, k) != v for k, v in DEFAULTS.items()), \
+        "change every field"
+    for config in (BakeConfig(), changed, kept, BakeConfig(max_distance=0.5)):
         assert BakeConfig.from_dict(_through_json(config.to_dict())) == config
     with pytest.raises(ValueError, match="unknown configuration keys"):
         BakeConfig.from_dict({"rayz": 3})

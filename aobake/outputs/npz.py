@@ -17,6 +17,8 @@ name                 shape        dtype     meaning
 ``bent_normal_stderr`` (n,)       float32   angular standard error of ``bent_normal`` (radians)
 ``rays``             (n,)         int32     rays cast for each vertex
 ``metadata``         ()           str       JSON text: conventions and configuration
+``ray_distances``    (p, r)       float32   --keep-distances: every ray's hit distance (local units: scene units x ``parameters.trace_scale``; inf on a miss) of the p traced points
+``ray_point``        (n,)         int32     --keep-distances: row of ``ray_distances`` of each vertex
 ==================== ============ ========= =====================================
 
 Only the fields that were computed are present (the table lists today's
@@ -121,6 +123,7 @@ def write(
     faces: np.ndarray,
     fields: Mapping[str, np.ndarray],
     metadata: Mapping | None,
+    kept: Mapping | None = None,
 ) -> None:
     """Write a vertex bake to ``path`` as a compressed ``.npz`` archive, atomically.
 
@@ -131,6 +134,7 @@ def write(
     faces : (f, 3) int
     fields : dict of per-vertex arrays, any of ``VERTEX_FIELDS`` (see the module docstring)
     metadata : JSON-serialisable dict, stored as the 0-d string array ``metadata``
+    kept : ``BakeResult.kept`` (ray distances for ``aobake refit``) or None
 
     Dtypes in the archive are listed in the module docstring.
     """
@@ -140,6 +144,8 @@ def write(
         arrays[name] = value.astype(VERTEX_FIELDS[name][1])
     # a 0-d unicode array loads without pickling (np.load(allow_pickle=False))
     arrays["metadata"] = np.array(metadata_json(metadata))
+    for name, value in (kept or {}).items():
+        arrays[name] = value
     with atomic_path(path) as tmp:
         # an open handle, not a name: np.savez appends ".npz" to names without it
         with open(tmp, "wb") as handle:

@@ -44,7 +44,11 @@ def _vertex(module_name: str):
         import importlib
 
         module = importlib.import_module(f"aobake.outputs.{module_name}")
-        module.write(path, result.positions, result.faces, result.fields(), metadata)
+        if module_name == "npz":  # the one format that holds kept ray distances
+            module.write(path, result.positions, result.faces, result.fields(), metadata,
+                         kept=getattr(result, "kept", None))
+        else:
+            module.write(path, result.positions, result.faces, result.fields(), metadata)
     return write
 
 

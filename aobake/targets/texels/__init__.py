@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 from aobake import _native
+from aobake.errors import InputError
 from aobake.results import TexelResult
 from aobake.samplers import sample_set
 from aobake.targets.base import Finished, SamplePoints
@@ -35,6 +36,9 @@ class TexelTarget:
 
     def check(self, config) -> None:
         """Refuse an image too large for this machine before loading anything."""
+        if config.keep_distances:
+            raise InputError("keep_distances is for per-vertex and query-point bakes (NPZ), "
+                             "not lightmaps")
         width, height = config.resolution
         check_texture_budget(width, height, config.texel_samples)
 
