@@ -1,9 +1,14 @@
 """Scene loading: OBJ forms real archives publish, multi-object files, bad input."""
 
+from dataclasses import fields as _fields
+
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
+from aobake import obj as objmod
 from aobake.errors import InputError
 from aobake.scene import load_scene
 
@@ -166,3 +171,302 @@ def test_corrupt_text_meshes_are_input_errors_naming_the_file(tmp_path, name, da
     path.write_bytes(data)
     with pytest.raises(InputError, match=name):
         load_scene(path)
+
+
+# --- The OBJ reader's two paths: the vectorised one gives the line-by-line one's ObjData ----------
+
+def _paths(data: bytes, path="mem.obj"):
+    """(fast ObjData | None, slow ObjData | InputError) for a file's bytes."""
+    text, encoding = objmod._decode(path, data)
+    fast = objmod._read_fast(path, data, text, encoding)
+    try:
+        slow = objmod._read_slow(path, text)
+    except InputError as exc:
+        slow = exc
+    return fast, slow
+
+
+def _assert_identical(a, b):
+    """Every array equal in dtype, shape and bits (NaN payloads, signed zeros); lists equal."""
+    for f in _fields(objmod.ObjData):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+            assert isinstance(x, np.ndarray) and isinstance(y, np.ndarray), f.name
+            assert (x.dtype, x.shape) == (y.dtype, y.shape), f.name
+            assert x.flags.c_contiguous and y.flags.c_contiguous, f.name
+            assert x.tobytes() == y.tobytes(), f.name
+        else:
+            assert x == y, f.name
+
+
+def _fast_equals_slow(data: bytes):
+    fast, slow = _paths(data)
+    assert not isinstance(slow, InputError), slow
+    assert fast is not None, "the fast path declined a file in its forms"
+    _assert_identical(fast, slow)
+    return fast
+
+
+GRID = "".join(f"v {x} {y} {0.5 * x * y}\n" for y in range(3) for x in range(3))  # 9 vertices
+UVS = "".join(f"vt {x / 2} {y / 2}\n" for y in range(3) for x in range(3))
+NORMALS = "vn 0 0 1\nvn 0 1 0\nvn 1 0 0\n"
+
+FAST_FORMS = {
+    "plain": GRID + "f 1 2 5\nf 1 5 4\n",
+    "v/vt": GRID + UVS + "f 1/1 2/2 5/5\nf 1/1 5/5 4/4\n",
+    "v//vn": GRID + NORMALS + "f 1//1 2//2 5//3\nf 1//1 5//1 4//1\n",
+    "v/vt/vn": GRID + UVS + NORMALS + "f 1/1/1 2/2/2 5/5/3\nf 1/9/1 5/5/1 4/4/2\n",
+    "negative": GRID + UVS + NORMALS + "f -9/-9/-3 -8/-8/-2 -5/-5/-1\nf -9 -5 -6\n",
+    # Negative indices count from the lines before the face, not from the end of the file.
+    "interleaved": "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\nv 5 5 5\nv 6 5 5\nf -1 -2 -5\n"
+                   "vn 0 0 1\nf 1//1 2//-1 3//1\nvn 1 0 0\nf 4//-1 5//-2 1//2\n",
+    # Per-face and per-corner mixtures of forms: faces_uv None (one corner has no vt),
+    # faces_normal -1 where a corner has no vn.
+    "mixed forms": GRID + UVS + NORMALS
+                   + "f 1/1 2/2 5/5\nf 1//1 5//2 4//3\nf 2/2/1 3 6//2\nf 4/4/ 5/5/ 8\n",
+    "mixed within face": GRID + UVS + NORMALS + "f 1 2/2 5//1 4/4/3\n",
+    "quads and n-gons": GRID + "f 1 2 5 4\nf 2 3 6 5\nf 4 5 6 9 8 7\nf 1 2 3\n",
+    "unreferenced": GRID + "v 9 9 9\nf 1 2 5\n",  # v 4.., 10 unused but kept in file order
+    "usemtl": "mtllib a.mtl\nmtllib b c.mtl\n" + GRID + "f 1 2 5\nusemtl red\nf 1 5 4\n"
+              "usemtl blue # a comment\nf 2 3 6\nusemtl red\nf 2 6 5\ng part\nusemtl  two words \n"
+              "f 4 5 8\no thing\ns 1\nf 5 6 9\n",
+    "comments and blanks": "# header\n\n#\n" + GRID.replace("\n", "\n\n", 3)
+                           + "   \n# between\nf 1 2 5\n\n\nf 1 5 4",  # no final line break
+    "windows line endings": (GRID + UVS + "usemtl m\nf 1/1 2/2 5/5\nf 1/1 5/5 4/4\n")
+                            .replace("\n", "\r\n"),
+    "old mac line endings": (GRID + "f 1 2 5\n").replace("\n", "\r"),
+    "form feed and vertical tab": "v 0 0 0\x0cv 1 0 0\x0bv 0 1 0\nf 1 2 3\x0cf 3 2 1\x0b",
+    "tabs and spaces": GRID.replace(" ", "\t") + "f\t1\t 2  5 \t\nf  1 5    4 \n",
+    "scientific": "v 1e0 -2.5E-3 +3e+2\nv .5 5. -0.0\nv 1E300 -1e-310 1_0\n"
+                  "v 1e-320 123456789012345678901234567890 0.1\nf 1 2 3\nf 4 1 2\n",
+    "colour columns": "".join(f"v {x} {x * x} 1 0.5 0.25 {x / 9}\n" for x in range(4))
+                      + "f 1 2 3\nf 2 3 4\n",
+    "w column": "v 0 0 0 1\nv 1 0 0 1\nv 0 1 0 0.5\nf 1 2 3\n",
+    "vt u only": GRID + "vt 0.25\nvt 0.5\nvt 0.75\nf 1/1 2/2 5/3\n",
+    "vt u v w": GRID + "vt 0.25 1 0\nvt 0.5 0.5 0\nvt 0.75 0 0\nf 1/1 2/2 5/3\n",
+    "nan and inf": "v nan 0 0\nv inf -inf 0\nv -nan 1 1\nf 1 2 3\n",
+    "lines and points": GRID + "l 1 2 3\np 4\nf 1 2 5\nl 5 6\n",
+    "leading zeros": GRID + "f 001 0002 -0004\n",
+    "module sample": OBJ,
+    "latin-1 names": None,  # bytes, below
+    "bom": "\ufeff# exported\n" + GRID + "f 1 2 5\n",
+}
+
+
+@pytest.mark.parametrize("name", sorted(FAST_FORMS))
+def test_obj_fast_path_matches_slow_path(name):
+    content = FAST_FORMS[name]
+    if content is None:
+        data = ("usemtl caf\xe9\n# r\xe9sum\xe9\n" + GRID + "f 1 2 5\n").encode("latin-1")
+    else:
+        data = content.encode("utf-8")
+    _fast_equals_slow(data)
+
+
+def test_obj_fast_path_reads_what_the_file_says():
+    """Not only the same as the slow path: the right values (slow path bugs would pass above)."""
+    data = _fast_equals_slow(FAST_FORMS["mixed forms"].encode())
+    np.testing.assert_array_equal(data.faces, [[0, 1, 4], [0, 4, 3], [1, 2, 5], [3, 4, 7]])
+    assert data.faces_uv is None  # face 2 has a corner without vt
+    np.testing.assert_array_equal(data.faces_normal,
+                                  [[-1, -1, -1], [0, 1, 2], [0, -1, 1], [-1, -1, -1]])
+    data = _fast_equals_slow(FAST_FORMS["interleaved"].encode())
+    np.testing.assert_array_equal(data.faces, [[0, 1, 2], [4, 3, 0], [0, 1, 2], [3, 4, 0]])
+    np.testing.assert_array_equal(data.faces_normal, [[-1] * 3, [-1] * 3, [0, 0, 0], [1, 0, 1]])
+    data = _fast_equals_slow(FAST_FORMS["usemtl"].encode())
+    assert data.materials == ["red", "blue", "two words"]
+    assert data.mtllibs == ["a.mtl", "b c.mtl"]
+    np.testing.assert_array_equal(data.face_material, [-1, 0, 1, 0, 2, 2])
+    data = _fast_equals_slow(FAST_FORMS["quads and n-gons"].encode())
+    np.testing.assert_array_equal(data.faces[4:8], [[3, 4, 5], [3, 5, 8], [3, 8, 7], [3, 7, 6]])
+    data = _fast_equals_slow(FAST_FORMS["lines and points"].encode())
+    assert data.warnings == ["mem.obj: ignored 3 line/point elements (only faces are baked)"]
+
+
+# Files the fast path declines; read_obj gives the slow path's result.
+DECLINED = {
+    "continuation": "v 0 0 \\\n 0\nv 1 0 0\nv 0 1 0\nf 1 2 \\\n3\n",
+    "trailing comment": "v 0 0 0 # origin\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    "comment after face": "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 # tri\n",
+    "colour on some v lines": "v 0 0 0 1 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    "indented": "  v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    "fourth corner field": "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/// 2/// 3///\n",
+    "word after coordinates": "v 0 0 0 red\nv 1 0 0 red\nv 0 1 0 red\nf 1 2 3\n",
+    "plus sign index": "v 0 0 0\nv 1 0 0\nv 0 1 0\nf +1 2 3\n",
+    "underscore index": "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0_1 2 3\n",  # int() reads 1
+    "unit separator": "v 0 0 0\nv 1\x1f0 0\nv 0 1 0\nf 1 2 3\n",
+    "nbsp": "v 0 0 0\nv 1\xa00 0\nv 0 1 0\nf 1 2 3\n",
+    "line separator": "v 0 0 0\nv 1 0 0\u2028v 0 1 0\nf 1 2 3\n",
+}
+
+
+@pytest.mark.parametrize("name", sorted(DECLINED))
+def test_obj_files_the_fast_path_declines_read_as_the_slow_path_reads_them(tmp_path, name):
+    path = tmp_path / "m.obj"
+    path.write_bytes(DECLINED[name].encode())
+    data, text, encoding = objmod._read_text(path)
+    assert objmod._read_fast(path, data, text, encoding) is None
+    _assert_identical(objmod.read_obj(path), objmod._read_slow(path, text))
+
+
+@pytest.mark.parametrize("content, message", [
+    ("v 0 0 0\nv 1 0 0\nf 1 2 3\n", "line 3: vertex index 3 out of range (2 defined so far)"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 0\n", "line 4: vertex index 0 is not valid"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 2 3\n", "line 4: vertex index -4 out of range"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/1 2/1 3/1\n", "line 4: texture index 1 out of range"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//2 3//1\n", "normal index 2 out of range"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n", "line 4: a face needs 3 or more corners"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 4\n", "line 5: vertex index 4 out of range"),
+    ("v 0 0 0\r\nv 1 0 0\r\nv 0 1 0\r\nf 1 2 4\r\n", "line 4: vertex index 4"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1\nf 1 2 3\n", "line 3: malformed 'v' statement"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 x\nf 1 2 3\n", "line 3: malformed 'v' statement"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -\n", "line 4: bad vertex index '-'"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 1-2\n", "line 4: bad vertex index '1-2'"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 /3\n", "line 4: bad vertex index ''"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999\n", "out of range"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nusemtl\n", "line 5: malformed 'usemtl' statement"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\n", "mesh has no faces"),
+    ("vt 0 0\nf 1 2 3\n", "line 2: vertex index 1 out of range"),
+    ("# nothing\n", "no vertices"),
+])
+def test_obj_errors_are_the_slow_paths(tmp_path, content, message):
+    """The fast path never reads a file the slow path rejects; the message is the slow path's."""
+    path = tmp_path / "bad.obj"
+    path.write_text(content, newline="")
+    data, text, encoding = objmod._read_text(path)
+    assert objmod._read_fast(path, data, text, encoding) is None
+    with pytest.raises(InputError, match=str(path)) as info:
+        objmod.read_obj(path)
+    assert message in str(info.value)
+
+
+def test_obj_large_triangle_file_takes_the_fast_path(monkeypatch, tmp_path):
+    """An ordinary exporter's file (the bunny's form) is read without the slow path."""
+    rng = np.random.default_rng(5)
+    vertices = rng.normal(size=(500, 3))
+    faces = rng.integers(1, 501, size=(900, 3))
+    text = "# Meshlab\n" + "".join(f"v {x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in vertices) \
+        + "".join(f"f {a} {b} {c}\n" for a, b, c in faces)
+    path = tmp_path / "big.obj"
+    path.write_text(text)
+    monkeypatch.setattr(objmod, "_read_slow", lambda *a: pytest.fail("slow path ran"))
+    data = objmod.read_obj(path)
+    np.testing.assert_allclose(data.vertices, vertices, atol=5e-7)
+    np.testing.assert_array_equal(data.faces, faces - 1)
+
+
+# --- Property tests: generated files in the fast forms, then the same files with one line spoilt.
+
+HYP = settings(max_examples=300, deadline=None, derandomize=True,
+               suppress_health_check=[HealthCheck.too_slow])
+
+_number = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.floats(-1e6, 1e6).map(lambda x: f"{x:.6f}"),
+    st.floats(allow_nan=False, allow_infinity=False).map(lambda x: f"{x:.4E}"),
+    st.integers(-10**30, 10**30).map(str),
+    st.sampled_from(["-0", "+1", ".5", "5.", "1e-320", "0.1", "-0.0", "1_000", "INF", "-NaN"]),
+)
+
+
+@st.composite
+def _obj_files(draw):
+    """An OBJ file in the fast path's forms: widths fixed per kind, every index in range."""
+    widths = {"v": draw(st.sampled_from([3, 4, 6])), "vt": draw(st.integers(1, 3)), "vn": 3}
+    sep = draw(st.sampled_from([" ", "\t", "  ", " \t"]))
+    counts = {"v": 0, "vt": 0, "vn": 0}
+    lines = []
+    for kind in draw(st.lists(st.sampled_from(
+            ["v", "v", "v", "vt", "vn", "f", "f", "f", "usemtl", "mtllib", "#", "", "g", "s", "l"]),
+            min_size=1, max_size=40)):
+        if kind in counts:
+            numbers = draw(st.lists(_number, min_size=widths[kind], max_size=widths[kind]))
+            lines.append(sep.join([kind, *numbers]))
+            counts[kind] += 1
+        elif kind == "f" and counts["v"]:
+            corners = []
+            form = draw(st.sampled_from(["v", "v/vt", "v//vn", "v/vt/vn", "any"]))
+            for _ in range(draw(st.integers(3, 6))):
+                fields = []
+                for key in ("v", "vt", "vn"):
+                    wanted = form == "any" and draw(st.booleans()) or key in form.split("/")
+                    if key == "v" or (wanted and counts[key]):
+                        count = counts[key]
+                        index = draw(st.integers(1, count))
+                        fields.append(str(index) if draw(st.booleans()) else str(index - count - 1))
+                    else:
+                        fields.append("")
+                corners.append("/".join(fields).rstrip("/") if draw(st.booleans())
+                               else "/".join(fields))
+            lines.append(sep.join(["f", *corners]) + draw(st.sampled_from(["", " ", "\t"])))
+        elif kind == "usemtl":
+            lines.append("usemtl " + draw(st.sampled_from(["a", "b", "c d", "a # c"])))
+        elif kind == "mtllib":
+            lines.append("mtllib lib.mtl")
+        elif kind == "#":
+            lines.append("# " + draw(st.text(max_size=10).filter(lambda s: "\\" not in s
+                                                                 and s.isprintable())))
+        elif kind == "g":
+            lines.append("g group" + draw(st.sampled_from(["", " x"])))
+        elif kind == "s":
+            lines.append("s " + draw(st.sampled_from(["1", "off"])))
+        elif kind == "l" and counts["v"]:
+            lines.append("l 1 1")
+    if not counts["v"]:
+        lines.insert(0, sep.join(["v"] + ["0"] * widths["v"]))
+    if not any(line.startswith("f") for line in lines):
+        lines.append("f 1 -1 1")
+    end = draw(st.sampled_from(["\n", "\r\n", "\r"]))
+    return end.join(lines) + draw(st.sampled_from(["", end]))
+
+
+def _same_or_both_reject(data: bytes):
+    try:
+        fast, slow = _paths(data)
+    except InputError:  # binary content: the decoding both paths share
+        return
+    if isinstance(slow, InputError):
+        assert fast is None, f"fast path read a file the slow path rejects: {slow}"
+    elif fast is not None:
+        _assert_identical(fast, slow)
+
+
+@HYP
+@given(text=_obj_files())
+def test_obj_fast_path_property(text):
+    _fast_equals_slow(text.encode("utf-8"))
+
+
+_junk = st.one_of(
+    st.text(alphabet="vtnf0123456789 -/.#\\\t\r\n\x00\x0b\x0c\x1c\x1f\xa0\x85eE+_xusemtl",
+            max_size=20),
+    st.sampled_from(["f 1 2", "f 0 1 2", "f 1/1/1/1 2 3", "f -99 1 2", "v 1 2", "v", "f",
+                     " f 1 2 3", "usemtl", "vt", "vn 1 2", "f 1//x 2 3", "f 1/ /2 3",
+                     "f 99999999999999999999 1 2", "f 1 2 3\\", "v 1 2 3 4 5 6 7"]),
+)
+
+
+@HYP
+@given(text=_obj_files(), where=st.integers(0, 10**6), junk=_junk, replace=st.booleans())
+def test_obj_fast_path_property_spoilt_files(text, where, junk, replace):
+    """One line replaced or inserted: either both paths reject the file, or the fast path
+    declines, or both give the same ObjData."""
+    lines = text.split("\n")
+    where %= len(lines)
+    lines[where:where + replace] = [junk]
+    _same_or_both_reject("\n".join(lines).encode("utf-8", errors="surrogateescape"))
+
+
+@HYP
+@given(data=st.binary(max_size=300))
+def test_obj_fast_path_property_arbitrary_bytes(data):
+    _same_or_both_reject(data)
+
+
+def test_a_byte_order_mark_does_not_hide_the_first_line(tmp_path):
+    from aobake.obj import read_obj
+
+    path = tmp_path / "bom.obj"
+    path.write_bytes(b"\xef\xbb\xbfv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    data = read_obj(path)
+    assert data.vertices.shape == (3, 3) and data.faces.tolist() == [[0, 1, 2]]
