@@ -1,0 +1,281 @@
+"""``aobake compare REFERENCE CANDIDATE``: how far a bake (ours or another tool's) is from a
+reference, measured against the reference's own noise.
+
+    from aobake.compare import compare
+    metrics = compare("reference.npz", "candidate.ply", quantity="ao")
+    metrics["rmse"], metrics["excess_rmse"]
+
+Per vertex (``.npz``, ``.ply``, ``.glb``) the candidate's vertices are matched to the
+reference's by position when their order differs; per texel (``.exr``, ``.png``, ``.tif``)
+only the texels the reference covers are compared (and, when the candidate has its own
+coverage, the texels both cover).  Every metric is over those n points of the error
+``e = candidate - reference`` (float64 arithmetic on the stored float32 values):
+
+- ``rmse = sqrt(mean e^2)``, ``bias = mean e``, ``max_error = max |e|``,
+  ``mean_abs_error = mean |e|``, ``psnr = 10 log10(1 / mean e^2)`` (peak 1; None when the
+  files agree exactly);
+- ``reference_noise_rms = sqrt(mean se_ref^2)`` from the reference's ``*_stderr``;
+- ``rmse_in_reference_se = rmse / reference_noise_rms``: about 1 for an exact candidate, about
+  sqrt(2) for an independent bake as noisy as the reference;
+- ``excess_rmse = sqrt(max(0, rmse^2 - reference_noise_rms^2))``: the part of the difference
+  the reference's own noise does not explain (the candidate's noise is part of it;
+  ``candidate_noise_rms`` says how much, when the candidate has a stderr).
+
+Values the metrics cannot have (no stderr in the reference, an infinite PSNR) are None, so
+the record is strict JSON.  The library logs and never prints; ``main`` is the command.
+
+The package: ``readers`` (files -> tables, on ``parsing``'s byte-level readers), ``values``
+(a table -> one quantity's ``Values``), ``settings`` (same quantity?), ``align`` and
+``matching`` (lining the files up), ``heatmap`` (the error as a picture); this module is the
+library entry point and the command.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import struct
+import sys
+from pathlib import Path
+
+import click
+import numpy as np
+
+from aobake.compare.align import align_texels, align_vertices
+from aobake.compare.heatmap import check_path, diverging, write_heatmap
+from aobake.compare.matching import (POSITION_TOLERANCE, match_vertices, position_tolerance,
+                                     tie_features)
+from aobake.compare.parsing import Unreadable
+from aobake.compare.readers import read_table
+from aobake.compare.settings import check_same_quantity
+from aobake.compare.values import TEXEL_SUFFIXES, VERTEX_SUFFIXES, Values, kind, pick, target_of
+from aobake.errors import AobakeError, InputError
+from aobake.quantities import QUANTITIES
+
+__all__ = ["COMPARABLE", "CONVENTIONS", "POSITION_TOLERANCE", "TEXEL_SUFFIXES", "VERTEX_SUFFIXES",
+           "Values", "compare", "diverging", "format_table", "main", "match_vertices", "metrics",
+           "position_tolerance", "read", "tie_features"]
+
+log = logging.getLogger(__name__)
+
+#: quantities whose value is one number per point (the ones an error in [0, 1] describes)
+COMPARABLE = tuple(name for name, q in QUANTITIES.items() if q.value.width == 1)
+#: --candidate-convention -> what the candidate's numbers mean
+CONVENTIONS = {
+    "ao": "as aobake: 1 = fully open, 0 = fully occluded",
+    "occlusion": "1 minus that: 1 = fully occluded (libigl's ambient_occlusion); compared as 1 - value",
+}
+
+
+def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_key: str | None = None,
+            candidate_convention: str = "ao", heatmap=None) -> dict:
+    """Compare ``candidate_path`` against ``reference_path`` for ``quantity`` ('ao' | 'obscurance').
+
+    candidate_key : the candidate's array (NPZ), vertex property (PLY), attribute (GLB) or
+      channel (image) holding the quantity, when it is not aobake's name for it
+    candidate_convention : 'ao' (1 = open) | 'occlusion' (the candidate holds 1 - value)
+    heatmap : path of a .ply (per vertex) or .png (per texel) to write the error to
+
+    Returns one record, always with the same keys (see the module docstring for the metrics;
+    None where a value does not exist).  Raises ``InputError`` naming the file and the
+    problem (missing, unreadable, no such key, meshes or images that do not line up,
+    different weightings) and ``OutputError`` when the heatmap cannot be written.
+    """
+    if quantity not in COMPARABLE:
+        raise InputError(f"quantity must be one of {COMPARABLE}, got {quantity!r}")
+    if candidate_convention not in CONVENTIONS:
+        raise InputError(f"candidate_convention must be one of {tuple(CONVENTIONS)}, "
+                         f"got {candidate_convention!r}")
+    reference_path, candidate_path = Path(reference_path), Path(candidate_path)
+    target = target_of(reference_path)
+    heatmap = None if heatmap is None else Path(heatmap)
+    if heatmap is not None:
+        check_path(heatmap, target, (reference_path, candidate_path))
+    reference = read(reference_path, quantity)
+    candidate = read(candidate_path, quantity, key=candidate_key, role="candidate")
+    if candidate.target != reference.target:
+        raise InputError(f"{candidate_path}: holds {kind(candidate.target)}, but the reference "
+                         f"{reference_path} holds {kind(reference.target)}")
+    warnings = reference.warnings + candidate.warnings
+    warnings += check_same_quantity(reference, candidate, quantity)
+    if candidate_convention == "occlusion":
+        if candidate.metadata:
+            raise InputError(f"{candidate_path}: is an aobake output, which holds {quantity} "
+                             "(1 = open); --candidate-convention occlusion is for tools that "
+                             "write 1 minus it")
+        candidate.value = 1.0 - candidate.value
+
+    if not reference.value.size:
+        raise InputError(f"{reference_path}: holds no {quantity} values")
+    aligned = (align_texels if target == "texels" else align_vertices)(reference, candidate)
+    ref, cand, ref_se, cand_se, where, extra = aligned
+    for values, path in ((ref, reference_path), (cand, candidate_path)):
+        bad = int(np.count_nonzero(~np.isfinite(values)))
+        if bad:
+            raise InputError(f"{path}: {bad} of the {len(values)} compared {quantity} values "
+                             "are not finite")
+    result = {"quantity": quantity, "target": target, "reference": str(reference_path),
+              "candidate": str(candidate_path), "reference_key": reference.key,
+              "candidate_key": candidate.key, "candidate_convention": candidate_convention}
+    result.update(metrics(ref, cand, ref_se, cand_se))
+    warnings += extra.pop("warnings")
+    result.update(extra)
+    result["heatmap"], result["heatmap_scale"] = None, None
+    result["warnings"] = warnings
+    if heatmap is not None:
+        scale = result["max_error"] or 1.0
+        error = cand - ref
+        write_heatmap(heatmap, reference, error, where, scale, quantity)
+        result["heatmap"], result["heatmap_scale"] = str(heatmap), scale
+        log.info("wrote %s (full colour at |error| = %.6g)", heatmap, scale)
+    log.info("compared %s over %d %s: rmse %.6g, bias %+.6g", quantity, result["n"], target,
+             result["rmse"], result["bias"])
+    return result
+
+
+def metrics(reference: np.ndarray, candidate: np.ndarray, reference_stderr: np.ndarray | None = None,
+            candidate_stderr: np.ndarray | None = None) -> dict:
+    """The error metrics of ``candidate - reference``.
+
+    reference, candidate : (n,) float, n >= 1; *_stderr : (n,) float or None.
+    Returns a dict of Python floats / None (n an int): n, rmse, bias, max_error,
+    mean_abs_error, psnr (peak 1, None when the error is exactly 0), reference_noise_rms,
+    rmse_in_reference_se, excess_rmse, candidate_noise_rms (None without the stderr).
+    """
+    error = np.asarray(candidate, dtype=np.float64) - np.asarray(reference, dtype=np.float64)
+    n = error.size
+    mse = float(np.mean(error * error))
+    noise = _rms(reference_stderr)
+    out = {
+        "n": int(n),
+        "rmse": math.sqrt(mse),
+        "bias": float(np.mean(error)),
+        "max_error": float(np.max(np.abs(error))),
+        "mean_abs_error": float(np.mean(np.abs(error))),
+        "psnr": 10.0 * math.log10(1.0 / mse) if mse > 0 else None,  # peak 1: AO spans [0, 1]
+        "reference_noise_rms": noise,
+        "rmse_in_reference_se": None,
+        "excess_rmse": None,
+        "candidate_noise_rms": _rms(candidate_stderr),
+    }
+    if noise is not None:
+        # the reference's noise alone gives mean e^2 = noise^2 against an exact candidate
+        out["excess_rmse"] = math.sqrt(max(0.0, mse - noise * noise))
+        if noise > 0:
+            out["rmse_in_reference_se"] = out["rmse"] / noise
+    return out
+
+
+def _rms(stderr) -> float | None:
+    if stderr is None:
+        return None
+    stderr = np.asarray(stderr, dtype=np.float64)
+    if not np.isfinite(stderr).all():
+        return None
+    return math.sqrt(float(np.mean(stderr * stderr)))
+
+
+def read(path, quantity: str = "ao", *, key: str | None = None, role: str = "reference") -> Values:
+    """Read ``quantity`` (and its stderr, positions, coverage where the file has them) from an
+    NPZ, PLY, GLB, EXR, PNG or TIFF file.
+
+    key : the name of the array / property / attribute / channel holding it (default:
+    aobake's name for it); role : 'reference' | 'candidate' (for the messages).
+    Raises InputError('FILE: problem').
+    """
+    path = Path(path)
+    target = target_of(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, not a {path.suffix} file")
+    if not os.access(path, os.R_OK):
+        raise InputError(f"{path}: permission denied")
+    suffix = path.suffix.lower()
+    try:
+        table = read_table(path)
+    except InputError:
+        raise
+    except (Unreadable, ValueError, KeyError, IndexError, TypeError, EOFError, OSError,
+            struct.error, UnicodeDecodeError) as exc:
+        reason = f"no {exc}" if isinstance(exc, KeyError) else \
+            " ".join(str(exc).split()) or type(exc).__name__
+        raise InputError(f"{path}: cannot read as {suffix[1:].upper()}: {reason}") from None
+    values = pick(path, table, quantity, key, role, target)
+    values.warnings = [f"{path}: {text}" for text in table.warnings]
+    for text in values.warnings:
+        log.warning("%s", text)
+    log.debug("%s: %s from %r, %s", path, quantity, values.key, values.value.shape)
+    return values
+
+
+def format_table(result: dict) -> str:
+    """The short human summary of a ``compare`` record."""
+    def num(value, spec=".6f"):
+        return "-" if value is None else format(value, spec)
+
+    where = {"order": "vertices (same order)", "position": "vertices (matched by position)",
+             "texel": "covered texels"}[result["matched_by"]]
+    rows = [
+        ("rmse", num(result["rmse"])),
+        ("bias (candidate - reference)", num(result["bias"], "+.6f")),
+        ("max |error|", num(result["max_error"])),
+        ("mean |error|", num(result["mean_abs_error"])),
+        ("psnr (peak 1)", "inf (identical)" if result["psnr"] is None else f"{result['psnr']:.2f} dB"),
+        ("reference noise rms", num(result["reference_noise_rms"])),
+        ("rmse / reference noise rms", num(result["rmse_in_reference_se"], ".3f")),
+        ("excess rmse", num(result["excess_rmse"])),
+    ]
+    if result["candidate_noise_rms"] is not None:
+        rows.append(("candidate noise rms", num(result["candidate_noise_rms"])))
+    lines = [f"{result['quantity']}: {result['candidate']} against {result['reference']}, "
+             f"{result['n']} {where}"]
+    width = max(len(label) for label, _ in rows)
+    lines += [f"  {label:<{width}}  {value}" for label, value in rows]
+    if result["n_uncovered_in_candidate"]:
+        lines.append(f"  ({result['n_uncovered_in_candidate']} texels the reference covers are "
+                     "not covered by the candidate: left out)")
+    if result["heatmap"]:
+        lines.append(f"  heatmap: {result['heatmap']} (full colour at |error| = "
+                     f"{result['heatmap_scale']:.4g})")
+    return "\n".join(lines)
+
+
+@click.command(context_settings={"help_option_names": ["-h", "--help"]})
+@click.argument("reference", type=click.Path(path_type=Path))
+@click.argument("candidate", type=click.Path(path_type=Path))
+@click.option("--quantity", "-q", type=click.Choice(COMPARABLE), default="ao", show_default=True,
+              help="What to compare.")
+@click.option("--candidate-key", metavar="NAME", default=None,
+              help="The candidate's NPZ array / PLY property / GLB attribute / image channel "
+                   "holding the quantity, when it is not aobake's name for it.")
+@click.option("--candidate-convention", type=click.Choice(tuple(CONVENTIONS)), default="ao",
+              show_default=True,
+              help="occlusion: the candidate holds 1 - AO (libigl); compared as 1 - value.")
+@click.option("--heatmap", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write the error (candidate - reference) in a blue-white-red map: "
+                   ".ply per vertex, .png per texel.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of the table.")
+def main(reference, candidate, quantity, candidate_key, candidate_convention, heatmap, as_json):
+    """Compare CANDIDATE against REFERENCE: RMSE, bias, max error, PSNR and how much of the
+    difference the reference's own noise explains.
+
+    Both are per-vertex files (.npz, .ply, .glb; vertices matched by position) or lightmaps
+    (.exr, .png, .tif; the texels the reference covers).  The candidate may come from
+    another tool (see --candidate-key, --candidate-convention).  Uniform- and
+    cosine-weighted AO are different quantities and are not compared.
+    """
+    logging.basicConfig(level=logging.WARNING, format="aobake: warning: %(message)s",
+                        stream=sys.stderr)
+    try:
+        result = compare(reference, candidate, quantity, candidate_key=candidate_key,
+                         candidate_convention=candidate_convention, heatmap=heatmap)
+    except (AobakeError, ValueError) as exc:
+        click.echo(f"aobake: error: {exc}", err=True)
+        sys.exit(1)
+    if as_json:
+        click.echo(json.dumps(result, allow_nan=False))
+    else:
+        click.echo(format_table(result))

@@ -1,0 +1,57 @@
+"""Whether two aobake files hold the same quantity: different weightings are refused,
+other settings that change the number (max distance, ground plane, ...) are warned about."""
+
+from __future__ import annotations
+
+import logging
+import math
+
+from aobake.compare.values import Values
+from aobake.errors import InputError
+
+log = logging.getLogger(__name__)
+
+#: config keys that change what a quantity means (besides the weighting, which is refused)
+_SAME_QUANTITY = ("max_distance", "ground_plane", "backfaces", "normals")
+
+
+def check_same_quantity(reference: Values, candidate: Values, quantity: str) -> list:
+    """Refuse different weightings (different quantities); warn about other settings that
+    change the number.  Only when both files carry aobake metadata."""
+    ref, cand = (v.metadata.get("config") or {} for v in (reference, candidate))
+    if not isinstance(ref, dict) or not isinstance(cand, dict) or not ref or not cand:
+        return []
+    rw, cw = ref.get("weighting"), cand.get("weighting")
+    if rw is not None and cw is not None and rw != cw:
+        raise InputError(f"{candidate.path}: holds {cw}-weighted {quantity}, the reference "
+                         f"{reference.path} {rw}-weighted {quantity}: different quantities, which "
+                         "no conversion relates (bake both with the same --weighting)")
+    keys = _SAME_QUANTITY + (("tau",) if quantity == "obscurance" else ())
+    warnings = []
+    for key in keys:
+        # resolved values (scene units) where the report has them: '10%' of the same mesh agrees
+        a = _setting(reference.metadata, key)
+        b = _setting(candidate.metadata, key)
+        if a is not None and b is not None and not _same(a, b):
+            text = (f"{key} differs ({reference.path}: {a}, {candidate.path}: {b}): the files "
+                    f"may hold different {quantity}; compared anyway")
+            log.warning("%s", text)
+            warnings.append(text)
+    return warnings
+
+
+def _setting(metadata: dict, key: str):
+    for part in ("parameters", "config"):
+        section = metadata.get(part)
+        if isinstance(section, dict) and key in section:
+            return section[key]
+    return None
+
+
+def _same(a, b) -> bool:
+    try:
+        fa, fb = float(a), float(b)  # "inf" strings of the strict JSON metadata included
+    except (TypeError, ValueError):
+        return a == b
+    return fa == fb or math.isclose(fa, fb, rel_tol=1e-9)
+

@@ -1,0 +1,153 @@
+"""One file's values of one quantity: which file kind a suffix is, and from a reader's
+``Table`` the quantity's column, its stderr, positions or coverage (``pick``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from aobake.compare.readers import Table
+from aobake.errors import InputError
+from aobake.outputs.registry import suffixes
+from aobake.quantities import QUANTITIES
+
+VERTEX_SUFFIXES = suffixes("vertices")  # .npz .ply .glb
+TEXEL_SUFFIXES = tuple(s for s in suffixes("texels") if s not in VERTEX_SUFFIXES)  # .exr .png .tif
+
+
+@dataclass
+class Values:
+    """One file's values of a quantity.
+
+    target : 'vertices' | 'texels'
+    value : (n,) float64 per vertex | (H, W) float64 per texel
+    stderr : same shape, the file's standard error of ``value``, or None
+    positions, normals : (n, 3) float64 or None (texels: None)
+    faces : (f, 3) int64 or None
+    mask : (H, W) bool texels the file covers, or None (no coverage: per vertex, or an image
+      without a coverage channel)
+    metadata : the aobake metadata the file carries ({} for another tool's file)
+    key : the array / property / attribute / channel the value was read from
+    warnings : what the reader could not honour (e.g. a GLB's node transforms)
+    """
+
+    path: Path
+    target: str
+    value: np.ndarray
+    stderr: np.ndarray | None = None
+    positions: np.ndarray | None = None
+    normals: np.ndarray | None = None
+    faces: np.ndarray | None = None
+    mask: np.ndarray | None = None
+    metadata: dict = field(default_factory=dict)
+    key: str = ""
+    warnings: list = field(default_factory=list)
+
+
+def kind(target: str) -> str:
+    """How a message names what a file of ``target`` holds."""
+    return "per-vertex values" if target == "vertices" else "a lightmap (per texel)"
+
+
+def target_of(path: Path) -> str:
+    """'vertices' | 'texels' by the suffix; InputError for a format compare does not read."""
+    suffix = path.suffix.lower()
+    if suffix in VERTEX_SUFFIXES:
+        return "vertices"
+    if suffix in TEXEL_SUFFIXES:
+        return "texels"
+    raise InputError(f"{path}: unsupported format {suffix or '(none)'!r}; compare reads "
+                     f"{', '.join(VERTEX_SUFFIXES)} (per vertex) and {', '.join(TEXEL_SUFFIXES)} "
+                     "(per texel)")
+
+
+def pick(path: Path, table: Table, quantity: str, key, role: str, target: str) -> Values:
+    """The quantity's column (``key``, else its aobake name) and, with aobake's names, its stderr."""
+    q = QUANTITIES[quantity]
+    standard = getattr(q.value, table.naming)
+    standard = standard[0] if isinstance(standard, tuple) else standard
+    columns = table.columns
+    mask = None
+    name = key if key is not None else standard
+    if key is None and standard not in columns and target == "texels":
+        name = _image_channel(path, table, quantity)
+    if name not in columns:
+        have = ", ".join(sorted(columns)) or "nothing"
+        hint = "; name the candidate's with --candidate-key NAME" if role == "candidate" else ""
+        what = {"name": "array", "ply": "vertex property", "gltf": "vertex attribute",
+                "exr": "channel"}[table.naming]
+        extra = ""
+        if table.naming == "gltf" and "TEXCOORD_0" in columns:
+            extra = " (a lightmap GLB's AO is a texture: compare its .exr or .png)"
+        raise InputError(f"{path}: no {what} {name!r} (it has {have}){extra}{hint}")
+    value = _scalar(path, name, columns[name], target)
+    stderr = None
+    if name == standard:  # aobake's own names: its stderr sits beside it
+        error_name = getattr(q.error, table.naming)
+        error_name = error_name[0] if isinstance(error_name, tuple) else error_name
+        if error_name in columns:
+            stderr = _scalar(path, error_name, columns[error_name], target)
+    if target == "texels":
+        mask = _coverage(table)
+    else:
+        n = len(value)
+        for label, array in (("positions", table.positions), ("normals", table.normals)):
+            if array is not None and array.shape != (n, 3):
+                raise InputError(f"{path}: {label} are {array.shape}, expected ({n}, 3)")
+        if table.faces is not None and len(table.faces) and \
+                (table.faces.min() < 0 or table.faces.max() >= n):
+            raise InputError(f"{path}: faces index vertices {table.faces.min()}.."
+                             f"{table.faces.max()}, but there are {n}")
+    return Values(path, target, value, stderr, table.positions, table.normals, table.faces, mask,
+                  table.metadata, name)
+
+
+def _image_channel(path: Path, table: Table, quantity: str) -> str:
+    """The channel of an image without one named after the quantity: an aobake PNG/TIFF's R
+    (its metadata says which map it is), else the only channel, else R of a grey image."""
+    columns, meta = table.columns, table.metadata
+    if "map" in meta:
+        if meta["map"] != quantity:
+            raise InputError(f"{path}: holds {meta['map']}, not {quantity}")
+        return "R"
+    names = list(columns)
+    if len(names) == 1:
+        return names[0]
+    if {"R", "G", "B"} <= set(names) and np.array_equal(columns["R"], columns["G"]) \
+            and np.array_equal(columns["R"], columns["B"]):
+        return "R"
+    return QUANTITIES[quantity].value.exr[0]  # not there: pick names what there is
+
+
+def _coverage(table: Table) -> np.ndarray | None:
+    """(H, W) bool texels an aobake image covers: its coverage channel (> 0), else ray counts
+    (> 0), else an aobake PNG/TIFF's alpha (the coverage, quantised); None for other files."""
+    columns = table.columns
+    if "coverage" in columns:
+        return columns["coverage"] > 0
+    if "rays" in columns:
+        return columns["rays"] > 0
+    if "map" in table.metadata and "A" in columns:
+        return columns["A"] > 0
+    return None
+
+
+def _scalar(path: Path, name: str, array, target: str) -> np.ndarray:
+    """(H, W) float64 from a channel, (n,) float64 from a per-vertex column: (n, 1) squeezed,
+    an RGB(A) colour whose R, G, B agree gives R (aobake's grey COLOR_0), other vectors refused."""
+    array = np.asarray(array)
+    if array.dtype.kind not in "biuf":
+        raise InputError(f"{path}: {name!r} holds {array.dtype} values, not numbers")
+    if target == "vertices" and array.ndim == 2:
+        grey = array.shape[1] in (3, 4) and np.array_equal(array[:, 0], array[:, 1]) \
+            and np.array_equal(array[:, 0], array[:, 2])
+        if array.shape[1] != 1 and not grey:
+            raise InputError(f"{path}: {name!r} has {array.shape[1]} components per vertex; "
+                             "compare needs one number per vertex")
+        array = array[:, 0]
+    if array.ndim != (2 if target == "texels" else 1):
+        raise InputError(f"{path}: {name!r} is {array.shape}, not one number per "
+                         f"{'texel' if target == 'texels' else 'vertex'}")
+    return array.astype(np.float64)
