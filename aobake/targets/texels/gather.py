@@ -4,7 +4,8 @@ A texel's value is the mean of its s sample estimates (K surface positions, each
 with its own rays); its standard error is sqrt(sum se^2) / s.  Directions (bent
 normals) are averaged and normalised, optionally in tangent space.  Channels are
 (H, W) images in the texel convention of ``aobake.targets.texels.raster`` (row 0
-at the top, v near 1), dilated ``padding`` texels into the gutters.
+at the top, v near 1), dilated ``padding`` texels into the gutters and push-pull
+filled beyond (``aobake.post``), except ``rays`` and ``coverage`` (0 outside the charts).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from aobake import stats
-from aobake.post import dilate
+from aobake.post import dilate, push_pull
 from aobake.targets.texels.raster import TexelSamples
 from aobake.vectors import normalize
 
@@ -75,7 +76,10 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     -> bent in tangent space, dof : degrees of freedom of one sample's stderr (R - 1 or
     n - 1), confidence : the interval level.
     Returns (channels: name -> (H, W) float32 in output order, covered (H, W) bool,
-    filled (H, W) bool covered or padded).
+    filled (H, W) bool covered or padded).  ``filled`` marks the covered texels and the
+    ``padding`` rings of exact dilation; every other texel of the value, error and interval
+    channels holds the push-pull fill (``aobake.post.push_pull``), of ``rays`` and
+    ``coverage`` 0.
     """
     width, height = samples.width, samples.height
     traced = rays > 0  # samples on zero-area faces have no normal: left out of the texel means
@@ -114,13 +118,32 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
                                        confidence))
     names = list(out)
     stack = np.stack([out[n] for n in names], axis=-1)
+    # Gutters: `padding` rings of exact nearest-texel dilation, then push-pull fills every
+    # texel beyond them, so no box-filtered mip level mixes an empty texel into a chart.
+    # In float32, what is written: the covered and dilated texels round exactly as before.
     stack, filled = dilate(stack, covered, padding)
+    stack = push_pull(stack, filled, np.float32)
     for i, name in enumerate(names):
         out[name] = stack[..., i]
+    for q in quantities:
+        if q.texel == "direction":  # a mean of unit vectors is shorter: renormalised
+            _renormalise([out[label] for label in q.value.exr], ~filled)
+    # `rays` and `coverage` are not filled: 0 outside the charts tells real texels from fill.
     out["rays"] = rays_img
     out["coverage"] = samples.coverage.astype(np.float64) * covered
-    return ({name: np.asarray(image, dtype=np.float32) for name, image in out.items()},
+    return ({name: np.ascontiguousarray(image, dtype=np.float32) for name, image in out.items()},
             covered, filled)
+
+
+def _renormalise(axes, where) -> None:
+    """Unit directions, in place, where ``where`` (H, W) bool: axes are the three (H, W)
+    float component planes.  A zero mean (opposite directions cancelling) stays zero, the
+    no-direction convention of ``aobake.vectors.normalize``."""
+    length = np.sqrt(sum(a * a for a in axes))
+    scale = np.ones_like(length)
+    scale = np.divide(scale, length, out=scale, where=where & (length > 0))
+    for a in axes:
+        a *= scale  # 1 elsewhere: those texels keep their bits
 
 
 def _texel_interval(q, sub, value, stderr, mean_variance, variance, texel_rays, count, dof,
