@@ -57,7 +57,7 @@ def run(
     timings: dict = {}
     start = clock = time.perf_counter()
     phase("loading")
-    scene = load_scene(mesh, config.normals)
+    scene = load_scene(mesh, config.normals, config.fix_normals)
     tracer = Tracer(scene, config, rays=target.rays_per_point(config))
     timings["load_s"] = time.perf_counter() - clock
 

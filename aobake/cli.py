@@ -181,6 +181,10 @@ SUBCOMMANDS = {"compare": _compare_command, "refit": _refit_command}
 @click.option("--normals", default=DEFAULTS["normals"], show_default=True,
               type=click.Choice(CHOICES["normals"]),
               help="Vertex normals: the file's (angle-weighted where it has none), or computed.")
+@click.option("--fix-normals", default=DEFAULTS["fix_normals"], show_default=True,
+              type=click.Choice(CHOICES["fix_normals"]),
+              help="Faces wound against their neighbours and components pointing inward: "
+                   "warn with counts, fix (flip them; computed normals follow), or off.")
 @click.option("--ground-plane", is_flag=True, default=DEFAULTS["ground_plane"],
               help="Add an infinite solid ground plane at the scene's lowest point along --up-axis.")
 @click.option("--up-axis", default=DEFAULTS["up_axis"], show_default=True,

@@ -15,6 +15,7 @@ from aobake.errors import InputError
 
 from aobake.backends import BACKENDS
 from aobake.quantities import QUANTITIES, canonical
+from aobake.repair import MODES as FIX_NORMALS
 from aobake.samplers import SAMPLERS
 from aobake.warp import WEIGHTINGS
 
@@ -108,6 +109,10 @@ class BakeConfig:
     max_distance float in scene units (inf = unlimited) or 'P%' of the diagonal
     tau          obscurance decay per scene unit; None = DEFAULT_TAU_DIAGONALS / diagonal
     seed, sampler, weighting, normals, ground_plane, up_axis, backfaces: see the CLI help
+    fix_normals  warn | fix | off: triangles wound against their neighbours and components
+                 pointing inward (``aobake.repair``) are counted in a warning, flipped, or
+                 not looked for.  Default warn: a closed shell wound inward may be meant
+                 (a room seen from inside), and a reference bakes what it is given
     ray_offset   origin offset along the normal, as a fraction of the point's own triangle
                  size (at least OFFSET_ULPS float32 ulps of its coordinates)
     backend      tracing backend (BACKENDS): embree, or the slow float64 reference
@@ -135,6 +140,7 @@ class BakeConfig:
     sampler: str = "sobol"
     weighting: str = "cosine"
     normals: str = "file"
+    fix_normals: str = "warn"
     ground_plane: bool = False
     up_axis: str = "y"
     backfaces: str = "occlude"
@@ -246,6 +252,7 @@ class BakeConfig:
 #: field -> allowed values (the CLI's choices come from the same registries)
 CHOICES = {
     "sampler": tuple(SAMPLERS), "weighting": tuple(WEIGHTINGS), "normals": NORMALS,
+    "fix_normals": FIX_NORMALS,
     "up_axis": AXES, "backfaces": BACKFACES, "backend": tuple(BACKENDS), "unwrap": UNWRAP,
     "bent_space": BENT_SPACES,
 }
@@ -253,5 +260,5 @@ CHOICES = {
 #: the defaults, by field name (``BakeConfig().to_dict()``)
 DEFAULTS = {f.name: f.default for f in fields(BakeConfig)}
 
-__all__ = ["AXES", "BACKFACES", "BENT_SPACES", "BakeConfig", "CHOICES", "DEFAULTS", "NORMALS",
-           "QUANTITIES", "UNWRAP", "parse_distance", "parse_resolution"]
+__all__ = ["AXES", "BACKFACES", "BENT_SPACES", "BakeConfig", "CHOICES", "DEFAULTS", "FIX_NORMALS",
+           "NORMALS", "QUANTITIES", "UNWRAP", "parse_distance", "parse_resolution"]

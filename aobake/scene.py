@@ -19,6 +19,14 @@ darker); at a convex crease no hemisphere direction enters the solid, so nothing
 is lost.  A vertex whose normal is undefined (unreferenced, or touching only
 zero-area faces) is not sampled: it gets 0 rays and the no-information estimate
 (see ``aobake.quantities``), and the report counts it.
+
+Winding (``--fix-normals``, :mod:`aobake.repair`): triangles wound against their
+neighbours and components turned inside out are found before any normal is computed.
+``warn`` (default) counts them in a warning and changes nothing; ``fix`` flips them
+(faces and per-corner UV indices), so face and computed vertex normals come from the
+repaired winding, and a file normal of a flipped triangle's vertex that points against
+the vertex's repaired angle-weighted normal is replaced by that normal; ``off`` skips
+the check.  ``Scene.repair`` (report: ``scene.fix_normals``) says what was found and done.
 """
 
 from __future__ import annotations
@@ -34,6 +42,7 @@ import warnings
 
 import numpy as np
 
+from aobake import repair as repairs
 from aobake.vectors import normalize
 
 from aobake.errors import InputError
@@ -75,6 +84,9 @@ class Scene:
     face_material: np.ndarray | None = None
     #: (f,) float64 triangle areas (computed with the face normals; None: computed on demand)
     face_areas: np.ndarray | None = field(default=None, repr=False)
+    #: what --fix-normals found and did (see :func:`repair_record`); None for a Scene built
+    #: directly
+    repair: dict | None = None
 
     @cached_property
     def used(self) -> np.ndarray:
@@ -113,7 +125,22 @@ class Scene:
             "diagonal": self.diagonal,
             "normals_source": self.normals_source,
             "has_uv": self.faces_uv is not None,
+            "fix_normals": self.repair if self.repair is not None else repair_record("off"),
         }
+
+
+def repair_record(mode: str, counts: dict | None = None, flipped: int = 0,
+                  replaced: int = 0) -> dict:
+    """The report's ``scene.fix_normals``: the mode, the detector's counts (None with
+    ``off``: nothing was looked at), ``faces_flipped`` and ``normals_replaced`` (file
+    normals replaced by computed ones; 0 unless ``fix``)."""
+    keys = ("components", "closed_components", "nearly_closed_components",
+            "faces_against_neighbours",
+            "components_with_faces_against", "inward_components", "conflicting_edges")
+    out = {"mode": mode}
+    out.update({key: None if counts is None else counts[key] for key in keys})
+    out.update(faces_flipped=int(flipped), normals_replaced=int(replaced))
+    return out
 
 
 def _face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -174,12 +201,15 @@ def make_scene(
     warnings=None,
     materials: list | None = None,
     face_material=None,
+    fix_normals: str = "warn",
 ) -> Scene:
     """Validate arrays and build a :class:`Scene`.
 
     vertices : (v, 3) float, faces : (f, 3) int, normals : (v, 3) float or None
-    (used only when ``normals_mode == "file"``).  Raises InputError naming
-    ``source`` on empty, non-finite or out-of-range input.
+    (the shading normals when ``normals_mode == "file"``; with any mode they orient
+    open components, see :mod:`aobake.repair`).  fix_normals : "warn" | "fix" | "off"
+    (see the module docstring).  Raises InputError naming ``source`` on empty,
+    non-finite or out-of-range input.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces)
@@ -206,11 +236,46 @@ def make_scene(
                          f"extent >= {MIN_EXTENT:g} scene units (areas are float64; rescale "
                          "the mesh)")
     warnings = list(warnings or [])
+    if fix_normals not in repairs.MODES:
+        raise InputError(f"fix_normals must be one of {sorted(repairs.MODES)}, got {fix_normals!r}")
     # Normals and areas from coordinates rebased and scaled by a power of two (exact), so
     # neither the cross products nor their norms under- or overflow at extreme scales.
     center = 0.5 * (lo + hi)
     scale = 2.0 ** -math.frexp(extent)[1] if extent > 0 else 1.0
     local = (vertices - center) * scale
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float64)
+        if normals.shape != vertices.shape:
+            if normals_mode == "file":
+                raise InputError(f"{source}: normals must be {vertices.shape}, got {normals.shape}")
+            normals = None  # not used for shading; the repair's vote goes without them
+    if uv is not None:  # checked before a repair reorders its corners
+        faces_uv = np.asarray(faces_uv if faces_uv is not None else faces, dtype=np.int64)
+        if faces_uv.shape != faces.shape:
+            raise InputError(f"{source}: UV indices do not match the faces")
+    flipped = None
+    if fix_normals == "off":
+        record = repair_record("off")
+    else:
+        # One unit vote per vertex (an OBJ's are sums over its corners); a non-finite or
+        # zero normal does not vote.
+        votes = None if normals is None else _normalize(normals)
+        orientation = repairs.orient(local, faces, votes)
+        counts = orientation.counts()
+        if fix_normals == "fix" and orientation.flip.any():
+            flipped = orientation.flip
+            faces = repairs.flip_faces(faces, flipped)
+            if uv is not None:
+                faces_uv = repairs.flip_faces(faces_uv, flipped)
+            warnings.append(f"{source}: flipped {int(flipped.sum())} faces "
+                            f"({counts['faces_against_neighbours']} wound against their "
+                            f"neighbours, {counts['inward_components']} components pointing "
+                            "inward)")
+        elif fix_normals == "warn":
+            text = repairs.warning_text(counts, source)
+            if text:
+                warnings.append(text)
+        record = repair_record(fix_normals, counts, 0 if flipped is None else flipped.sum())
     tri = local[faces]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     fnormals = _normalize(cross)  # as face_normals(), sharing the cross product with the areas
@@ -224,10 +289,16 @@ def make_scene(
     mode = normals_mode
     if normals_mode == "file":
         if normals is not None:
-            normals = _normalize(np.asarray(normals, dtype=np.float64))
-            if normals.shape != vertices.shape:
-                raise InputError(f"{source}: normals must be {vertices.shape}, got {normals.shape}")
-            vnormals = normals
+            vnormals = _normalize(normals)
+            if flipped is not None:
+                # A flipped face's file normals were made for its old side: where one points
+                # against its vertex's repaired (angle-weighted) normal it is replaced.
+                computed = vertex_normals(local, faces, "angle")
+                touched = np.zeros(len(vertices), dtype=bool)
+                touched[faces[flipped].ravel()] = True
+                against = touched & (np.einsum("ij,ij->i", vnormals, computed) < 0)
+                vnormals = np.where(against[:, None], computed, vnormals)
+                record["normals_replaced"] = int(np.count_nonzero(against))
         else:
             mode = "angle"
     if mode != "file":
@@ -238,7 +309,6 @@ def make_scene(
         vnormals = np.where(vnormals.any(axis=1, keepdims=True), vnormals, computed)
     if uv is not None:
         uv = np.asarray(uv, dtype=np.float64)
-        faces_uv = np.asarray(faces_uv if faces_uv is not None else faces, dtype=np.int64)
         if faces_uv.shape != faces.shape or faces_uv.min() < 0 or faces_uv.max() >= len(uv):
             raise InputError(f"{source}: UV indices do not match the faces")
         if not np.isfinite(uv[faces_uv]).all():
@@ -253,7 +323,7 @@ def make_scene(
     for message in warnings:
         log.warning(message)
     return Scene(vertices, faces, vnormals, fnormals, uv, faces_uv if uv is not None else None,
-                 source, mode, warnings, materials, face_material, areas)
+                 source, mode, warnings, materials, face_material, areas, record)
 
 
 def _obj_normals(data) -> np.ndarray | None:
@@ -422,10 +492,11 @@ def _load_with_trimesh(path: Path):
             np.concatenate(uvs) if uvs else None, _trimesh_materials(meshes) if uvs else None)
 
 
-def load_scene(source, normals_mode: str = "file") -> Scene:
+def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn") -> Scene:
     """Load a path or an in-memory mesh into a :class:`Scene`.
 
-    source : str | PathLike | trimesh.Trimesh | trimesh.Scene | Scene
+    source : str | PathLike | trimesh.Trimesh | trimesh.Scene | Scene (returned as it is)
+    fix_normals : "warn" | "fix" | "off", see :func:`make_scene`
     Raises InputError (naming the file and the problem) for a missing file, an
     unsupported extension, a corrupt or empty file or invalid geometry.
     """
@@ -441,7 +512,8 @@ def load_scene(source, normals_mode: str = "file") -> Scene:
         normals = source.vertex_normals if "vertex_normals" in source._cache else None
         uv = getattr(source.visual, "uv", None)
         return make_scene(source.vertices, source.faces, normals, normals_mode,
-                          uv=uv if uv is not None and len(uv) == len(source.vertices) else None)
+                          uv=uv if uv is not None and len(uv) == len(source.vertices) else None,
+                          fix_normals=fix_normals)
     path = Path(source)
     suffix = path.suffix.lower()
     if path.is_dir():
@@ -461,8 +533,9 @@ def load_scene(source, normals_mode: str = "file") -> Scene:
         materials, face_material = _obj_materials(path, data) if has_uv else (None, None)
         return make_scene(data.vertices, data.faces, _obj_normals(data), normals_mode,
                           uv=data.uv if has_uv else None, faces_uv=data.faces_uv, source=str(path),
-                          warnings=data.warnings, materials=materials, face_material=face_material)
+                          warnings=data.warnings, materials=materials, face_material=face_material,
+                          fix_normals=fix_normals)
     vertices, faces, normals, uv, materials = _load_with_trimesh(path)
     materials, face_material = materials or (None, None)
     return make_scene(vertices, faces, normals, normals_mode, uv=uv, source=str(path),
-                      materials=materials, face_material=face_material)
+                      materials=materials, face_material=face_material, fix_normals=fix_normals)

@@ -60,7 +60,8 @@ def test_every_field_has_one_name_everywhere():
 def test_config_round_trips_through_a_report_with_every_field_changed():
     changed = BakeConfig(quantities=("obscurance", "bent_normal"), rays=33, max_distance="7%",
                          tau=2.5, seed=9, sampler="random", weighting="uniform", normals="area",
-                         ground_plane=True, up_axis="z", backfaces="ignore", ray_offset=2e-5,
+                         fix_normals="fix", ground_plane=True, up_axis="z", backfaces="ignore",
+                         ray_offset=2e-5,
                          backend="reference", confidence=0.9, tolerance=0.03, max_rays=1000,
                          resolution="48x32", padding=3,
                          texel_samples=9,

@@ -65,6 +65,8 @@ _ELEMENT_ARRAY_BUFFER = 34963
 _LINEAR = 9729
 _CLAMP_TO_EDGE = 33071
 _REPEAT = 10497
+#: Atlas.wrap -> glTF sampler wrapS / wrapT
+_WRAPS = {"clamp": _CLAMP_TO_EDGE, "repeat": _REPEAT}
 
 _COMPONENT_DTYPES = {
     5120: np.dtype("i1"),
@@ -130,6 +132,7 @@ def write_textured(
     base_color_factor: Sequence[float] | None = None,
     materials: Sequence[Mapping] | None = None,
     face_material: np.ndarray | None = None,
+    occlusion_wrap: str = "clamp",
 ) -> None:
     """Write a mesh whose materials carry the baked AO atlas as their occlusion texture.
 
@@ -153,11 +156,16 @@ def write_textured(
       a list of {"name", "base_color_png", "base_color_factor"} (the latter two as above)
     face_material : (f,) int index into ``materials`` of each face; the mesh gets
       one primitive per material that has faces (the vertex attributes are shared)
+    occlusion_wrap : "clamp" (CLAMP_TO_EDGE) or "repeat" (REPEAT: the mesh's own UVs
+      reach outside [0, 1] and the map was baked wrapped)
 
     The occlusion texture samples with linear filtering and no mipmaps (mips
-    would average texels of unrelated charts) and clamps to the edge; the base
-    colour texture repeats, as the mesh's own UVs may tile.
+    would average texels of unrelated charts) and clamps to the edge unless
+    ``occlusion_wrap`` says repeat; the base colour texture repeats, as the mesh's
+    own UVs may tile.
     """
+    if occlusion_wrap not in _WRAPS:
+        raise ValueError(f"occlusion_wrap must be one of {sorted(_WRAPS)}, got {occlusion_wrap!r}")
     fields = {} if normals is None else {"normals": normals}
     positions, faces, fields = check_vertex_data(positions, faces, fields)
     _check_not_empty(positions, faces)
@@ -202,7 +210,7 @@ def write_textured(
     uv_sets = [atlas_uv] if base_uv is None else [base_uv, atlas_uv]
     for i, uv in enumerate(uv_sets):
         attributes[f"TEXCOORD_{i}"] = _add_accessor(gltf, blob, _flip_v(uv), _ARRAY_BUFFER)
-    occlusion = _add_texture(gltf, blob, occlusion_png, _CLAMP_TO_EDGE, "occlusion")
+    occlusion = _add_texture(gltf, blob, occlusion_png, _WRAPS[occlusion_wrap], "occlusion")
     parts = []
     for index in np.unique(face_material):  # materials without faces are not written
         name, png, rgba = checked[index]

@@ -89,4 +89,5 @@ def _write_glb(path, result, value, metadata: dict) -> None:
     png = image.png_bytes(value, np.ones_like(value), bit_depth=8, r_only=True)
     glb.write_textured(path, atlas.positions, atlas.faces, atlas.normals, atlas.uv, png,
                        metadata, base_uv=base_uv, materials=atlas.materials,
-                       face_material=atlas.face_material)
+                       face_material=atlas.face_material,
+                       occlusion_wrap=atlas.wrap)

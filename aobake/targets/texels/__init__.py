@@ -141,6 +141,8 @@ def _texture_stats(channels, covered, filled, shared, width, height, padding, k,
         "texels_padded": int(np.count_nonzero(filled & ~covered)),
         "texels_shared": shared,
         "atlas": "xatlas" if atlas.new else "mesh UVs",
+        # how the map is sampled: "repeat" when own UVs outside [0, 1] were baked wrapped
+        "wrap": atlas.wrap,
         "charts": atlas.charts,
         "uv_check": None if check is None else {
             "valid": check.valid, "out_of_range_faces": check.out_of_range_faces,

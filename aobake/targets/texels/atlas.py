@@ -14,7 +14,7 @@ import numpy as np
 from aobake.errors import InputError
 from aobake.targets.texels.raster import rasterize
 from aobake.targets.texels.unwrap import unwrap as xatlas_unwrap
-from aobake.targets.texels.uvcheck import check_uvs
+from aobake.targets.texels.uvcheck import check_uvs, wrap_uvs
 
 #: largest image side accepted
 MAX_RESOLUTION = 16384
@@ -33,7 +33,10 @@ class Atlas:
     new : bool True when the atlas was made by xatlas (the mesh must be written out),
     materials : list | None the input's materials (see Scene.materials), kept in GLBs,
     face_material : (f,) int64 | None each face's material,
-    charts : int | None number of charts of a new atlas.
+    charts : int | None number of charts of a new atlas,
+    wrap : str "clamp" | "repeat": how the map is sampled; "repeat" when own UVs
+    outside [0, 1] were baked wrapped (``uvcheck.wrap_uvs``; ``uv`` keeps the mesh's
+    values, the texels hold them modulo 1).
     """
 
     positions: np.ndarray
@@ -46,6 +49,7 @@ class Atlas:
     materials: list | None = None
     face_material: np.ndarray | None = None
     charts: int | None = None
+    wrap: str = "clamp"
 
 
 def check_texture_budget(width: int, height: int, texel_samples: int) -> int:
@@ -78,10 +82,12 @@ def split_corners(*corner_indices):
 def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_samples: int,
                seed: int, threads: int, warnings: list, timings: dict, compiled: bool | None,
                phase=lambda name: None):
-    """Choose the UVs to bake into (the mesh's own when valid, else a fresh xatlas atlas)
-    and rasterise them.
+    """Choose the UVs to bake into (the mesh's own when valid, wrapped into [0, 1] where
+    they stray out of it, else a fresh xatlas atlas) and rasterise them.
 
-    Returns (atlas, bake_uv (t, 2), bake_faces_uv (f, 3), uv_check or None, samples).
+    Returns (atlas, bake_uv (t, 2), bake_faces_uv (f, 3), uv_check or None, samples);
+    ``samples.face`` indexes ``scene.faces`` (with wrapped own UVs, a face may have
+    samples at two tile positions; ``bake_uv`` are the mesh's own UVs, unwrapped).
     Fills ``timings`` with uv_check_s, unwrap_s and raster_s.
     """
 
@@ -93,21 +99,23 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
         timings["raster_s"] = time.perf_counter() - clock
         return samples
 
-    check = samples = None
+    check = samples = layout = None
     timings.update(uv_check_s=0.0, unwrap_s=0.0)
     if scene.faces_uv is not None:
-        corners = scene.uv[scene.faces_uv]
-        in_range = bool(np.all((corners >= 0.0) & (corners <= 1.0)))
-        if unwrap == "never" or (unwrap == "auto" and in_range):
+        clock = time.perf_counter()
+        layout = wrap_uvs(scene.uv, scene.faces_uv)  # the input's own when all in [0, 1]
+        wrap_s = time.perf_counter() - clock
+        if unwrap == "never" or (unwrap == "auto" and not layout.oversized_faces):
             # Likely baked as they are: the bake's own rasterisation gives the overlap
             # count too (texel-centre coverage), so the check costs no extra pass.
-            samples = raster(scene.uv, scene.faces_uv)
+            samples = layout.to_faces(raster(layout.uv, layout.faces))
             clock = time.perf_counter()
-            check = check_uvs(scene.uv, scene.faces_uv, width, height, shared=samples.shared)
+            check = check_uvs(scene.uv, scene.faces_uv, width, height, shared=samples.shared,
+                              layout=layout)
         else:  # not baked as they are: a texel-centre (K = 1) pass for the report is enough
             clock = time.perf_counter()
-            check = check_uvs(scene.uv, scene.faces_uv, width, height)
-        timings["uv_check_s"] = time.perf_counter() - clock
+            check = check_uvs(scene.uv, scene.faces_uv, width, height, layout=layout)
+        timings["uv_check_s"] = wrap_s + time.perf_counter() - clock
     if unwrap == "never":
         if scene.faces_uv is None:
             raise InputError(f"{scene.source}: mesh has no UVs and --no-unwrap was given")
@@ -118,7 +126,8 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
         keys, faces = split_corners(scene.faces, scene.faces_uv)
         atlas = Atlas(scene.vertices[keys[:, 0]], scene.vertex_normals[keys[:, 0]], faces,
                       scene.uv[keys[:, 1]], None, keys[:, 0], new=False, materials=scene.materials,
-                      face_material=scene.face_material)
+                      face_material=scene.face_material,
+                      wrap="repeat" if layout.wrapped else "clamp")
         return atlas, scene.uv, scene.faces_uv, check, samples
     if scene.faces_uv is not None and unwrap == "auto":
         warnings.append(f"{scene.source}: the mesh's UVs cannot be baked ({check.message}); "

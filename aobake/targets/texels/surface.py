@@ -20,11 +20,23 @@ def surface_points(positions, normals, faces, samples: TexelSamples):
 
     Returns (points (s, 3) float64, normals (s, 3) float64 unit, face_normals
     (s, 3) float64 unit).  The shading normal is the normalised interpolated
-    vertex normal, replaced by the face normal where it is zero or points
-    against the face (dot <= 0), since a ray hemisphere around it would dip
-    into the surface.  A face with zero 3D area has a zero face normal; its
-    shading normal is then the interpolated one, or zero if that is zero too
-    (such samples have no surface and should be dropped by the caller).
+    vertex normal n, except:
+
+    * on a face that agrees with its vertex normals (``(n_0 + n_1 + n_2) . f >= 0``
+      for its unit face normal f and unit corner normals n_i), f where n is zero or
+      points against the face (``n . f <= 0``): near a crease the smoothed normal can
+      tip below the face, and a hemisphere around it would dip into the surface;
+    * on a face *turned against* its vertex normals (that sum ``. f < 0``): n, and
+      ``-f`` where n is zero.  Such a face is a folded sliver (a near-degenerate
+      triangle whose corner lies past the opposite edge: its own normal points into
+      the solid while the surface around it faces out) or a triangle wound against its
+      neighbours (``--fix-normals``); its vertex normals, averages over the surface
+      around it, say where outside is, and a hemisphere around f would bake a dark
+      texel on a surface that is open.
+
+    A face with zero 3D area has a zero face normal; its shading normal is then the
+    interpolated one, or zero if that is zero too (such samples have no surface and
+    should be dropped by the caller).
     """
     positions = check_rows("positions", positions)
     faces = np.asarray(faces, dtype=np.int64)
@@ -34,9 +46,14 @@ def surface_points(positions, normals, faces, samples: TexelSamples):
     ftri = positions[faces]
     fn = np.cross(ftri[:, 1] - ftri[:, 0], ftri[:, 2] - ftri[:, 0])
     unit, fn_len = normalize(fn)
+    turned = None
+    if normals is not None:
+        unit_normals = normalize(normals)[0]
+        corner_sum = unit_normals[faces].sum(axis=1)  # (f, 3)
+        turned = np.einsum("ij,ij->i", corner_sum, unit) < 0  # (f,) bool, False if f = 0
     s = samples.n_samples
     points, shading, face_normals = np.empty((s, 3)), np.empty((s, 3)), np.empty((s, 3))
-    n_bad = 0
+    n_bad = n_turned = 0
     # In blocks: row-wise arithmetic, so the result is the same, but the temporaries
     # stay small (whole-array temporaries of millions of rows cost more in page
     # faults than in arithmetic).
@@ -58,12 +75,20 @@ def surface_points(positions, normals, faces, samples: TexelSamples):
         n = interpolate(normals)
         n, n_len = normalize(n)
         has_face = fn_len[face, 0] > 0
-        bad = has_face & ((n_len[:, 0] == 0) | (np.einsum("ij,ij->i", n, fnorm) <= 0))
+        zero = n_len[:, 0] == 0
+        against = turned[face]
+        bad = has_face & ~against & (zero | (np.einsum("ij,ij->i", n, fnorm) <= 0))
         n[bad] = fnorm[bad]
-        n_bad += int(bad.sum())
+        flip = against & zero  # no interpolated direction: the face's, on its normals' side
+        n[flip] = -fnorm[flip]
+        n_bad += int(bad.sum() + flip.sum())
+        n_turned += int(against.sum())
         shading[lo:hi] = n
     if n_bad:
         log.debug("%d samples use the face normal (vertex normal zero or flipped)", n_bad)
+    if n_turned:
+        log.debug("%d samples lie on faces turned against their vertex normals (folded slivers "
+                  "or inconsistent winding): they use the vertex normals", n_turned)
     return points, shading, face_normals
 
 

@@ -1,0 +1,316 @@
+"""Meshes as they come: triangles wound against their neighbours, and shells turned inside out.
+
+Pure functions over numpy arrays; :func:`aobake.scene.make_scene` calls them
+(``--fix-normals warn|fix|off``).
+
+Rules (docs/conventions.md, Geometry):
+
+* **Components.** Two triangles are neighbours when they share a *manifold* edge: an
+  edge (pair of vertex indices) used by exactly those two triangles.  Edges used by
+  one triangle (boundary) or by three or more (non-manifold) connect nothing.  A
+  component is a set of triangles connected through manifold edges; it is *closed*
+  when none of its triangles has a boundary or non-manifold edge.  Triangles with a
+  repeated corner index have no orientation and belong to no component (-1).
+* **Winding.** Neighbours are consistent when they traverse their shared edge in
+  opposite directions.  Each component is made consistent by a 2-colouring of its
+  triangles (a union-find that carries parities); the colour holding the smaller
+  share of the component's area (ties: fewer triangles, then the colour opposite the
+  component's first triangle) is "wound against its neighbours".  A non-orientable
+  component (a Moebius strip) has manifold edges no colouring satisfies; they are
+  counted (``conflicting_edges``) and left as they are.
+* **Inward.** After that, a closed component points inward when its signed volume
+  ``sum det(v0 - c, v1 - c, v2 - c) / 6`` (c: the mean of its corners) is negative
+  (beyond 1e-8 of the sum of the absolute terms: a zero-volume shell, e.g. two
+  coincident layers, is never called inward).  A *nearly closed* component (a body with
+  a few small holes: eye sockets, a neck) is closed first: each boundary loop gets a
+  fan of triangles from its vertices' mean, and it counts as nearly closed when those
+  caps total at most NEARLY_CLOSED (5%) of its area; its capped volume then decides as
+  for a closed one.  Any other open component has no inside: it points inward when
+  the file gave vertex normals and they disagree with it, ``sum_faces (2 area n_face) .
+  (n_0 + n_1 + n_2) < 0`` over its triangles' corners; without file normals it keeps
+  the orientation of its majority.  A closed shell meant to face inward (a room, a
+  Cornell box, a cavity) is called inward too: that is why the default mode only warns.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+#: --fix-normals choices: report and change nothing | repair | skip the detection
+MODES = ("warn", "fix", "off")
+
+#: a closed component's |signed volume| at most this fraction of the sum of its absolute
+#: terms has no decidable inside (float64 rounding of the sum is ~1e-16 per term)
+UNDECIDED_VOLUME = 1e-8
+#: an open component whose boundary loops, capped by fans, total at most this fraction of
+#: its area is oriented by its capped volume, like a closed one (a bowl's cap is half its
+#: area, a plane's all of it: both stay open; the ogre's body, 0.6%, is nearly closed)
+NEARLY_CLOSED = 0.05
+
+
+@dataclass(frozen=True)
+class Orientation:
+    """Result of :func:`orient`.
+
+    component : (f,) int64        component of each triangle, 0..n_components-1 numbered in
+                                  order of their first triangle; -1 for a triangle with a
+                                  repeated corner index
+    against : (f,) bool           wound against its neighbours (the minority colour)
+    flip : (f,) bool              to flip for a consistent, outward orientation:
+                                  ``against`` xor ``inward[component]``
+    closed : (c,) bool            component without boundary or non-manifold edges
+    nearly_closed : (c,) bool     open component whose capped holes are small
+                                  (NEARLY_CLOSED): oriented by volume
+    inward : (c,) bool            component (once consistent) points into the surface
+    conflicting_edges : int       manifold edges no consistent winding can satisfy
+    """
+
+    component: np.ndarray
+    against: np.ndarray
+    flip: np.ndarray
+    closed: np.ndarray
+    nearly_closed: np.ndarray
+    inward: np.ndarray
+    conflicting_edges: int
+
+    @property
+    def n_components(self) -> int:
+        return int(len(self.closed))
+
+    def counts(self) -> dict:
+        """The detector's numbers (report keys)."""
+        with_against = np.unique(self.component[self.against])
+        return {
+            "components": self.n_components,
+            "closed_components": int(np.count_nonzero(self.closed)),
+            "nearly_closed_components": int(np.count_nonzero(self.nearly_closed)),
+            "faces_against_neighbours": int(np.count_nonzero(self.against)),
+            "components_with_faces_against": int(len(with_against)),
+            "inward_components": int(np.count_nonzero(self.inward)),
+            "conflicting_edges": self.conflicting_edges,
+        }
+
+
+def _proper(faces: np.ndarray) -> np.ndarray:
+    """(f,) bool: the triangle's three corner indices differ (it has an orientation)."""
+    return (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+
+
+class EdgePairs(NamedTuple):
+    """Result of :func:`manifold_pairs`.
+
+    a, b : (e,) int64       triangles sharing an edge used by no other triangle
+    same : (e,) bool        both traverse it in the same direction (inconsistent neighbours)
+    open_start, open_end : (o,) int64  the other edges (boundary or non-manifold), as
+                            their triangle traverses them
+    open_owner : (o,) int64 the triangle of each
+    open_face : (f,) bool   triangles with such an edge, and those left out
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    same: np.ndarray
+    open_start: np.ndarray
+    open_end: np.ndarray
+    open_owner: np.ndarray
+    open_face: np.ndarray
+
+
+def manifold_pairs(faces: np.ndarray, n_vertices: int) -> EdgePairs:
+    """Triangle pairs sharing a manifold edge, and the edges that are not.
+
+    faces : (f, 3) int64, n_vertices : int.  Triangles with a repeated corner index are
+    left out (they have no orientation).
+    """
+    faces = np.asarray(faces, dtype=np.int64)
+    proper = _proper(faces)
+    index = np.flatnonzero(proper)
+    tri = faces[index]
+    start = tri.reshape(-1)
+    end = tri[:, [1, 2, 0]].reshape(-1)
+    owner = np.repeat(index, 3)
+    lo, hi = np.minimum(start, end), np.maximum(start, end)
+    forward = start < end
+    if n_vertices >= 3_037_000_499:  # lo * n + hi would overflow int64
+        raise ValueError(f"too many vertices ({n_vertices}) for the edge keys")
+    key = lo * np.int64(n_vertices) + hi
+    order = np.argsort(key, kind="stable")
+    key, owner, forward = key[order], owner[order], forward[order]
+    start, end = start[order], end[order]
+    new = np.ones(len(key), dtype=bool)
+    new[1:] = key[1:] != key[:-1]
+    group = np.cumsum(new) - 1
+    size = np.bincount(group)[group] if len(group) else np.zeros(0, dtype=np.int64)
+    other = size != 2
+    open_face = ~proper
+    open_face[owner[other]] = True
+    # Groups of exactly two: the first of each pair is where a group starts.
+    first = np.flatnonzero(new & (size == 2))
+    a, b = owner[first], owner[first + 1]
+    same = forward[first] == forward[first + 1]
+    return EdgePairs(a, b, same, start[other], end[other], owner[other], open_face)
+
+
+def _parity_union_find(n: int, a: np.ndarray, b: np.ndarray, odd: np.ndarray):
+    """Components of the graph on 0..n-1 with edges (a, b) and a parity per node such that
+    ``parity[a] ^ parity[b] == odd`` wherever the constraints allow.
+
+    Vectorised hook-and-jump: every round each root with an edge to another tree hooks
+    onto the smallest root it reaches (ties: the lexically first (root, parity)), then
+    pointer jumping flattens every tree.  Roots only ever hook onto smaller roots, so
+    the final root of a component is its smallest node and the result is a pure
+    function of the inputs.  Returns (root (n,) int64, parity (n,) bool).
+    """
+    parent = np.arange(n, dtype=np.int64)
+    parity = np.zeros(n, dtype=bool)
+    live_a, live_b, live_odd = a, b, odd
+    while True:
+        while True:  # pointer jumping: parity to the grandparent is the xor of the two steps
+            grand = parent[parent]
+            if np.array_equal(grand, parent):
+                break
+            parity = parity ^ parity[parent]
+            parent = grand
+        ra, rb = parent[live_a], parent[live_b]
+        crossing = ra != rb
+        if not crossing.any():
+            return parent, parity
+        live_a, live_b, live_odd = live_a[crossing], live_b[crossing], live_odd[crossing]
+        ra, rb = ra[crossing], rb[crossing]
+        # flip[ra] ^ flip[rb] implied by this edge: symmetric in the two ends
+        between = parity[live_a] ^ parity[live_b] ^ live_odd
+        high, low = np.maximum(ra, rb), np.minimum(ra, rb)
+        order = np.lexsort((between, low, high))
+        pick = np.ones(len(order), dtype=bool)
+        pick[1:] = high[order][1:] != high[order][:-1]
+        chosen = order[pick]
+        parent[high[chosen]] = low[chosen]
+        parity[high[chosen]] = between[chosen]
+
+
+def orient(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> Orientation:
+    """Find the triangles wound against their neighbours and the components turned inward.
+
+    vertices : (v, 3) float64 (best re-centred and scaled: the volumes are products of
+    three coordinates), faces : (f, 3) int64, normals : (v, 3) float64 | None the file's
+    vertex normals (any length; zero rows = none), used only to orient open components.
+    The rules are in the module docstring.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    n_faces = len(faces)
+    edges = manifold_pairs(faces, len(vertices))
+    a, b, same, open_face = edges.a, edges.b, edges.same, edges.open_face
+    root, parity = _parity_union_find(n_faces, a, b, same)
+    conflicting = int(np.count_nonzero((parity[a] ^ parity[b]) != same))
+
+    proper = _proper(faces)
+    roots, label = np.unique(root[proper], return_inverse=True)  # roots ascend: first-face order
+    component = np.full(n_faces, -1, dtype=np.int64)
+    component[proper] = label
+    n_comp = len(roots)
+    comp, colour = component[proper], parity[proper]
+
+    tri = vertices[faces[proper]]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    area1 = np.bincount(comp, weights=area * colour, minlength=n_comp)
+    area0 = np.bincount(comp, weights=area * ~colour, minlength=n_comp)
+    count1 = np.bincount(comp, weights=colour, minlength=n_comp)
+    count0 = np.bincount(comp, weights=~colour, minlength=n_comp)
+    # The colour to flip: the minority by area, then by count; the root's colour is 0,
+    # so on a full tie colour 1 (opposite the first triangle) is flipped.
+    minority = np.where(area1 != area0, area1 < area0, count1 <= count0)
+    against_proper = colour == minority[comp]
+    sign = np.where(against_proper, -1.0, 1.0)  # +1: keeps its winding in the consistent one
+
+    closed = np.bincount(comp, weights=open_face[proper], minlength=n_comp) == 0
+    # Signed volume about each component's mean corner (smaller terms, less cancellation).
+    size = np.maximum(np.bincount(comp, minlength=n_comp), 1)
+    centre = np.stack([np.bincount(comp, weights=tri[:, :, k].mean(axis=1), minlength=n_comp)
+                       for k in range(3)], axis=1) / size[:, None]
+    rel = tri - centre[comp][:, None, :]
+    det = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
+    volume = np.bincount(comp, weights=sign * det, minlength=n_comp)
+    scale = np.bincount(comp, weights=np.abs(det), minlength=n_comp)
+    face_sign = np.zeros(n_faces)
+    face_sign[proper] = sign
+    cap_volume, cap_scale, cap_area = _caps(vertices, edges, component, face_sign, centre, n_comp)
+    total_area = np.bincount(comp, weights=area, minlength=n_comp)
+    nearly_closed = ~closed & (cap_area <= NEARLY_CLOSED * total_area)
+    volume, scale = volume + cap_volume, scale + cap_scale  # zero for closed components
+    inward = (closed | nearly_closed) & (volume < -UNDECIDED_VOLUME * scale)
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float64)
+        corner_sum = normals[faces[proper]].sum(axis=1)
+        agree = np.einsum("ij,ij->i", cross, corner_sum)
+        vote = np.bincount(comp, weights=sign * agree, minlength=n_comp)
+        spread = np.bincount(comp, weights=np.abs(agree), minlength=n_comp)
+        inward |= ~closed & ~nearly_closed & (vote < -UNDECIDED_VOLUME * spread)
+
+    against = np.zeros(n_faces, dtype=bool)
+    against[proper] = against_proper
+    flip = np.zeros(n_faces, dtype=bool)
+    flip[proper] = against_proper ^ inward[comp]
+    return Orientation(component, against, flip, closed, nearly_closed, inward, conflicting)
+
+
+def _caps(vertices, edges: EdgePairs, component, face_sign, centre, n_comp):
+    """Fan caps over each component's boundary loops (its open edges, connected through
+    shared vertices), traversed against the consistent winding so they close it.
+
+    Returns per component (c,) float64: the caps' signed volume terms (det about
+    ``centre``, as the faces'), their absolute sum, and the caps' area.
+    """
+    keep = component[edges.open_owner] >= 0
+    owner = edges.open_owner[keep]
+    comp = component[owner]
+    # As the consistent winding traverses the edge: reversed where the face is flipped.
+    forward = face_sign[owner] > 0
+    start = np.where(forward, edges.open_start[keep], edges.open_end[keep])
+    end = np.where(forward, edges.open_end[keep], edges.open_start[keep])
+    zeros = np.zeros(n_comp)
+    if not len(comp):
+        return zeros, zeros, zeros
+    # Loops: boundary vertices of one component joined by its open edges.
+    nodes, inverse = np.unique(np.stack([np.concatenate([comp, comp]),
+                                         np.concatenate([start, end])], axis=1),
+                               axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    loop_root, _ = _parity_union_find(len(nodes), inverse[:len(comp)], inverse[len(comp):],
+                                      np.zeros(len(comp), dtype=bool))
+    loops, loop_of_node = np.unique(loop_root, return_inverse=True)
+    count = np.bincount(loop_of_node, minlength=len(loops))
+    mean = np.stack([np.bincount(loop_of_node, weights=vertices[nodes[:, 1], k],
+                                 minlength=len(loops)) for k in range(3)], axis=1) / count[:, None]
+    loop = loop_of_node[inverse[:len(comp)]]
+    m, p, q = mean[loop], vertices[start], vertices[end]
+    # Cap triangle (m, q, p): the edge traversed backwards closes the surface.
+    rel_m, rel_p, rel_q = m - centre[comp], p - centre[comp], q - centre[comp]
+    det = np.einsum("ij,ij->i", rel_m, np.cross(rel_q, rel_p))
+    area = 0.5 * np.linalg.norm(np.cross(q - m, p - m), axis=1)
+    return (np.bincount(comp, weights=det, minlength=n_comp),
+            np.bincount(comp, weights=np.abs(det), minlength=n_comp),
+            np.bincount(comp, weights=area, minlength=n_comp))
+
+
+def flip_faces(faces: np.ndarray, flip: np.ndarray) -> np.ndarray:
+    """(f, 3) copy of ``faces`` (or per-corner ``faces_uv``) with the rows ``flip`` (f,) bool
+    reversed by swapping corners 1 and 2 (corner 0 stays, so a triangle flipped twice is
+    the original, bit for bit)."""
+    out = np.array(faces, copy=True)
+    out[flip] = out[flip][:, [0, 2, 1]]
+    return out
+
+
+def warning_text(counts: dict, source: str) -> str | None:
+    """The warn mode's one line, or None when nothing was found."""
+    n, m, k = (counts["faces_against_neighbours"], counts["components_with_faces_against"],
+               counts["inward_components"])
+    if not (n or k):
+        return None
+    return (f"{source}: {n} faces of {m} components are wound against their neighbours; "
+            f"{k} components point inward: --fix-normals fix repairs them")
