@@ -117,6 +117,18 @@ def check_vertex_data(
     return positions, faces, checked
 
 
+def _savez(handle, arrays: dict) -> None:
+    """np.savez_compressed at deflate level 1: the same archive format (np.load reads it),
+    measured on the bunny's arrays 0.23 -> 0.12 s (a loaded machine) for a 3% larger file."""
+    import zipfile
+
+    with zipfile.ZipFile(handle, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1,
+                         allowZip64=True) as archive:
+        for name, value in arrays.items():
+            with archive.open(name + ".npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
+
+
 def write(
     path: str | os.PathLike,
     positions: np.ndarray,
@@ -147,7 +159,6 @@ def write(
     for name, value in (kept or {}).items():
         arrays[name] = value
     with atomic_path(path) as tmp:
-        # an open handle, not a name: np.savez appends ".npz" to names without it
         with open(tmp, "wb") as handle:
-            np.savez_compressed(handle, **arrays)
+            _savez(handle, arrays)
     log.debug("wrote %s: %d vertices, %d faces, %s", path, len(positions), len(faces), list(fields))
