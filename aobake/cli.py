@@ -238,6 +238,10 @@ SUBCOMMANDS = {"compare": _compare_command, "refit": _refit_command}
               help="PNG/TIFF integer depth: value = round(clip(x, 0, 1) * (2^bits - 1)).")
 @click.option("--r-only", is_flag=True,
               help="PNG/TIFF: AO in R only (glTF occlusion convention) instead of R, G and B.")
+@click.option("--seams", default=DEFAULTS["seams"], show_default=True,
+              type=click.Choice(CHOICES["seams"]),
+              help="Lightmaps: erase (make bilinear lookups agree across UV seams by a "
+                   "least-squares change of the texels they read) or off.")
 @click.option("--bent-space", default=DEFAULTS["bent_space"], show_default=True,
               type=click.Choice(CHOICES["bent_space"]),
               help="Lightmap bent normals in object space or tangent space (MikkTSpace-style "

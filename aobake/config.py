@@ -24,6 +24,7 @@ BACKFACES = ("occlude", "ignore")
 AXES = ("x", "y", "z")
 UNWRAP = ("auto", "always", "never")
 BENT_SPACES = ("object", "tangent")
+SEAMS = ("erase", "off")
 
 #: default ray offset, as a fraction of the size of the point's own triangles (the square
 #: root of twice their mean area: an edge length), never below OFFSET_ULPS float32 ulps of
@@ -130,6 +131,8 @@ class BakeConfig:
     texel_samples surface positions per texel; ``rays`` is split over them
     unwrap       auto (own UVs when valid, else xatlas) | always | never
     bent_space   object | tangent
+    seams        erase (bilinear lookups made to agree across UV seams by a least-squares
+                 change of the texels there, ``aobake.targets.texels.seams``) | off
     """
 
     quantities: tuple = ("ao",)
@@ -155,6 +158,7 @@ class BakeConfig:
     texel_samples: int = 4
     unwrap: str = "auto"
     bent_space: str = "object"
+    seams: str = "erase"
 
     def __post_init__(self):
         object.__setattr__(self, "quantities", canonical(self.quantities))
@@ -254,7 +258,7 @@ CHOICES = {
     "sampler": tuple(SAMPLERS), "weighting": tuple(WEIGHTINGS), "normals": NORMALS,
     "fix_normals": FIX_NORMALS,
     "up_axis": AXES, "backfaces": BACKFACES, "backend": tuple(BACKENDS), "unwrap": UNWRAP,
-    "bent_space": BENT_SPACES,
+    "bent_space": BENT_SPACES, "seams": SEAMS,
 }
 
 #: the defaults, by field name (``BakeConfig().to_dict()``)

@@ -21,6 +21,7 @@ from aobake.samplers import sample_set
 from aobake.targets.base import Finished, SamplePoints
 from aobake.targets.texels.atlas import check_texture_budget, make_atlas, split_corners
 from aobake.targets.texels.gather import channels as gather_channels
+from aobake.targets.texels.seams import SeamMesh
 from aobake.targets.texels.surface import surface_points
 
 
@@ -87,9 +88,14 @@ class TexelTarget:
             from aobake.adaptive import min_final_dof
 
             dof = min_final_dof(config)
+        seam_info: dict = {}
+        seams = None if config.seams == "off" else SeamMesh(  # UV seams erased in gather
+            scene.vertices, scene.vertex_normals, scene.faces, state["uv"], state["faces_uv"],
+            state["atlas"].wrap)
         images, covered, filled = gather_channels(quantities, samples, values, rays,
                                                   config.padding, to_tangent, dof,
-                                                  config.confidence)
+                                                  config.confidence, seams, timings,
+                                                  seam_info)
         timings["splat_dilate_s"] = time.perf_counter() - clock
         shared = int(np.count_nonzero(samples.shared >= 2))
         if shared:
@@ -99,6 +105,7 @@ class TexelTarget:
         texture = _texture_stats(images, covered, filled, shared, width, height, config.padding,
                                  config.texel_samples, state["atlas"], state["check"],
                                  config.bent_space)
+        texture["seams"] = seam_info or {"mode": config.seams}
         # Texels per scene unit along the surface, and a warning where charts shrink to a few
         # texels (the map then holds little more than one value per chart).
         area = float(scene.areas().sum())

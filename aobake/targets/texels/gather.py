@@ -6,10 +6,13 @@ normals) are averaged and normalised, optionally in tangent space.  Channels are
 (H, W) images in the texel convention of ``aobake.targets.texels.raster`` (row 0
 at the top, v near 1), dilated ``padding`` texels into the gutters and push-pull
 filled beyond (``aobake.post``), except ``rays`` and ``coverage`` (0 outside the charts).
+Before the gutters, the texels that UV seams read may be adjusted so that bilinear lookups
+agree across the seams (``aobake.targets.texels.seams``).
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -66,7 +69,8 @@ def subset(samples: TexelSamples, keep: np.ndarray) -> TexelSamples:
 
 
 def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, padding: int,
-             to_tangent=None, dof: int = 0, confidence: float = 0.95
+             to_tangent=None, dof: int = 0, confidence: float = 0.95, seams=None,
+             timings: dict | None = None, seam_info: dict | None = None
              ) -> tuple[dict, np.ndarray, np.ndarray]:
     """Texel channels of a bake.
 
@@ -80,6 +84,12 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     ``padding`` rings of exact dilation; every other texel of the value, error and interval
     channels holds the push-pull fill (``aobake.post.push_pull``), of ``rays`` and
     ``coverage`` 0.
+    seams : None (no seam erasure) or the ``aobake.targets.texels.seams.SeamMesh`` baked:
+    before the gutters are filled, the value channels are adjusted so that bilinear lookups
+    agree across its UV seams (``seams.erase_seams``; the time goes to ``timings["seams_s"]``
+    and its counts to ``seam_info``).  An adjusted texel keeps its stderr (an upper bound on
+    the adjusted value's: see ``seams``) and its interval becomes the hull of the baked one
+    and the one around the adjusted value.
     """
     width, height = samples.width, samples.height
     traced = rays > 0  # samples on zero-area faces have no normal: left out of the texel means
@@ -89,6 +99,8 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     rays_img = np.bincount(sub.texel, weights=rays[traced].astype(np.float64),
                            minlength=width * height).reshape(height, width)
     out = {}
+    order = []  # channel names in output order (value, stderr, interval, per quantity)
+    pending = []
     for q in quantities:
         value, error = values[q.value.name][traced], values[q.error.name][traced]
         if q.texel == "direction":
@@ -112,10 +124,31 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
 
             blind = splat(sub, (error >= NO_INFORMATION_ANGLE).astype(np.float64))[..., 0] > 0
             out[q.error.exr[0]] = np.where(blind, NO_INFORMATION_ANGLE, out[q.error.exr[0]])
+        order += list(q.value.exr if q.texel == "direction" else q.value.exr[:1])
+        order.append(q.error.exr[0])
         if q.interval:
-            out.update(_texel_interval(q, sub, out[q.value.exr[0]], out[q.error.exr[0]],
-                                       mean_variance, variance, rays_img, count, dof,
-                                       confidence))
+            order += [q.interval[0].exr[0], q.interval[1].exr[0]]
+            pending.append((q, out[q.value.exr[0]].copy(), mean_variance, variance))
+    erased = None
+    if seams is not None:
+        from aobake.targets.texels.seams import erase_seams
+
+        clock = time.perf_counter()
+        erased = erase_seams(out, quantities, seams, covered, padding,
+                             directions=to_tangent is None)
+        if timings is not None:
+            timings["seams_s"] = time.perf_counter() - clock
+        if seam_info is not None and erased is not None:
+            seam_info.update(erased.info)
+    adjusted = None if erased is None else erased.adjusted
+    # Intervals from the baked values (bit for bit as without erasure); at adjusted texels
+    # widened to hold the interval around the adjusted value too.
+    for q, baked, mean_variance, variance in pending:
+        out.update(_texel_interval(q, sub, baked, out[q.error.exr[0]], mean_variance,
+                                   variance, rays_img, count, dof, confidence,
+                                   None if adjusted is None else (adjusted,
+                                                                  out[q.value.exr[0]])))
+    out = {name: out[name] for name in order}
     names = list(out)
     stack = np.stack([out[n] for n in names], axis=-1)
     # Gutters: `padding` rings of exact nearest-texel dilation, then push-pull fills every
@@ -147,18 +180,28 @@ def _renormalise(axes, where) -> None:
 
 
 def _texel_interval(q, sub, value, stderr, mean_variance, variance, texel_rays, count, dof,
-                    confidence) -> dict:
+                    confidence, adjusted=None) -> dict:
     """The interval of a texel that averages its s samples' estimates.
 
     t quantile with the Welch-Satterthwaite degrees of freedom of the sum of the samples'
     variances, (sum v)^2 / sum(v^2 / dof), rounded down (conservative), and the
     rule-of-three floor of all the texel's rays (see ``aobake.stats.error_bars``).
+    adjusted : None or (where (H, W) bool, new value (H, W)): texels whose value the seam
+    erasure changed; their interval is the hull of the baked one and the one (same stderr,
+    rays and degrees of freedom) around the new value, so it holds the value and covers the
+    baked texel's mean as often as before.
     """
     total = mean_variance * count  # sum of v
     squares = splat(sub, variance ** 2)[..., 0] * count  # sum of v^2
     with np.errstate(divide="ignore", invalid="ignore"):
         welch = np.where(squares > 0, dof * total ** 2 / squares, dof)
     covered = count > 0
-    _, low, high = stats.error_bars(value, stderr, np.where(covered, texel_rays, 1.0),
-                                    np.where(covered, welch, 0.0), confidence)
+    n, dof = np.where(covered, texel_rays, 1.0), np.where(covered, welch, 0.0)
+    _, low, high = stats.error_bars(value, stderr, n, dof, confidence)
+    if adjusted is not None:
+        where, new = adjusted
+        _, new_low, new_high = stats.error_bars(new[where], stderr[where], n[where], dof[where],
+                                                confidence)
+        low[where] = np.minimum(low[where], new_low)
+        high[where] = np.maximum(high[where], new_high)
     return {q.interval[0].exr[0]: low, q.interval[1].exr[0]: high}

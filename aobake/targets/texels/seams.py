@@ -1,0 +1,532 @@
+"""Seam erasure: make bilinear lookups agree on both sides of every UV seam.
+
+A *seam edge* is a mesh edge (two welded positions) shared by two faces whose UVs differ
+there, with the same shading normal on both sides (within ``SMOOTH_DEGREES`` at both
+ends: across a hard edge the baked values may differ, and are left alone).  A renderer
+reads the lightmap bilinearly (texel centres at u = (c + 0.5) / W, v = 1 - (r + 0.5) / H,
+see ``aobake.targets.texels.raster``), so a point of a seam edge is drawn from two
+different 2x2 texel neighbourhoods, one per side, some of them gutter texels.  They
+disagree by the texels' noise and by a systematic part: each side reads texels up to 1.5
+texels inside its chart and gutter texels that copy them.
+
+Erasure (least squares, as in Liu, Ferguson, Jacobson 2017, "Seamless") changes the
+covered texels that the seams read, x, from the baked values b, by minimising
+
+    sum_covered (x_t - b_t)^2 / se_t^2                          (data: inverse variance)
+  + KAPPA * sum_seams integral (L_A(x) - L_B(x))^2 / var_d dl    (seam, dl in texels)
+
+``L_A``, ``L_B`` are the two sides' bilinear lookups of the *final* map; ``var_d`` the
+variance the baked noise gives their difference at that point, so the seam term counts the
+difference in its own standard errors: a difference of one standard error along one texel
+of seam costs KAPPA times as much as moving one texel by one standard error.  A gutter
+texel that a lookup reads (the first ring around a chart) holds what the first ring of
+``aobake.post.dilate`` will write there, the mean of its covered 8-neighbours, so it enters
+as that mean of unknowns: the gutter stays the exact dilation of the adjusted charts
+(with its mip-safety, docs/conventions.md).  Letting those gutter texels move on their own
+(held to that mean by a tie as stiff as a texel's data term) lowered the seam difference
+left by only 5-7% (spot 0.00262 -> 0.00248, bunny 0.00101 -> 0.00094 at 64 rays) and
+let them leave the range of the chart texels around them.
+Along a seam edge a bilinear lookup is quadratic between the points where either side
+crosses a row or column of texel centres, so 3-point Gauss-Legendre quadrature on each
+such piece integrates (L_A - L_B)^2 exactly.  The normal equations (sparse, symmetric
+positive definite, over the touched texels only) are solved by Jacobi-preconditioned
+conjugate gradients in numpy (a block-Jacobi preconditioner over stretches of seam, both
+sides at once, saved a fifth of the iterations on the bunny in an earlier variant and cost
+more than that to build).
+
+Error bars.  The seam term involves x only, never b.  In units of the texels' own errors
+(y = x / se), the solution is y = (I + H)^-1 y_b with H symmetric positive semi-definite
+(H = V^1/2 P^T G^T Lambda G P V^1/2: V the texels' variances, P the dilation of the
+covered texels into the gutter texels read, G the lookup differences, Lambda the seam
+weights), so (I + H)^-1 has its eigenvalues in (0, 1] and Cov(y) = (I + H)^-2 <= I when
+the baked texels' errors are independent (they are: docs/conventions.md).  So
+Var(x_t) <= se_t^2 for every adjusted texel (to the solver's tolerance; clipping to [0, 1]
+only moves a value towards the possible range): its stderr is kept, as an upper bound
+(tests/test_seams.py computes the exact sd(x_t) = sqrt(sum_j K_tj^2 se_j^2) of x = K b and
+checks it).  Gutter texels stay the dilation's fill (docs/conventions.md), not estimates
+of their own.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+#: two sides of an edge are a seam to erase when their vertex normals agree within this
+#: angle at both ends; beyond it the edge is hard and the values may differ on purpose.
+#: (10 degrees also takes in normals recomputed on a mesh split at its UV seams.)
+SMOOTH_DEGREES = 10.0
+#: UVs closer than this (a billionth of the tile, 1e-5 texel at the largest resolution)
+#: are the same: a seam edge needs its sides farther apart
+UV_SAME = 1e-9
+#: weight of the seam term: a seam difference of one of its standard errors along one
+#: texel of seam costs KAPPA times moving one texel by one standard error.  Measured on
+#: spot at 1024^2, 256 rays (benchmarks/bench_seams.py, --kappa): 100 takes the systematic
+#: part from 0.0095 to 0.0002 and the random one from 0.021 to 0.0010 in 0.2 s; 1000
+#: roughly halves both again for about three times the iterations.
+KAPPA = 100.0
+#: the conjugate gradients stop when the Jacobi-scaled residual is below this in every
+#: unknown (value units); the solution is then within about 3e-5 of the exact one (bunny,
+#: spot), far below the seam differences left (~1e-3 rms) and the texels' noise (~0.02)
+TOLERANCE = 1e-6
+#: conjugate-gradient iterations at most (a warning is logged when the tolerance is not met)
+MAX_ITERATIONS = 2000
+#: stderr floor in the weights (value units): a texel exact by construction (stderr 0)
+#: gets a weight of 1e14, i.e. it does not move
+SE_FLOOR = 1e-7
+#: 3-point Gauss-Legendre nodes and weights on [-1, 1]: exact for degree 5 (d^2 is quartic)
+_GAUSS_X = np.array([-math.sqrt(0.6), 0.0, math.sqrt(0.6)])
+_GAUSS_W = np.array([5.0, 8.0, 5.0]) / 9.0
+
+# The 8 neighbours of a texel (row, col), in the order of aobake.post.dilate.
+_NEIGHBOURS = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0)]
+
+
+@dataclass(frozen=True)
+class SeamMesh:
+    """What the erasure needs of the baked mesh.
+
+    positions : (v, 3) float64, normals : (v, 3) float64 (unit, zero = undefined),
+    faces : (f, 3) int64 into positions, uv : (t, 2) float64 the UVs baked into (OBJ
+    convention), faces_uv : (f, 3) int64 into uv, wrap : "clamp" | "repeat" how the map
+    is sampled (``Atlas.wrap``).
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray
+    faces_uv: np.ndarray
+    wrap: str = "clamp"
+
+
+@dataclass(frozen=True)
+class SeamPoints:
+    """Quadrature points of the seam edges, as the UV of each side.
+
+    uv_a, uv_b : (p, 2) float64 the same surface point in the two charts, weight : (p,)
+    float64 the length of seam (in texels: the mean of the two sides' lengths) the point
+    stands for, edge : (p,) int64 its seam edge, n_edges : int number of seam edges.
+    """
+
+    uv_a: np.ndarray
+    uv_b: np.ndarray
+    weight: np.ndarray
+    edge: np.ndarray
+    n_edges: int
+
+
+@dataclass(frozen=True)
+class SeamSystem:
+    """The seam term over the texels the seams read.
+
+    texels : (n,) int64 linear texel index ``r * W + c`` of each unknown, gutter : (n,) bool
+    (not covered).  The seam points come in groups that read the same 8 texels (the points
+    of one piece of an edge: the lookups' cells change only where a piece ends):
+    slots : (s, 8) int64 the unknowns a group reads (side A's 2x2, then side B's), group :
+    (m,) int64 each point's group (non-decreasing: points are stored in group order),
+    coef : (m, 8) float64 its bilinear weights (side B's negated: coef . x[slots[group]] =
+    L_A(x) - L_B(x)), weight : (m,) float64 quadrature weights.  fill_to, fill_from,
+    fill_weight : (e,) the dilation's first ring as COO entries: gutter texel ``fill_to``
+    is the sum of fill_weight (1 / its covered neighbours) times texel ``fill_from``.
+    dropped : int seam points left out (their lookup reads a texel that is neither covered
+    nor next to a covered one: a texel the first ring does not fill).
+    """
+
+    texels: np.ndarray
+    gutter: np.ndarray
+    slots: np.ndarray
+    group: np.ndarray
+    coef: np.ndarray
+    weight: np.ndarray
+    fill_to: np.ndarray
+    fill_from: np.ndarray
+    fill_weight: np.ndarray
+    dropped: int
+
+    @property
+    def n_rows(self) -> int:
+        return len(self.weight)
+
+    def fill(self, x: np.ndarray) -> np.ndarray:
+        """(n,) the texels with the gutter ones as the dilation makes them from the covered
+        ones (P x; the gutter entries of x are ignored)."""
+        out = np.where(self.gutter, 0.0, x)
+        return out + np.bincount(self.fill_to, weights=self.fill_weight * x[self.fill_from],
+                                 minlength=len(out))
+
+    def fill_transpose(self, y: np.ndarray, square: bool = False) -> np.ndarray:
+        """(n,) P^T y (with ``square``, by the squared weights): a gutter entry's share goes
+        to its covered neighbours; the gutter entries of the result are 0."""
+        weight = self.fill_weight ** 2 if square else self.fill_weight
+        out = np.where(self.gutter, 0.0, y)
+        return out + np.bincount(self.fill_from, weights=weight * y[self.fill_to],
+                                 minlength=len(out))
+
+    def differences(self, x: np.ndarray) -> np.ndarray:
+        """(m,) L_A - L_B at the seam points of the map whose covered texels are x (n,)."""
+        return np.einsum("pk,pk->p", self.coef, self.fill(x)[self.slots[self.group]])
+
+
+# --- seam edges and points -------------------------------------------------------------
+
+
+def seam_edges(mesh: SeamMesh) -> tuple[np.ndarray, np.ndarray]:
+    """The seam edges of ``mesh``: (uv_a (e, 2, 2), uv_b (e, 2, 2)) float64, the UVs of each
+    edge's two ends (axis 1, the same 3-D end on both sides) in its two faces.
+
+    Positions are welded (exactly equal coordinates are one vertex), so a mesh split at its
+    UV seams has them too.  An edge of k >= 3 faces pairs the first with each other.
+    Edges whose sides differ by whole tiles under ``wrap="repeat"`` read the same texels
+    and are no seams.
+    """
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    faces_uv = np.asarray(mesh.faces_uv, dtype=np.int64)
+    uv = np.asarray(mesh.uv, dtype=np.float64)
+    normals = np.asarray(mesh.normals, dtype=np.float64)
+    empty = np.zeros((0, 2, 2))
+    if not len(faces):
+        return empty, empty
+    _, weld = np.unique(np.asarray(mesh.positions, dtype=np.float64), axis=0,
+                        return_inverse=True)
+    weld = weld.reshape(-1)
+    # Half-edges (face, corner k -> k + 1), each stored from its lower welded end.
+    a_corner = faces.reshape(-1)
+    b_corner = np.roll(faces, -1, axis=1).reshape(-1)
+    a_uv = faces_uv.reshape(-1)
+    b_uv = np.roll(faces_uv, -1, axis=1).reshape(-1)
+    pa, pb = weld[a_corner], weld[b_corner]
+    keep = pa != pb
+    swap = pa > pb
+    lo_v = np.where(swap, b_corner, a_corner)[keep]
+    hi_v = np.where(swap, a_corner, b_corner)[keep]
+    lo_t = np.where(swap, b_uv, a_uv)[keep]
+    hi_t = np.where(swap, a_uv, b_uv)[keep]
+    key_lo, key_hi = np.minimum(pa, pb)[keep], np.maximum(pa, pb)[keep]
+    order = np.lexsort((key_hi, key_lo))
+    key_lo, key_hi = key_lo[order], key_hi[order]
+    lo_v, hi_v, lo_t, hi_t = lo_v[order], hi_v[order], lo_t[order], hi_t[order]
+    if not len(order):
+        return empty, empty
+    start = np.r_[True, (key_lo[1:] != key_lo[:-1]) | (key_hi[1:] != key_hi[:-1])]
+    first = np.maximum.accumulate(np.where(start, np.arange(len(start)), 0))
+    other = np.nonzero(~start)[0]  # pairs (first of the group, other)
+    one = first[other]
+    uv_a = np.stack([uv[lo_t[one]], uv[hi_t[one]]], axis=1)
+    uv_b = np.stack([uv[lo_t[other]], uv[hi_t[other]]], axis=1)
+    shift = uv_a - uv_b
+    if mesh.wrap == "repeat":  # whole tiles apart at both ends read the same texels
+        tiles = np.round(shift[:, :1])
+        shift = np.where(np.all(np.abs(shift - tiles) <= UV_SAME, axis=(1, 2))[:, None, None],
+                         0.0, shift)
+    differ = np.any(np.abs(shift) > UV_SAME, axis=(1, 2))
+    smooth_cos = math.cos(math.radians(SMOOTH_DEGREES))
+    smooth = ((np.einsum("ij,ij->i", normals[lo_v[one]], normals[lo_v[other]]) >= smooth_cos)
+              & (np.einsum("ij,ij->i", normals[hi_v[one]], normals[hi_v[other]]) >= smooth_cos))
+    seam = differ & smooth
+    return uv_a[seam], uv_b[seam]
+
+
+def _texel_coords(uv: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(..., 2) UV -> (..., 2) coordinates in texel-centre units: texel (r, c)'s centre is
+    at (c, r), so a bilinear lookup interpolates between integer coordinates."""
+    return np.stack([uv[..., 0] * width - 0.5, (1.0 - uv[..., 1]) * height - 0.5], axis=-1)
+
+
+def seam_points(mesh: SeamMesh, width: int, height: int) -> SeamPoints:
+    """Gauss-Legendre points (3 per piece) of every seam edge, where a piece runs between
+    consecutive crossings of a row or column of texel centres by either side (the lookups
+    are quadratic on it), so sums over the points integrate (L_A - L_B)^2 exactly."""
+    uv_a, uv_b = seam_edges(mesh)
+    n_edges = len(uv_a)
+    if not n_edges:
+        z = np.zeros((0, 2))
+        return SeamPoints(z, z, np.zeros(0), np.zeros(0, np.int64), 0)
+    # Four linear functions of t per edge: the x and y texel coordinates of each side.
+    ends = np.concatenate([_texel_coords(uv_a, width, height),
+                           _texel_coords(uv_b, width, height)], axis=2)  # (e, 2, 4)
+    f0, f1 = ends[:, 0, :].reshape(-1), ends[:, 1, :].reshape(-1)
+    lo, hi = np.minimum(f0, f1), np.maximum(f0, f1)
+    first = np.floor(lo) + 1.0  # the integers strictly inside (lo, hi)
+    count = np.where(hi > lo, np.maximum(np.ceil(hi) - first, 0), 0).astype(np.int64)
+    which = np.repeat(np.arange(count.size), count)
+    within = np.arange(len(which)) - np.repeat(np.cumsum(count) - count, count)
+    t_cross = np.clip((first[which] + within - f0[which]) / (f1 - f0)[which], 0.0, 1.0)
+    edge = np.concatenate([np.arange(n_edges), np.arange(n_edges), which // 4])
+    t = np.concatenate([np.zeros(n_edges), np.ones(n_edges), t_cross])
+    order = np.lexsort((t, edge))
+    edge, t = edge[order], t[order]
+    same = edge[1:] == edge[:-1]
+    t0, t1, edge = t[:-1][same], t[1:][same], edge[:-1][same]
+    live = t1 > t0
+    t0, t1, edge = t0[live], t1[live], edge[live]
+    length = 0.5 * (np.linalg.norm(ends[:, 1, :2] - ends[:, 0, :2], axis=1)
+                    + np.linalg.norm(ends[:, 1, 2:] - ends[:, 0, 2:], axis=1))
+    half = 0.5 * (t1 - t0)
+    tq = (0.5 * (t0 + t1))[:, None] + half[:, None] * _GAUSS_X  # (pieces, 3)
+    weight = (half * length[edge])[:, None] * _GAUSS_W
+    edge = np.repeat(edge, 3)
+    w = tq.reshape(-1, 1)
+    pa = (1.0 - w) * uv_a[edge, 0] + w * uv_a[edge, 1]
+    pb = (1.0 - w) * uv_b[edge, 0] + w * uv_b[edge, 1]
+    return SeamPoints(pa, pb, weight.reshape(-1), edge, n_edges)
+
+
+# --- bilinear lookups ------------------------------------------------------------------
+
+
+def bilinear_stencil(uv, width: int, height: int, wrap: str = "clamp"
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """The texels and weights of a bilinear lookup at ``uv`` (p, 2).
+
+    Returns (texel (p, 4) int64 linear indices ``r * W + c``, weight (p, 4) float64, rows
+    summing to 1).  Texel centres are at integer texel-centre coordinates (see
+    ``_texel_coords``); outside the image the index is clamped (``wrap="clamp"``, GL's
+    CLAMP_TO_EDGE) or taken modulo the size (``"repeat"``).
+    """
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    xy = _texel_coords(uv, width, height)
+    c0, r0 = np.floor(xy[:, 0]), np.floor(xy[:, 1])
+    fx, fy = xy[:, 0] - c0, xy[:, 1] - r0
+    c0, r0 = c0.astype(np.int64), r0.astype(np.int64)
+    cols = np.stack([c0, c0 + 1, c0, c0 + 1], axis=1)
+    rows = np.stack([r0, r0, r0 + 1, r0 + 1], axis=1)
+    if wrap == "repeat":
+        cols, rows = np.mod(cols, width), np.mod(rows, height)
+    else:
+        cols, rows = np.clip(cols, 0, width - 1), np.clip(rows, 0, height - 1)
+    weight = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], axis=1)
+    return rows * width + cols, weight
+
+
+def bilinear(image, uv, wrap: str = "clamp") -> np.ndarray:
+    """Bilinear lookups of ``image`` (H, W) or (H, W, c) at ``uv`` (p, 2): (p,) or (p, c)
+    float64, as a renderer's linear filter reads the map (no mip level)."""
+    image = np.asarray(image, dtype=np.float64)
+    height, width = image.shape[:2]
+    texel, weight = bilinear_stencil(uv, width, height, wrap)
+    flat = image.reshape(height * width, -1)
+    out = np.einsum("pk,pkc->pc", weight, flat[texel])
+    return out[:, 0] if image.ndim == 2 else out
+
+
+# --- the system ------------------------------------------------------------------------
+
+
+def seam_system(points: SeamPoints, covered, wrap: str = "clamp") -> SeamSystem:
+    """The lookup differences at ``points`` over the texels they read.
+
+    covered : (H, W) bool.  A gutter texel a lookup reads enters as the mean of its covered
+    8-neighbours (the first ring of the dilation); a point whose lookup reads one without
+    any is left out (``dropped``).  Those neighbours are unknowns too.
+    """
+    covered = np.asarray(covered, dtype=bool)
+    height, width = covered.shape
+    flat = covered.reshape(-1)
+    ta, wa = bilinear_stencil(points.uv_a, width, height, wrap)
+    tb, wb = bilinear_stencil(points.uv_b, width, height, wrap)
+    texel = np.concatenate([ta, tb], axis=1)  # (m, 8)
+    coef = np.concatenate([wa, -wb], axis=1)
+    # Gutter texels read, and their covered 8-neighbours (the first dilation ring's mean).
+    gutter_read = np.unique(texel[~flat[texel]])
+    r, c = np.divmod(gutter_read, width)
+    nb = np.full((len(gutter_read), 8), -1, dtype=np.int64)
+    for i, (dr, dc) in enumerate(_NEIGHBOURS):
+        rr, cc = r + dr, c + dc
+        ok = (rr >= 0) & (rr < height) & (cc >= 0) & (cc < width)
+        idx = np.where(ok, rr * width + cc, 0)
+        nb[:, i] = np.where(ok & flat[idx], idx, -1)
+    count = (nb >= 0).sum(axis=1)
+    orphan = np.zeros(height * width, dtype=bool)
+    orphan[gutter_read[count == 0]] = True
+    keep = ~orphan[texel].any(axis=1)
+    if not keep.any():  # no seam, or none the map's gutters let the lookups read
+        i0, f0 = np.zeros(0, dtype=np.int64), np.zeros(0)
+        return SeamSystem(i0, np.zeros(0, dtype=bool), np.zeros((0, 8), dtype=np.int64), i0,
+                          np.zeros((0, 8)), f0, i0, i0, f0, int(np.count_nonzero(~keep)))
+    texel, coef = texel[keep], coef[keep]
+    weight = points.weight[keep]
+    gutter, nb, count = gutter_read[count > 0], nb[count > 0], count[count > 0]
+    read = np.zeros(height * width, dtype=bool)
+    read[texel.reshape(-1)] = True
+    gutter_used = read[gutter]
+    gutter, nb, count = gutter[gutter_used], nb[gutter_used], count[gutter_used]
+    texels = np.unique(np.concatenate([texel.reshape(-1), nb[nb >= 0]]))
+    index = np.searchsorted
+    # Points reading the same 8 texels form a group (lexsort: faster than unique(axis=0)).
+    order = np.lexsort(texel.T[::-1])
+    sorted_texel = texel[order]
+    new_group = np.r_[True, np.any(sorted_texel[1:] != sorted_texel[:-1], axis=1)]
+    # Points are kept in group order: each group's points are contiguous.
+    group = np.cumsum(new_group) - 1
+    coef, weight = coef[order], weight[order]
+    first_point = np.nonzero(new_group)[0]  # the first point of each group
+    slots = index(texels, sorted_texel[first_point])
+    # The first dilation ring: gutter texel g = sum over its covered neighbours j of x_j / count.
+    has = nb >= 0
+    fill_to = np.repeat(index(texels, gutter), 8).reshape(-1, 8)[has]
+    fill_from = index(texels, nb[has])
+    fill_weight = (1.0 / count)[:, None].repeat(8, axis=1)[has]
+    return SeamSystem(texels, ~flat[texels], slots, group, coef, weight, fill_to, fill_from,
+                      fill_weight, int(np.count_nonzero(~keep)))
+
+
+def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
+          kappa: float | None = None, tolerance: float | None = None,
+          max_iterations: int | None = None) -> tuple[np.ndarray, dict]:
+    """Minimise the erasure energy (module docstring) over the covered ``system.texels``.
+
+    values : (n, c) float64 baked values of ``system.texels`` (c channels sharing the
+    weights, e.g. a bent normal's components; gutter rows ignored), stderr : (n,) float64
+    their stderr (gutter rows ignored).
+    Returns (x (n, c) float64: the adjusted covered values, gutter rows the dilation of
+    them; info: iterations, converged, and rms_before / rms_after, max_before / max_after of
+    the lookup difference over the seam points (rms weighted by seam length)).
+    """
+    kappa = KAPPA if kappa is None else kappa  # module constants read at call time
+    tolerance = TOLERANCE if tolerance is None else tolerance
+    max_iterations = MAX_ITERATIONS if max_iterations is None else max_iterations
+    s = system
+    n = len(s.texels)
+    values = np.array(values, dtype=np.float64)
+    covered = ~s.gutter
+    se = np.maximum(np.where(covered, np.asarray(stderr, dtype=np.float64), 0.0), SE_FLOOR)
+    w = np.where(covered, 1.0 / se ** 2, 0.0)
+    # The noise the baked errors give each point's difference (P V P^T read through the
+    # stencil, neighbours of a gutter texel counted as if it were independent: a weight),
+    # and its seam weight.
+    se_read = np.sqrt(s.fill(np.where(covered, se ** 2, 0.0)))
+    var_d = np.maximum(np.einsum("pk,pk->p", s.coef ** 2, se_read[s.slots[s.group]] ** 2),
+                       SE_FLOOR ** 2)
+    lam = kappa * s.weight / var_d
+    # Each group's seam matrix, sum over its points of lam g g^T: (groups, 8, 8).
+    outer = (lam[:, None] * s.coef)[:, :, None] * s.coef[:, None, :]
+    starts = np.nonzero(np.r_[True, s.group[1:] != s.group[:-1]])[0]  # points in group order
+    seam = np.add.reduceat(outer, starts, axis=0)
+    flat_slots = s.slots.reshape(-1)
+
+    def apply(x):  # (W + P^T S P) x over the covered texels
+        y = np.einsum("gkl,gl->gk", seam, s.fill(x)[s.slots]).reshape(-1)
+        return w * x + s.fill_transpose(np.bincount(flat_slots, weights=y, minlength=n))
+
+    # Jacobi preconditioner: the normal matrix's diagonal (its seam part through the fill
+    # without the fill's cross terms: a preconditioner need not be exact).
+    diag = w + s.fill_transpose(np.bincount(flat_slots, minlength=n,
+                                            weights=np.einsum("gkk->gk", seam).reshape(-1)),
+                                square=True)
+    diag = np.where(covered, diag, 1.0)
+    info = {"iterations": 0, "converged": True}
+    total = max(float(s.weight.sum()), 1e-300)
+    before, after = [], []
+    out = np.empty_like(values)
+    for ch in range(values.shape[1]):
+        b = np.where(covered, values[:, ch], 0.0)
+        before.append(s.differences(b))
+        x = b.copy()
+        r = w * b - apply(x)  # minus the seam term's gradient at the bake
+        z = r / diag
+        p = z.copy()
+        # Dot products by einsum, not BLAS: a threaded BLAS call on vectors this short is
+        # slower than the sum itself, and much slower when other processes hold the cores.
+        rz = np.einsum("i,i->", r, z)
+        it = 0
+        while np.max(np.abs(z)) > tolerance and it < max_iterations:
+            q = apply(p)
+            alpha = rz / np.einsum("i,i->", p, q)
+            x += alpha * p
+            r -= alpha * q
+            z = r / diag
+            rz, rz_old = np.einsum("i,i->", r, z), rz
+            p = z + (rz / rz_old) * p
+            it += 1
+        info["iterations"] = max(info["iterations"], it)
+        info["converged"] &= bool(np.max(np.abs(z)) <= tolerance)
+        after.append(s.differences(x))
+        out[:, ch] = s.fill(x)
+    for name, d in (("before", np.concatenate(before)), ("after", np.concatenate(after))):
+        wt = np.tile(s.weight, values.shape[1])
+        info[f"rms_{name}"] = float(np.sqrt(np.sum(wt * d ** 2) / (total * values.shape[1])))
+        info[f"max_{name}"] = float(np.max(np.abs(d))) if len(d) else 0.0
+    if not info["converged"]:
+        log.warning("seam erasure stopped after %d iterations short of its tolerance",
+                    info["iterations"])
+    return out, info
+
+
+# --- the lightmap's channels -----------------------------------------------------------
+
+
+@dataclass
+class Erased:
+    """What ``erase_seams`` did.
+
+    adjusted : (H, W) bool the covered texels that are unknowns of the solve (their values
+    are changed in place), info : dict seam_edges, seam_points, points_dropped,
+    texels_adjusted, gutter_texels (read by the seams, filled by the dilation), iterations,
+    converged, rms_before / rms_after, max_before / max_after (of the first value channel,
+    AO when baked: lookup differences over the seam points).
+    """
+
+    adjusted: np.ndarray
+    info: dict
+
+
+def erase_seams(images: dict, quantities, mesh: SeamMesh, covered, padding: int,
+                directions: bool = True) -> Erased | None:
+    """Erase the seams of the value channels of ``images`` (covered texels, in place).
+
+    images : channel name -> (H, W) float64 texel values and stderrs (covered texels
+    hold the bake; others are ignored), quantities : the Quantity objects (their value and
+    error channel names; ``texel == "direction"`` ones are solved per component, with the
+    angle error as weight, and renormalised, only when ``directions``: a tangent-space bent
+    normal's frame turns across a seam, so its components do not meet there),
+    covered : (H, W) bool, padding : the gutter rings the map gets (0: lookups at chart
+    edges read the push-pull fill, and nothing is erased).
+    Adjusted AO and obscurance are clipped to [0, 1].  Returns None when there is nothing to
+    erase.
+    """
+    covered = np.asarray(covered, dtype=bool)
+    height, width = covered.shape
+    if padding < 1 or not covered.any():
+        return None
+    points = seam_points(mesh, width, height)
+    system = seam_system(points, covered, mesh.wrap)
+    if system.n_rows == 0:
+        return None
+    info = {"seam_edges": points.n_edges, "seam_points": len(points.uv_a),
+            "points_dropped": system.dropped,
+            "texels_adjusted": int(np.count_nonzero(~system.gutter)),
+            "gutter_texels": int(np.count_nonzero(system.gutter)), "iterations": 0,
+            "converged": True}
+    rows, cols = np.divmod(system.texels[~system.gutter], width)
+    for q in quantities:
+        direction = q.texel == "direction"
+        if direction and not directions:
+            continue
+        names = list(q.value.exr) if direction else [q.value.exr[0]]
+        b = np.zeros((len(system.texels), len(names)))
+        b[~system.gutter] = np.stack([images[name][rows, cols] for name in names], axis=1)
+        se = np.zeros(len(system.texels))
+        se[~system.gutter] = images[q.error.exr[0]][rows, cols]
+        x, solved = solve(b, se, system)
+        x = x[~system.gutter]
+        if direction:  # unit directions again (a zero mean stays zero)
+            length = np.linalg.norm(x, axis=1, keepdims=True)
+            x = np.divide(x, length, out=np.zeros_like(x), where=length > 0)
+        else:
+            x = np.clip(x, 0.0, 1.0)
+        for i, name in enumerate(names):
+            images[name][rows, cols] = x[:, i]
+        if "rms_before" not in info:
+            info.update({key: solved[key] for key in ("rms_before", "rms_after", "max_before",
+                                                      "max_after")})
+        info["iterations"] = max(info["iterations"], solved["iterations"])
+        info["converged"] &= solved["converged"]
+    adjusted = np.zeros((height, width), dtype=bool)
+    adjusted[rows, cols] = True
+    return Erased(adjusted, info)

@@ -1,0 +1,325 @@
+"""Seam erasure (``--seams erase``, aobake/targets/texels/seams.py): bilinear lookups from
+the two sides of every UV seam agree after the bake, texels away from the seams keep their
+bits, and the error channels stay honest.  Generated meshes only."""
+
+import functools
+
+import numpy as np
+import pytest
+import trimesh
+
+from aobake.bake import bake_texels
+from aobake.config import CHOICES, DEFAULTS, BakeConfig
+from aobake.errors import InputError
+from aobake.targets.texels import seams
+from aobake.targets.texels.seams import (SeamMesh, bilinear, bilinear_stencil, seam_edges,
+                                         seam_points, seam_system, solve)
+
+VALUES = ("ao", "obscurance")
+
+
+def torus_obj(path, n_major=16, n_minor=8, major=1.0, minor=0.6):
+    """A torus with shared positions (one ``v`` per grid point) and UVs from its
+    parametrisation in [0, 1] (``vt`` duplicated at u = 1 and v = 1): seams where u and v
+    wrap.  Its inner side is occluded by the rest, so AO varies across the seams."""
+    i, j = np.meshgrid(np.arange(n_major), np.arange(n_minor), indexing="ij")
+    a, b = 2 * np.pi * i / n_major, 2 * np.pi * j / n_minor
+    v = np.stack([(major + minor * np.cos(b)) * np.cos(a), minor * np.sin(b),
+                  (major + minor * np.cos(b)) * np.sin(a)], -1).reshape(-1, 3)
+    uv = [(i / n_major, j / n_minor) for i in range(n_major + 1) for j in range(n_minor + 1)]
+    lines = ([f"v {x:.17g} {y:.17g} {z:.17g}" for x, y, z in v]
+             + [f"vt {x:.17g} {y:.17g}" for x, y in uv])
+    for i in range(n_major):
+        for j in range(n_minor):
+            quad = [(i, j), (i, j + 1), (i + 1, j + 1), (i + 1, j)]  # outward
+            for tri in ((0, 1, 2), (0, 2, 3)):
+                corners = [quad[k] for k in tri]
+                lines.append("f " + " ".join(
+                    f"{(ci % n_major) * n_minor + cj % n_minor + 1}/{ci * (n_minor + 1) + cj + 1}"
+                    for ci, cj in corners))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def torus(tmp_path_factory):
+    return torus_obj(tmp_path_factory.mktemp("seams") / "torus.obj")
+
+
+OPTIONS = dict(resolution=40, rays=32, texel_samples=2, padding=2,
+               quantities=("ao", "obscurance", "bent-normal"), unwrap="never")
+
+
+@functools.lru_cache(maxsize=None)
+def _bake(path, mode, seed, **extra):
+    return bake_texels(path, seams=mode, seed=seed, **{**OPTIONS, **extra})
+
+
+def bakes(path, mode, seeds=(0, 1, 2), **extra):
+    return [_bake(str(path), mode, seed, **extra) for seed in seeds]
+
+
+def seam_mesh(result):
+    atlas = result.atlas
+    return SeamMesh(atlas.positions, atlas.normals, atlas.faces, atlas.uv, atlas.faces,
+                    atlas.wrap)
+
+
+def random_seam_points(mesh, n=7, seed=1):
+    """Points along every seam edge at random parameters (not the solve's quadrature
+    points): (uv_a (p, 2), uv_b (p, 2))."""
+    ua, ub = seam_edges(mesh)
+    t = np.random.default_rng(seed).random((len(ua), n))[..., None]
+    pa = (1 - t) * ua[:, None, 0] + t * ua[:, None, 1]
+    pb = (1 - t) * ub[:, None, 0] + t * ub[:, None, 1]
+    return pa.reshape(-1, 2), pb.reshape(-1, 2)
+
+
+def differences(result, name, points):
+    mesh = seam_mesh(result)
+    image = result.channels[name]
+    return bilinear(image, points[0], mesh.wrap) - bilinear(image, points[1], mesh.wrap)
+
+
+def lookup_noise(result, name, points):
+    """The sd the two sides' stderrs give a lookup difference (independent sides)."""
+    wrap = seam_mesh(result).wrap
+    se = result.channels[name + "_stderr"]
+    return np.hypot(bilinear(se, points[0], wrap), bilinear(se, points[1], wrap))
+
+
+# --- the lookups agree -----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", VALUES)
+def test_lookups_agree_across_seams_after_erasure_and_not_without(torus, name):
+    off, erased = bakes(torus, "off"), bakes(torus, "erase")
+    points = random_seam_points(seam_mesh(off[0]))
+    assert len(points[0]) > 100
+    for a, b in zip(off, erased):
+        noise = lookup_noise(a, name, points)
+        d_off, d_erased = differences(a, name, points), differences(b, name, points)
+        # Without erasure the sides differ at the level of their noise (measured 0.5-0.6
+        # of the stderrs' sum in quadrature, which the 1/n floor of open texels inflates).
+        assert np.sqrt(np.mean((d_off / noise) ** 2)) > 0.3
+        # With it, by a small fraction of the noise: the seam term weighs a difference of
+        # one of its standard errors KAPPA = 100 times a texel's; measured 0.002-0.004
+        # of the noise, 170-230 times less than without.
+        assert np.sqrt(np.mean((d_erased / noise) ** 2)) < 0.02
+        assert np.sqrt(np.mean(d_erased ** 2)) < np.sqrt(np.mean(d_off ** 2)) / 30
+
+
+def test_agreement_is_limited_only_by_the_seam_weight(torus, monkeypatch):
+    """With a stiff seam term the lookups agree to 1e-3 everywhere along the seams, at
+    points the solve never saw: the quadrature makes the whole seam agree, not samples."""
+    monkeypatch.setattr(seams, "KAPPA", 1e6)
+    result = bake_texels(torus, seams="erase", seed=0, **OPTIONS)
+    points = random_seam_points(seam_mesh(result), n=11, seed=2)
+    for name in VALUES:
+        d = differences(result, name, points)
+        assert np.max(np.abs(d)) < 1e-3, (name, np.max(np.abs(d)))
+
+
+def test_new_atlas_seams_agree():
+    """An xatlas atlas (a sphere under a plate): its charts' seams are erased too."""
+    mesh = sphere_under_plate()
+    opts = dict(resolution=64, rays=32, texel_samples=2, padding=2, unwrap="always")
+    off = bake_texels(mesh, seams="off", **opts)
+    erased = bake_texels(mesh, seams="erase", **opts)
+    points = random_seam_points(seam_mesh(off))
+    assert len(points[0]) > 100
+    d_off, d_erased = differences(off, "ao", points), differences(erased, "ao", points)
+    assert np.sqrt(np.mean(d_erased ** 2)) < np.sqrt(np.mean(d_off ** 2)) / 10
+    assert "seams_s" in erased.report["timings"] and "seams_s" not in off.report["timings"]
+
+
+# --- what does not change ------------------------------------------------------------
+
+
+def _unknowns(result):
+    """(H, W) bool: the texels the solve may change (covered or gutter)."""
+    mesh = seam_mesh(result)
+    h, w = result.covered.shape
+    system = seam_system(seam_points(mesh, w, h), result.covered, mesh.wrap)
+    mask = np.zeros(h * w, dtype=bool)
+    mask[system.texels] = True
+    return mask.reshape(h, w)
+
+
+def test_texels_away_from_seams_keep_their_bits(torus):
+    off, erased = bakes(torus, "off"), bakes(torus, "erase")
+    for a, b in zip(off, erased):
+        assert list(a.channels) == list(b.channels)  # same channels, same order
+        moved = _unknowns(a)
+        far = a.covered & ~moved
+        assert far.sum() > 0.5 * a.covered.sum()
+        for name, image in a.channels.items():
+            assert np.array_equal(image[far], b.channels[name][far]), name
+        changed = a.channels["ao"] != b.channels["ao"]
+        assert changed[a.covered].any()
+        assert not (changed & a.covered & ~moved).any()
+        for name in ("rays", "coverage"):  # never filled, never erased
+            assert np.array_equal(a.channels[name], b.channels[name])
+
+
+def test_padding_zero_and_off_change_nothing(torus):
+    """Without gutter rings the lookups at chart edges read push-pull fill: no erasure."""
+    off = bakes(torus, "off", seeds=(0,), padding=0)[0]
+    erased = bakes(torus, "erase", seeds=(0,), padding=0)[0]
+    for name, image in off.channels.items():
+        assert np.array_equal(image, erased.channels[name]), name
+
+
+def test_tangent_space_bent_normals_are_not_erased(torus):
+    """A tangent frame turns across a seam: its components are left as baked."""
+    off = bakes(torus, "off", seeds=(0,), bent_space="tangent")[0]
+    erased = bakes(torus, "erase", seeds=(0,), bent_space="tangent")[0]
+    for label in ("bent_normal.X", "bent_normal.Y", "bent_normal.Z", "bent_normal_stderr"):
+        assert np.array_equal(off.channels[label], erased.channels[label]), label
+    assert not np.array_equal(off.channels["ao"], erased.channels["ao"])
+
+
+def test_object_space_bent_normals_are_erased_and_stay_unit(torus):
+    off, erased = bakes(torus, "off", seeds=(0,))[0], bakes(torus, "erase", seeds=(0,))[0]
+    labels = ("bent_normal.X", "bent_normal.Y", "bent_normal.Z")
+    bent = np.stack([erased.channels[label] for label in labels], axis=-1)
+    length = np.linalg.norm(bent[erased.covered], axis=-1)
+    assert np.allclose(length, 1.0, atol=1e-5)
+    points = random_seam_points(seam_mesh(off))
+    d_off = np.stack([differences(off, label, points) for label in labels])
+    d_erased = np.stack([differences(erased, label, points) for label in labels])
+    # Agreement up to the renormalisation of the adjusted texels.
+    assert np.sqrt(np.mean(d_erased ** 2)) < np.sqrt(np.mean(d_off ** 2)) / 3
+
+
+# --- honest error channels -------------------------------------------------------------
+
+
+def test_error_channels_present_finite_and_intervals_hold_the_values(torus):
+    off, erased = bakes(torus, "off"), bakes(torus, "erase")
+    for a, b in zip(off, erased):
+        for name, image in b.channels.items():
+            assert np.all(np.isfinite(image)), name
+        moved = _unknowns(a) & a.covered
+        for name in VALUES:
+            value, low, high = (b.channels[name + s] for s in ("", "_ci_low", "_ci_high"))
+            se = b.channels[name + "_stderr"]
+            assert np.all(se >= 0) and np.all((value >= 0) & (value <= 1))
+            assert np.all((low <= value) & (value <= high)), name  # every texel, fill too
+            # A covered texel keeps its stderr; its interval still holds the baked value.
+            assert np.array_equal(se[a.covered], a.channels[name + "_stderr"][a.covered])
+            baked = a.channels[name][moved]
+            assert np.all((low[moved] <= baked) & (baked <= high[moved])), name
+            assert np.all(low[moved] <= a.channels[name + "_ci_low"][moved])
+            assert np.all(high[moved] >= a.channels[name + "_ci_high"][moved])
+
+
+def sphere_under_plate(subdivisions=2):
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
+    plate = trimesh.creation.box(extents=[0.8, 0.8, 0.1])
+    plate.apply_translation([0, 0, 1.3])  # some occlusion so AO varies over the sphere
+    return trimesh.util.concatenate([sphere, plate])
+
+
+@pytest.mark.parametrize("case", ["torus-own-uvs", "sphere-xatlas"])
+def test_kept_stderr_bounds_the_adjusted_values_noise(torus, case):
+    """The adjusted covered values are linear in the baked ones, x = K b.  With the
+    baked texels' errors independent, Var(x_i) = sum_j K_ij^2 se_j^2, and the module's
+    claim is that this never exceeds se_i^2 (the seam and tie terms involve x only, so K
+    is a contraction in units of the errors): the kept stderr is an upper bound.  The
+    torus's seams lie on the image border (no gutter unknowns); the atlas's have gutters."""
+    if case == "torus-own-uvs":
+        result = bake_texels(torus, seams="off", seed=0, **{**OPTIONS, "resolution": 24})
+    else:
+        result = bake_texels(sphere_under_plate(1), seams="off", resolution=32, rays=32,
+                             texel_samples=2, padding=2, unwrap="always")
+    mesh = seam_mesh(result)
+    h, w = result.covered.shape
+    system = seam_system(seam_points(mesh, w, h), result.covered, mesh.wrap)
+    rows, cols = np.divmod(system.texels, w)
+    se = result.channels["ao_stderr"][rows, cols].astype(np.float64)
+    covered = ~system.gutter
+    n = len(system.texels)
+    assert 50 < covered.sum() < 600
+    assert system.gutter.any() == (case == "sphere-xatlas")
+    # Columns of K: the solve of each unit vector (gutter inputs are ignored by solve).
+    basis = np.eye(n)[:, covered]
+    k, info = solve(basis, se, system, tolerance=1e-10, max_iterations=20000)
+    assert info["converged"]
+    k = k[covered]  # (covered unknowns, covered unknowns)
+    b = result.channels["ao"][rows, cols].astype(np.float64)[:, None]
+    x, _ = solve(b, se, system, tolerance=1e-10, max_iterations=20000)
+    assert np.allclose(k @ b[covered, 0], x[covered, 0], atol=1e-8)  # linear in b
+    sd = np.sqrt((k ** 2) @ se[covered] ** 2)
+    ratio = sd / se[covered]
+    assert np.all(ratio <= 1 + 1e-8), ratio.max()
+    assert ratio.min() < 0.9  # the solve averages across the seam: the bound is not idle
+
+
+# --- pieces ----------------------------------------------------------------------------
+
+
+def test_quadrature_integrates_the_seam_difference_exactly(torus):
+    """The Gauss points (3 per piece between texel-centre crossings) integrate
+    (L_A - L_B)^2 along every seam exactly, for any image."""
+    mesh = seam_mesh(bakes(torus, "off", seeds=(0,))[0])
+    w, h = 13, 9  # coarse, odd: many pieces end inside edges
+    image = np.random.default_rng(0).random((h, w))
+    points = seam_points(mesh, w, h)
+    d = bilinear(image, points.uv_a, mesh.wrap) - bilinear(image, points.uv_b, mesh.wrap)
+    exact = np.bincount(points.edge, weights=points.weight * d ** 2, minlength=points.n_edges)
+    ua, ub = seam_edges(mesh)
+    t = (np.arange(4000) + 0.5) / 4000  # midpoint rule, fine
+    length = 0.5 * (np.linalg.norm((ua[:, 1] - ua[:, 0]) * [w, h], axis=1)
+                    + np.linalg.norm((ub[:, 1] - ub[:, 0]) * [w, h], axis=1))
+    for e in range(0, len(ua), max(1, len(ua) // 12)):
+        pa = (1 - t)[:, None] * ua[e, 0] + t[:, None] * ua[e, 1]
+        pb = (1 - t)[:, None] * ub[e, 0] + t[:, None] * ub[e, 1]
+        de = bilinear(image, pa, mesh.wrap) - bilinear(image, pb, mesh.wrap)
+        assert exact[e] == pytest.approx(np.mean(de ** 2) * length[e], rel=1e-5, abs=1e-12)
+
+
+def _two_triangles(uv_b, normal_b=(0, 0, 1), wrap="clamp"):
+    """Two triangles sharing the edge (0,0,0)-(1,0,0); the second face's UVs of that edge
+    are ``uv_b`` (2, 2)."""
+    positions = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 0], [1, 0, 0], [0, -1, 0]],
+                         float)
+    normals = np.array([[0, 0, 1]] * 3 + [normal_b] * 3, float)
+    faces = np.array([[0, 1, 2], [4, 3, 5]])
+    uv = np.array([[0.1, 0.5], [0.4, 0.5], [0.1, 0.8], uv_b[0], uv_b[1], [0.6, 0.2]], float)
+    return SeamMesh(positions, normals, faces, uv, faces.copy(), wrap)
+
+
+def test_seam_edges_need_different_uvs_and_the_same_normals():
+    ua, ub = seam_edges(_two_triangles([[0.6, 0.5], [0.9, 0.5]]))
+    assert len(ua) == 1
+    assert np.allclose(ua[0], [[0.1, 0.5], [0.4, 0.5]]) and np.allclose(ub[0], [[0.6, 0.5],
+                                                                              [0.9, 0.5]])
+    assert len(seam_edges(_two_triangles([[0.1, 0.5], [0.4, 0.5]]))[0]) == 0  # no seam
+    # A hard edge (normals 90 degrees apart): the values may differ there on purpose.
+    assert len(seam_edges(_two_triangles([[0.6, 0.5], [0.9, 0.5]], (0, 1, 0)))[0]) == 0
+    # A whole tile apart: the same texels under repeat, a seam under clamp.
+    shifted = [[1.1, 0.5], [1.4, 0.5]]
+    assert len(seam_edges(_two_triangles(shifted, wrap="repeat"))[0]) == 0
+    assert len(seam_edges(_two_triangles(shifted, wrap="clamp"))[0]) == 1
+
+
+def test_bilinear_follows_the_texel_convention():
+    w, h = 8, 4
+    r, c = 1, 5
+    centre = [[(c + 0.5) / w, 1 - (r + 0.5) / h]]  # row 0 at the top (v near 1)
+    texel, weight = bilinear_stencil(centre, w, h)
+    assert weight[0, 0] == 1.0 and texel[0, 0] == r * w + c
+    assert np.allclose(weight.sum(axis=1), 1.0)
+    image = np.arange(w * h, dtype=float).reshape(h, w)
+    assert bilinear(image, [[0.0, 0.5]], "clamp")[0] == pytest.approx(image[1:3, 0].mean())
+    assert bilinear(image, [[0.0, 0.5]], "repeat")[0] == pytest.approx(
+        image[1:3, [0, w - 1]].mean())
+
+
+def test_config_field():
+    assert DEFAULTS["seams"] == "erase" and CHOICES["seams"] == ("erase", "off")
+    config = BakeConfig(seams="off")
+    assert BakeConfig.from_dict(config.to_dict()) == config
+    with pytest.raises(InputError, match="seams"):
+        BakeConfig(seams="blend")
