@@ -86,6 +86,9 @@ def run(
     if done.rays_key != "rays_per_point":  # what a "point" is for this target
         report["parameters"][done.rays_key] = report["parameters"].pop("rays_per_point")
     report.update(done.report)
+    # Every target's phases (a lightmap's add unwrap, raster, splat); writing is added by
+    # aobake.write to the report file it writes.
+    report["timings"] = {**timings, **report.get("timings", {}), "total_s": wall}
     if adaptive_summary is not None:
         report["tolerance"] = adaptive_summary
         log.info("tolerance %g: %d points met it, %d missed, %d capped at %d rays; %d rays "

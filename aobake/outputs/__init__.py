@@ -116,6 +116,9 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
     meta = metadata(result)
     written = [where.out]
     # One transaction: the files appear together once all are written, or none does.
+    import time
+
+    clock = time.perf_counter()
     with transaction():
         with _naming(where.out):
             writer_for(where.out, target).write(where.out, result, meta, options)
@@ -125,6 +128,9 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
             written.append(where.mesh_out)
         if where.report is not None:
             full = dict(result.report, outputs=[str(p) for p in written])
+            # the outputs before the report (their renames come with the transaction's end)
+            full["timings"] = {**full.get("timings", {}),
+                               "write_s": time.perf_counter() - clock}
             with _naming(where.report):
                 write_report(where.report, full)
     return written
