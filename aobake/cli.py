@@ -354,6 +354,15 @@ def _run(mesh, out, target, threads, quiet, config, files):
         click.echo(f"aobake: {report['points']} {what}, {report['rays_cast']} rays "
                    f"in {report['wall_time_s']:.2f} s ({report['rays_per_second'] / 1e6:.2f} Mrays/s) "
                    f"-> {', '.join(map(str, written))}", err=True)
+        texture = report.get("texture")
+        if texture:
+            density = texture.get("chart_density") or {}
+            click.echo(f"aobake: lightmap {texture['width']}x{texture['height']}, padding "
+                       f"{texture['padding']}: {texture['charts'] or density.get('islands', 0)} "
+                       f"charts ({texture['atlas']}) cover {texture['covered_fraction']:.1%} of "
+                       f"the texels; texel density {density.get('p5', 0):.4g}-"
+                       f"{density.get('p95', 0):.4g} per scene unit (p5-p95, ratio "
+                       f"{density.get('spread') or 0:.3f})", err=True)
 
 
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})

@@ -127,7 +127,8 @@ class BakeConfig:
                  or tau without tracing (per vertex / point, not with a tolerance)
     Lightmaps only (ignored per vertex):
     resolution   (width, height) texels
-    padding      texels of gutter dilation
+    padding      texels of gutter dilation; a new atlas leaves 2 x padding empty texels between
+                 charts (default 2: bilinear lookups at mip levels 0 and 1 read one chart)
     texel_samples surface positions per texel; ``rays`` is split over them
     unwrap       auto (own UVs when valid, else xatlas) | always | never
     bent_space   object | tangent
@@ -154,7 +155,7 @@ class BakeConfig:
     max_rays: int = 65536
     keep_distances: bool = False
     resolution: tuple = (1024, 1024)
-    padding: int = 8
+    padding: int = 2
     texel_samples: int = 4
     unwrap: str = "auto"
     bent_space: str = "object"

@@ -1,10 +1,12 @@
 """Lightmap throughput: texels/s, rays/s, ratio to a bare embreex loop on the same rays,
 and where the time goes (unwrap, rasterise, trace, write).
 
-    python benchmarks/bench_lightmap.py [--resolution 1024] [--rays 256] [--threads 2]
+    python benchmarks/bench_lightmap.py [--resolution 1024] [--rays 256] [--threads 2] [--padding P]
 
 Cases: ../shared/meshes/spot.obj (baked into the UVs it ships) and
-../shared/meshes/stanford-bunny.obj (no UVs: unwrapped with xatlas).
+../shared/meshes/stanford-bunny.obj (no UVs: a new atlas).  Also printed: the share of the
+image the surface covers, the charts and the spread of their texel densities (p95 / p5) from
+the report; benchmarks/bench_atlas.py compares atlases in more detail.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_throughput import bare_loop  # noqa: E402
 
 from aobake.bake import bake_texels  # noqa: E402
-from aobake.config import BakeConfig  # noqa: E402
+from aobake.config import DEFAULTS, BakeConfig  # noqa: E402
 from aobake.outputs.texture import write_texture  # noqa: E402
 from aobake.scene import load_scene  # noqa: E402
 from aobake.targets.texels.raster import rasterize  # noqa: E402
@@ -36,7 +38,7 @@ SHARED = Path(__file__).resolve().parents[2] / "shared" / "meshes"
 def case(path: Path, unwrap: str, args):
     config = BakeConfig(rays=args.rays)
     start = time.perf_counter()
-    result = bake_texels(path, config, resolution=args.resolution, padding=8,
+    result = bake_texels(path, config, resolution=args.resolution, padding=args.padding,
                          texel_samples=args.texel_samples, threads=args.threads, unwrap=unwrap)
     bake_wall = time.perf_counter() - start
     with tempfile.TemporaryDirectory() as tmp:
@@ -74,6 +76,9 @@ def case(path: Path, unwrap: str, args):
         "write_s": write_s,
         "total_s": total,
         "stderr_p95": result.report["texture"].get("ao_stderr", {}).get("p95", float("nan")),
+        "covered": result.report["texture"]["covered_fraction"],
+        "charts": result.report["texture"]["chart_density"]["islands"],
+        "spread": result.report["texture"]["chart_density"]["spread"],
     }
 
 
@@ -83,6 +88,7 @@ def main():
     parser.add_argument("--rays", type=int, default=256)
     parser.add_argument("--texel-samples", type=int, default=4)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--padding", type=int, default=DEFAULTS["padding"])
     args = parser.parse_args()
     # spot's own UVs (10 faces reach slightly outside [0, 1], so "auto" would
     # re-unwrap; "never" bakes them as shipped), the bunny through xatlas.
@@ -90,16 +96,17 @@ def main():
     if not all(m.is_file() for m, _ in cases):
         sys.exit("benchmarks need ../shared/meshes (spot.obj, stanford-bunny.obj)")
     rows = [case(m, unwrap, args) for m, unwrap in cases]
-    print(f"resolution {args.resolution}^2, {args.rays} rays per texel over {args.texel_samples} "
-          f"samples, {args.threads} threads\n")
-    print("| mesh | atlas | texels | texels/s | trace Mrays/s | bare Mrays/s | trace/bare | "
-          "load+BVH s | UV check s | unwrap s | rasterise s | trace s | splat+dilate s | write s | "
-          "total s | non-trace share | p95 stderr |")
-    print("|" + "---|" * 17)
+    print(f"resolution {args.resolution}^2, padding {args.padding}, {args.rays} rays per texel over "
+          f"{args.texel_samples} samples, {args.threads} threads\n")
+    print("| mesh | atlas | charts | covered | density p95/p5 | texels | texels/s | trace Mrays/s | "
+          "bare Mrays/s | trace/bare | load+BVH s | UV check s | unwrap s | rasterise s | trace s | "
+          "splat+dilate s | write s | total s | non-trace share | p95 stderr |")
+    print("|" + "---|" * 20)
     for r in rows:
         # Everything that is not loading the mesh / building the BVH or tracing.
         other = r["check_s"] + r["unwrap_s"] + r["raster_s"] + r["post_s"] + r["write_s"]
-        print(f"| {r['mesh']} | {r['atlas']} | {r['texels']} | {r['texels_per_s']:.0f} | "
+        print(f"| {r['mesh']} | {r['atlas']} | {r['charts']} | {r['covered']:.1%} | "
+              f"{r['spread']:.3f} | {r['texels']} | {r['texels_per_s']:.0f} | "
               f"{r['trace_mrays']:.2f} | {r['bare_mrays']:.2f} | {r['trace_mrays'] / r['bare_mrays']:.2f} | "
               f"{r['load_s']:.2f} | {r['check_s']:.2f} | {r['unwrap_s']:.2f} | {r['raster_s']:.2f} | {r['trace_s']:.2f} | {r['post_s']:.2f} | "
               f"{r['write_s']:.2f} | {r['total_s']:.2f} | {other / r['total_s']:.0%} | "

@@ -110,6 +110,10 @@ class TexelTarget:
         # texels (the map then holds little more than one value per chart).
         area = float(scene.areas().sum())
         texture["texel_density"] = math.sqrt(texture["texels_covered"] / area) if area > 0 else None
+        # How much of the image the surface covers, and how evenly the charts share it.
+        texture["covered_fraction"] = texture["texels_covered"] / (width * height)
+        texture["chart_density"] = _chart_density(scene, state["uv"], state["faces_uv"], width,
+                                                  height)
         pieces = state["atlas"].charts or len(scene.faces)
         per_piece = texture["texels_covered"] / max(pieces, 1)
         if per_piece < MIN_TEXELS_PER_CHART:
@@ -122,6 +126,20 @@ class TexelTarget:
         return Finished(result, values, rays, len(plan.points),
                         report={"texture": texture, "timings": timings},
                         rays_key="rays_per_texel_sample")
+
+
+def _chart_density(scene, uv, faces_uv, width, height):
+    """Texel density of the UV islands (charts): sqrt(an island's UV area in texels / its
+    surface area), texels per scene unit; 5th, 50th and 95th percentile over the islands
+    and ``spread`` = p95 / p5 (1 = every chart at the same density)."""
+    from aobake.targets.texels.unwrap import chart_texel_density
+
+    density = chart_texel_density(uv, faces_uv, scene.vertices, scene.faces, width, height)
+    if not len(density):
+        return None
+    p5, p50, p95 = (float(x) for x in np.percentile(density, [5, 50, 95]))
+    return {"islands": int(len(density)), "p5": p5, "p50": p50, "p95": p95,
+            "spread": p95 / p5 if p5 > 0 else None}
 
 
 def _to_tangent(scene, uv, faces_uv, samples, normals, bent):
