@@ -17,6 +17,17 @@ import numpy as np
 _NEIGHBOURS = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0)]
 
 
+def _checked(image, mask) -> tuple[np.ndarray, np.ndarray]:
+    """(image (H, W, C), mask (H, W) bool) as arrays, or ValueError naming the bad shape."""
+    image = np.asarray(image)
+    mask = np.asarray(mask, dtype=bool)
+    if image.ndim != 3:
+        raise ValueError(f"image must be (H, W, C), got {image.shape}")
+    if mask.shape != image.shape[:2]:
+        raise ValueError(f"mask must be {image.shape[:2]}, got {mask.shape}")
+    return image, mask
+
+
 def dilate(image, mask, padding: int) -> tuple[np.ndarray, np.ndarray]:
     """Fill the gutter around covered texels, ring by ring.
 
@@ -33,12 +44,7 @@ def dilate(image, mask, padding: int) -> tuple[np.ndarray, np.ndarray]:
     Returns (image (H, W, C) float64, mask (H, W) bool): the new image and the
     mask of texels that now hold a value (input mask plus filled rings).
     """
-    image = np.asarray(image)
-    mask = np.asarray(mask, dtype=bool)
-    if image.ndim != 3:
-        raise ValueError(f"image must be (H, W, C), got {image.shape}")
-    if mask.shape != image.shape[:2]:
-        raise ValueError(f"mask must be {image.shape[:2]}, got {mask.shape}")
+    image, mask = _checked(image, mask)
     if int(padding) != padding or padding < 0:
         raise ValueError(f"padding must be a non-negative integer, got {padding}")
     if padding == 0:
@@ -104,12 +110,7 @@ def push_pull(image, mask, dtype=np.float64) -> np.ndarray:
     (bit for bit, after the cast to ``dtype``), every other texel filled; a plain copy when
     ``mask`` is empty (nothing to fill from) or full.
     """
-    image = np.asarray(image)
-    mask = np.asarray(mask, dtype=bool)
-    if image.ndim != 3:
-        raise ValueError(f"image must be (H, W, C), got {image.shape}")
-    if mask.shape != image.shape[:2]:
-        raise ValueError(f"mask must be {image.shape[:2]}, got {mask.shape}")
+    image, mask = _checked(image, mask)
     dtype = np.dtype(dtype)
     if dtype.kind != "f":
         raise ValueError(f"dtype must be a float type, got {dtype}")
