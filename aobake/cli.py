@@ -216,6 +216,10 @@ SUBCOMMANDS = {"compare": _compare_command, "refit": _refit_command}
               help="NPZ: keep every ray's hit distance (4 bytes per ray), so that 'aobake "
                    "refit' recomputes ao/obscurance for another --max-distance (up to this "
                    "one) or --tau without tracing.")
+@click.option("--denoise", is_flag=True, default=False,
+              help="Lightmaps (EXR): add ao_denoised / ao_denoised_stderr (and obscurance's) "
+                   "beside the raw channels: a surface-guided filter that keeps creases, "
+                   "charts and seams (docs/lightmaps.md).")
 @click.option("--threads", default=None, type=click.IntRange(min=1),
               help="Worker threads. Default: all cores.")
 @click.option("--resolution", default=str(DEFAULTS["resolution"][0]), show_default=True,
@@ -334,6 +338,10 @@ def _run(mesh, out, target, threads, quiet, config, files):
                                 report=files["report"], quantities=config.quantities)
     if config.keep_distances and where.out.suffix.lower() != ".npz":
         raise click.UsageError(f"--keep-distances needs an .npz --out (got {where.out.name})")
+    if config.denoise and (where.target != "texels" or where.out.suffix.lower() != ".exr"):
+        # The denoised map goes beside the raw one, never instead: only EXR has the channels.
+        raise click.UsageError(f"--denoise adds channels to a lightmap: it needs an .exr --out "
+                               f"(got {where.out.name})")
     progress, finish = _progress_bar(quiet)
     bake = aobake.bake if where.target == "vertices" else aobake.bake_texels
     try:

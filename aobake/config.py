@@ -134,6 +134,8 @@ class BakeConfig:
     bent_space   object | tangent
     seams        erase (bilinear lookups made to agree across UV seams by a least-squares
                  change of the texels there, ``aobake.targets.texels.seams``) | off
+    denoise      add ``<q>_denoised`` / ``<q>_denoised_stderr`` channels for AO and obscurance
+                 beside the raw ones (``aobake.targets.texels.denoise``); EXR only
     """
 
     quantities: tuple = ("ao",)
@@ -160,6 +162,7 @@ class BakeConfig:
     unwrap: str = "auto"
     bent_space: str = "object"
     seams: str = "erase"
+    denoise: bool = False
 
     def __post_init__(self):
         object.__setattr__(self, "quantities", canonical(self.quantities))
@@ -214,6 +217,7 @@ class BakeConfig:
         object.__setattr__(self, "ray_offset", offset)
         object.__setattr__(self, "ground_plane", bool(self.ground_plane))
         object.__setattr__(self, "keep_distances", bool(self.keep_distances))
+        object.__setattr__(self, "denoise", bool(self.denoise))
         if self.keep_distances and self.tolerance is not None:
             raise InputError("keep_distances needs one ray count for every point; it cannot "
                              "be combined with a tolerance")

@@ -92,10 +92,16 @@ class TexelTarget:
         seams = None if config.seams == "off" else SeamMesh(  # UV seams erased in gather
             scene.vertices, scene.vertex_normals, scene.faces, state["uv"], state["faces_uv"],
             state["atlas"].wrap)
+        denoise = None
+        if config.denoise:  # guided by the surface: points, normals, charts, texel spacing
+            area = float(scene.areas().sum())
+            texels = len(np.unique(samples.texel[rays > 0]))
+            spacing = math.sqrt(area / texels) if area > 0 and texels else 1.0
+            denoise = (plan.points, plan.normals, state["faces_uv"], spacing)
         images, covered, filled = gather_channels(quantities, samples, values, rays,
                                                   config.padding, to_tangent, dof,
                                                   config.confidence, seams, timings,
-                                                  seam_info)
+                                                  seam_info, denoise)
         timings["splat_dilate_s"] = time.perf_counter() - clock
         shared = int(np.count_nonzero(samples.shared >= 2))
         if shared:
@@ -106,6 +112,8 @@ class TexelTarget:
                                  config.texel_samples, state["atlas"], state["check"],
                                  config.bent_space)
         texture["seams"] = seam_info or {"mode": config.seams}
+        texture["denoise"] = _denoise_stats(images, covered, quantities) if config.denoise \
+            else None
         # Texels per scene unit along the surface, and a warning where charts shrink to a few
         # texels (the map then holds little more than one value per chart).
         area = float(scene.areas().sum())
@@ -126,6 +134,27 @@ class TexelTarget:
         return Finished(result, values, rays, len(plan.points),
                         report={"texture": texture, "timings": timings},
                         rays_key="rays_per_texel_sample")
+
+
+def _denoise_stats(images, covered, quantities) -> dict:
+    """What ``--denoise`` did: its parameters and, per scalar quantity, the mean stderr
+    over the covered texels before and after (the noise left; the bias it adds is measured
+    in benchmarks/bench_denoise.py, docs/lightmaps.md)."""
+    from aobake.targets.texels import denoise
+
+    stats = {"method": "joint bilateral on the surface (same chart, world distance, "
+                       "normals, value step in noise units)",
+             "sigma_texels": denoise.SIGMA_TEXELS, "crease_angle": denoise.CREASE_ANGLE,
+             "range_k": denoise.RANGE_K}
+    for q in quantities:
+        if q.texel == "direction" or not covered.any():
+            continue
+        name = q.value.exr[0]
+        raw = float(images[q.error.exr[0]][covered].mean())
+        after = float(images[name + "_denoised_stderr"][covered].mean())
+        stats[name] = {"stderr_mean": raw, "denoised_stderr_mean": after,
+                       "noise_reduction": raw / after if after > 0 else None}
+    return stats
 
 
 def _chart_density(scene, uv, faces_uv, width, height):

@@ -19,6 +19,7 @@ import numpy as np
 
 from aobake import stats
 from aobake.post import dilate, push_pull
+from aobake.targets.texels.denoise import DenoisedChannel
 from aobake.targets.texels.raster import TexelSamples
 from aobake.vectors import normalize
 
@@ -70,7 +71,7 @@ def subset(samples: TexelSamples, keep: np.ndarray) -> TexelSamples:
 
 def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, padding: int,
              to_tangent=None, dof: int = 0, confidence: float = 0.95, seams=None,
-             timings: dict | None = None, seam_info: dict | None = None
+             timings: dict | None = None, seam_info: dict | None = None, denoise=None
              ) -> tuple[dict, np.ndarray, np.ndarray]:
     """Texel channels of a bake.
 
@@ -87,7 +88,12 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     seams : None (no seam erasure) or the ``aobake.targets.texels.seams.SeamMesh`` baked:
     before the gutters are filled, the value channels are adjusted so that bilinear lookups
     agree across its UV seams (``seams.erase_seams``; the time goes to ``timings["seams_s"]``
-    and its counts to ``seam_info``).  An adjusted texel keeps its stderr (an upper bound on
+    and its counts to ``seam_info``).
+    denoise : None, or (points (s, 3), normals (s, 3) float64 of all samples, faces_uv (f, 3)
+    int, spacing float scene units per texel): adds ``<q>_denoised`` and
+    ``<q>_denoised_stderr`` for each scalar quantity, filtered from the baked texels
+    (``aobake.targets.texels.denoise``), then seam-erased and gutter-filled like the rest
+    (time in ``timings["denoise_s"]``).  An adjusted texel keeps its stderr (an upper bound on
     the adjusted value's: see ``seams``) and its interval becomes the hull of the baked one
     and the one around the adjusted value.
     """
@@ -129,12 +135,20 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
         if q.interval:
             order += [q.interval[0].exr[0], q.interval[1].exr[0]]
             pending.append((q, out[q.value.exr[0]].copy(), mean_variance, variance))
+    erase = list(quantities)
+    if denoise is not None:
+        clock = time.perf_counter()
+        names = _denoised(out, quantities, sub, traced, covered, rays_img, denoise)
+        order += names
+        erase += [DenoisedChannel.of(q) for q in quantities if q.texel != "direction"]
+        if timings is not None:
+            timings["denoise_s"] = time.perf_counter() - clock
     erased = None
     if seams is not None:
         from aobake.targets.texels.seams import erase_seams
 
         clock = time.perf_counter()
-        erased = erase_seams(out, quantities, seams, covered, padding,
+        erased = erase_seams(out, erase, seams, covered, padding,
                              directions=to_tangent is None)
         if timings is not None:
             timings["seams_s"] = time.perf_counter() - clock
@@ -166,6 +180,25 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     out["coverage"] = samples.coverage.astype(np.float64) * covered
     return ({name: np.ascontiguousarray(image, dtype=np.float32) for name, image in out.items()},
             covered, filled)
+
+
+def _denoised(out, quantities, sub, traced, covered, rays_img, denoise) -> list:
+    """Add the denoised channels of the scalar quantities to ``out``; their names."""
+    from aobake.targets.texels.denoise import denoise as filter_texels
+    from aobake.targets.texels.denoise import make_guide
+
+    points, normals, faces_uv, spacing = denoise
+    guide = make_guide(sub, points[traced], normals[traced], faces_uv, covered, rays_img,
+                       spacing)
+    names = []
+    for q in quantities:
+        if q.texel == "direction":
+            continue
+        channel = DenoisedChannel.of(q)
+        value, error = filter_texels(out[q.value.exr[0]], out[q.error.exr[0]], guide)
+        out[channel.value.exr[0]], out[channel.error.exr[0]] = value, error
+        names += [channel.value.exr[0], channel.error.exr[0]]
+    return names
 
 
 def _renormalise(axes, where) -> None:
