@@ -95,7 +95,7 @@ def figure(out: Path, name: str, rays: int, raw, denoised, reference, window) ->
         ax.set_title(title)
         ax.axis("off")
     fig.suptitle(f"{name}: AO lightmap crop")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
     out.mkdir(parents=True, exist_ok=True)
     fig.savefig(out / f"denoise_{Path(name).stem}.png", dpi=80)
     plt.close(fig)

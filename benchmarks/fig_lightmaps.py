@@ -94,7 +94,7 @@ def atlas_figure(out: Path, mesh: str) -> None:
         ax.set_title(f"{title}: {covered:.1%} of the texels")
         ax.axis("off")
     fig.suptitle(f"{mesh}: new atlas at 1024x1024")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
     fig.savefig(out / f"atlas_{Path(mesh).stem}.png", dpi=80)
     plt.close(fig)
 
@@ -113,9 +113,10 @@ class Camera:
         TriangleMesh(scene, (positions - shift).astype(np.float32),
                      np.ascontiguousarray(faces, np.int32))
         n = np.asarray(normal, np.float64) / np.linalg.norm(normal)
-        e1 = np.cross(n, [0.0, 1.0, 0.0] if abs(n[1]) < 0.9 else [1.0, 0.0, 0.0])
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(n, e1)
+        up = np.array([0.0, 1.0, 0.0] if abs(n[1]) < 0.9 else [0.0, 0.0, -1.0])
+        e2 = up - (up @ n) * n  # image up: the scene's +y as seen from +n
+        e2 /= np.linalg.norm(e2)
+        e1 = np.cross(e2, n)  # image right
         t = (np.arange(px) + 0.5) / px - 0.5
         y, x = np.meshgrid(-t * extent, t * extent, indexing="ij")
         span = float(np.linalg.norm(positions.max(0) - positions.min(0)))
@@ -204,7 +205,7 @@ def seam_figure(out: Path, threads: int) -> None:
     axes[2].legend()
     fig.suptitle("stanford-bunny, 512x512, 256 rays: the same rays with and without seam "
                  "erasure")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
     fig.savefig(out / "seam_bunny.png", dpi=80)
     plt.close(fig)
 
@@ -233,7 +234,7 @@ def mip_figure(out: Path, threads: int) -> None:
         ax.set_title(f"{title}: mip level 4 (64x64)")
         ax.axis("off")
     fig.suptitle("stanford-bunny AO map, box-filtered mip chain")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
     fig.savefig(out / "mip_bunny.png", dpi=80)
     plt.close(fig)
 
@@ -252,18 +253,19 @@ def repair_figure(out: Path, threads: int) -> None:
     extent = 1.1 * float(np.ptp(scene.vertices, axis=0).max())
     camera = Camera(scene.vertices, scene.faces, centre, [0.0, 0.0, 1.0], extent, px=500)
     plt = _plt()
-    fig, axes = plt.subplots(1, 3, figsize=(15, 5.4))
-    for ax, result, title in zip(axes, (*bakes, reference),
-                                 ("2% of faces flipped, --fix-normals warn",
-                                  "2% flipped, --fix-normals fix", "reference (as published)")):
-        ax.imshow(camera.per_vertex(result.ao), cmap="gray", vmin=0, vmax=1)
-        if result is not reference:
-            rmse = float(np.sqrt(np.nanmean((result.ao - reference.ao) ** 2)))
-            title += f"\nRMSE {rmse:.4f} against the reference"
-        ax.set_title(title)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5.6))
+    for ax, result, title in zip(axes, bakes, ("2% of faces flipped, --fix-normals warn",
+                                               "2% flipped, --fix-normals fix")):
+        error = np.abs(result.ao - reference.ao)
+        rmse = float(np.sqrt(np.nanmean(error ** 2)))
+        shown = ax.imshow(camera.per_vertex(error), cmap="inferno", vmin=0, vmax=0.1)
+        ax.set_title(f"{title}\n|AO - reference|, RMSE {rmse:.4f}")
         ax.axis("off")
+    fig.colorbar(shown, ax=axes[:2], shrink=0.7)
+    axes[2].imshow(camera.per_vertex(reference.ao), cmap="gray", vmin=0, vmax=1)
+    axes[2].set_title("reference AO (as published, 16384 rays)")
+    axes[2].axis("off")
     fig.suptitle("ogre, per-vertex AO, 256 rays")
-    fig.tight_layout()
     fig.savefig(out / "repair_ogre.png", dpi=80)
     plt.close(fig)
 
