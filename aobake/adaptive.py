@@ -40,7 +40,7 @@ import numpy as np
 
 from aobake import stats
 from aobake.rays import RayGenerator
-from aobake.samplers import sample_set
+from aobake.samplers import REPLICATES, sample_set
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +50,7 @@ VARIANCE_BOUND = 0.75
 STEPS_PER_DOUBLING = 4
 
 
-def candidate_counts(sampler: str, max_rays: int) -> np.ndarray:
+def candidate_counts(sampler: str, max_rays: int, replicates: int = REPLICATES) -> np.ndarray:
     """(c,) int64 sorted distinct ray counts the sampler casts, from 1 to max_rays (the cap
     itself included, rounded down to a count the sampler casts)."""
     wanted = {1, max_rays}
@@ -58,9 +58,9 @@ def candidate_counts(sampler: str, max_rays: int) -> np.ndarray:
     while x < max_rays:
         wanted.add(int(math.ceil(x)))
         x *= 2.0 ** (1.0 / STEPS_PER_DOUBLING)
-    counts = sorted({sample_set(sampler, c).rays for c in wanted})
+    counts = sorted({sample_set(sampler, c, replicates).rays for c in wanted})
     capped = [c for c in counts if c <= max_rays]
-    return np.array(capped or [sample_set(sampler, 1).rays], dtype=np.int64)
+    return np.array(capped or [sample_set(sampler, 1, replicates).rays], dtype=np.int64)
 
 
 def _variance_factor(dof: float) -> float:
@@ -79,15 +79,16 @@ def _reach(mean, half) -> np.ndarray:
 
 
 def rays_needed(pilot: dict, names, n_pilot: int, pilot_dof: float, sampler: str,
-                tolerance: float, confidence: float, max_rays: int):
+                tolerance: float, confidence: float, max_rays: int,
+                replicates: int = REPLICATES):
     """Final ray count of each point from its pilot.
 
     pilot : field name -> (k,) float64 pilot values/stderrs, names : the scalar quantities
     that must meet E (value field, error field) pairs.  Returns (n (k,) int64,
     capped (k,) bool: even max_rays is predicted too few).
     """
-    counts = candidate_counts(sampler, max_rays)
-    sets = [sample_set(sampler, int(c)) for c in counts]
+    counts = candidate_counts(sampler, max_rays, replicates)
+    sets = [sample_set(sampler, int(c), replicates) for c in counts]
     dof = np.array([s.groups - 1 if not s.iid else s.rays - 1 for s in sets], dtype=np.float64)
     t = np.asarray(stats.t_quantile(confidence, np.maximum(dof, 1.0)), dtype=np.float64)
     h0 = stats.rule_of_three(counts, confidence)
@@ -138,7 +139,8 @@ def estimate(tracer, points, normals, ids, threads, chunk_rays, progress, sizes)
     if len(traced) and names:
         need, capped_t = rays_needed({k: v[traced] for k, v in pilot.items()
                                       if v.ndim == 1}, names, n_pilot, pilot_dof,
-                                     config.sampler, tolerance, config.confidence, max_rays)
+                                     config.sampler, tolerance, config.confidence, max_rays,
+                                     config.replicates)
         capped[traced] = capped_t
         done = 0
         for n in np.unique(need):
@@ -188,7 +190,7 @@ def final_stage(tracer, rays: int):
     """A shallow copy of ``tracer`` casting ``rays`` per point from the final key stream
     (the scene, backend and frame are shared)."""
     stage = copy.copy(tracer)
-    stage.samples = sample_set(tracer.config.sampler, rays)
+    stage.samples = sample_set(tracer.config.sampler, rays, tracer.config.replicates)
     stage.generator = RayGenerator(stage.samples, tracer.config.weighting, tracer.config.seed,
                                    compiled=tracer.generator.compiled, stage=1)
     return stage
@@ -198,9 +200,9 @@ def min_final_dof(config) -> int:
     """The fewest degrees of freedom a final stage's stderr can have (texels pool their
     samples' errors with one dof): the smallest count that can meet E must at least have
     its rule-of-three h0 <= E, so no final count is below it (or it is the cap)."""
-    counts = candidate_counts(config.sampler, config.max_rays)
+    counts = candidate_counts(config.sampler, config.max_rays, config.replicates)
     h0 = stats.rule_of_three(counts, config.confidence)
     possible = counts[h0 <= config.tolerance]
     c = int(possible[0]) if len(possible) else int(counts[-1])
-    s = sample_set(config.sampler, c)
+    s = sample_set(config.sampler, c, config.replicates)
     return s.rays - 1 if s.iid else s.groups - 1

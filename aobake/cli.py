@@ -171,8 +171,14 @@ SUBCOMMANDS = {"compare": _compare_command, "refit": _refit_command}
               type=click.IntRange(0, 2**63 - 1),
               help="Same inputs + seed = bit-identical outputs, for any --threads.")
 @click.option("--sampler", default=DEFAULTS["sampler"], show_default=True, type=_choice("sampler"),
-              help="random: i.i.d.; stratified: 8 jittered grids; sobol: 8 Owen-scrambled "
-                   "Sobol nets. Every point randomised on its own; all unbiased.")
+              help="random: i.i.d.; stratified: --replicates jittered grids; sobol: "
+                   "--replicates Owen-scrambled Sobol nets. Every point randomised on its own; "
+                   "all unbiased.")
+@click.option("--replicates", default=DEFAULTS["replicates"], show_default=True,
+              type=click.IntRange(min=2, max=1024),
+              help="stratified/sobol: independent replicates per point, whose spread is the "
+                   "stderr (R - 1 degrees of freedom). Fewer: a more accurate value for the "
+                   "rays, a less steady stderr and wider intervals (docs/accuracy.md).")
 @click.option("--weighting", default=DEFAULTS["weighting"], show_default=True,
               type=_choice("weighting"),
               help="What AO averages over: cosine ((1/pi) int V cos, the default) or "

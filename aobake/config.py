@@ -17,6 +17,7 @@ from aobake.backends import BACKENDS
 from aobake.quantities import QUANTITIES, canonical
 from aobake.repair import MODES as FIX_NORMALS
 from aobake.samplers import SAMPLERS
+from aobake.samplers.base import MIN_REPLICATES, REPLICATES
 from aobake.warp import WEIGHTINGS
 
 NORMALS = ("file", "angle", "area")
@@ -110,6 +111,8 @@ class BakeConfig:
     max_distance float in scene units (inf = unlimited) or 'P%' of the diagonal
     tau          obscurance decay per scene unit; None = DEFAULT_TAU_DIAGONALS / diagonal
     seed, sampler, weighting, normals, ground_plane, up_axis, backfaces: see the CLI help
+    replicates   independent replicates per point of the stratified and sobol samplers (>= 2;
+                 their spread is the stderr, with R - 1 degrees of freedom)
     fix_normals  warn | fix | off: triangles wound against their neighbours and components
                  pointing inward (``aobake.repair``) are counted in a warning, flipped, or
                  not looked for.  Default warn: a closed shell wound inward may be meant
@@ -144,6 +147,7 @@ class BakeConfig:
     tau: float | None = None
     seed: int = 0
     sampler: str = "sobol"
+    replicates: int = REPLICATES
     weighting: str = "cosine"
     normals: str = "file"
     fix_normals: str = "warn"
@@ -166,7 +170,8 @@ class BakeConfig:
 
     def __post_init__(self):
         object.__setattr__(self, "quantities", canonical(self.quantities))
-        for name, low in (("rays", 1), ("padding", 0), ("texel_samples", 1), ("max_rays", 1)):
+        for name, low in (("rays", 1), ("padding", 0), ("texel_samples", 1), ("max_rays", 1),
+                          ("replicates", MIN_REPLICATES)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer, float)) \
                     or int(value) != value or value < low:

@@ -116,7 +116,7 @@ def refit(bake, *, tau=None, max_distance=None, quantities=None, source: str = "
 
     rows = bake.kept["ray_distances"]
     point = np.asarray(bake.kept["ray_point"], dtype=np.int64)
-    samples = sample_set(old.sampler, old.rays)
+    samples = sample_set(old.sampler, old.rays, old.replicates)
     groups, m = samples.groups, samples.m
     if rows.shape != (rows.shape[0], groups * m) or len(point) != len(bake.positions):
         raise InputError(f"{source}: kept distances of shape {rows.shape} do not match "

@@ -155,7 +155,8 @@ class Tracer:
         self.max_distance = config.resolve_max_distance(diagonal)
         self.tau = config.resolve_tau(diagonal)
         self.quantities = [QUANTITIES[name] for name in config.quantities]
-        self.samples = sample_set(config.sampler, config.rays if rays is None else rays)
+        self.samples = sample_set(config.sampler, config.rays if rays is None else rays,
+                                  config.replicates)
         # Decided once, on the calling thread, and recorded as decided (report: kernels).
         self.kernels = _native.kernels()
         self.generator = RayGenerator(self.samples, config.weighting, config.seed,

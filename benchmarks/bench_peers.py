@@ -28,6 +28,8 @@ Rows (``--skip`` takes the names in brackets):
 * [cli] the aobake CLI as a subprocess, ``aobake MESH --out X.npz --rays N --threads T
   --quiet --report r.json``: the whole process (interpreter start, import, file read, bake,
   writing); rays cast from the report, error from the NPZ.
+* [replicates] the CLI as [cli] with ``--replicates 2``: the same sampler in two
+  replicates (a more accurate value for the rays; the stderr on one degree of freedom).
 * [library] ``aobake.bake(path, rays=N, threads=T)``, file read included.
 * [tolerance] the CLI with ``--tolerance E`` (default pilot, the CLI's ``--rays`` default;
   ``--pilot`` to change it): rays cast (pilot + final) from its report.
@@ -105,7 +107,7 @@ from aobake.trace import DEFAULT_CHUNK_RAYS, Tracer, morton_order, point_offsets
 HERE = Path(__file__).resolve().parent
 DEFAULT_MESH_DIR = HERE.parents[1] / "shared" / "meshes"
 MESHES = {"bunny": "stanford-bunny.obj", "ogre": "ogre.obj"}
-PEERS = ("cli", "library", "tolerance", "bare", "libigl", "open3d", "blender")
+PEERS = ("cli", "replicates", "library", "tolerance", "bare", "libigl", "open3d", "blender")
 
 FULL = {"rays": (16, 32, 64, 128, 256, 512, 1024, 2048, 4096),
         "blender_rays": (16, 64, 256, 512),
@@ -226,7 +228,7 @@ def aobake_command() -> list:
 
 
 def run_cli(path: Path, rays: int | None, threads: int, work: Path,
-            tolerance: float | None = None) -> dict:
+            tolerance: float | None = None, extra: tuple = ()) -> dict:
     out, report = work / "cli.npz", work / "cli.json"
     for f in (out, report):
         f.unlink(missing_ok=True)
@@ -236,6 +238,7 @@ def run_cli(path: Path, rays: int | None, threads: int, work: Path,
         cmd += ["--rays", str(rays)]
     if tolerance is not None:
         cmd += ["--tolerance", f"{tolerance:g}"]
+    cmd += list(extra)
     start = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
     wall = time.perf_counter() - start
@@ -487,6 +490,12 @@ def measure_mesh(args, cfg, path: Path, work: Path, available: dict, log) -> dic
         for n in cfg["rays"]:
             res = run_cli(path, n, args.threads, work)
             if done(add("aobake CLI", "cosine", n, res,
+                        note=f"bake inside {res['inner_s']:.2f} s")):
+                break
+    if "replicates" in available:
+        for n in cfg["rays"]:
+            res = run_cli(path, n, args.threads, work, extra=("--replicates", "2"))
+            if done(add("aobake CLI --replicates 2", "cosine", n, res,
                         note=f"bake inside {res['inner_s']:.2f} s")):
                 break
     if "library" in available or "bare" in available:

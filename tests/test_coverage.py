@@ -139,7 +139,7 @@ def family_scene(family: str, count: int):
 
 
 @functools.lru_cache(maxsize=None)
-def coverage_data(family: str, sampler: str, rays: int) -> dict:
+def coverage_data(family: str, sampler: str, rays: int, replicates: int = 8) -> dict:
     """Every (point, seed) pair of a case: ao, stderr, low, high, exact, each (pairs,)
     (cached: the calibration tests read the interior cases again)."""
     pairs = PAIRS[rays]
@@ -156,7 +156,8 @@ def coverage_data(family: str, sampler: str, rays: int) -> dict:
         normals = up(len(points))
         for seed in range(SEEDS):
             res = aobake.bake_points(mesh, points, normals, rays=rays, seed=seed,
-                                     sampler=sampler, threads=THREADS)
+                                     sampler=sampler, threads=THREADS,
+                                     replicates=replicates)
             out["ao"].append(res.ao)
             out["stderr"].append(res.ao_stderr)
             out["low"].append(res.ao_ci_low)
@@ -185,6 +186,31 @@ def test_interval_coverage_at_least_93_percent(sampler, rays, family):
     alpha = FWER / (len(SAMPLERS) * len(RAY_COUNTS) * len(FAMILIES))
     p = coverage_p_value(k, n)
     assert p >= alpha, f"coverage {k / n:.4f} of {n} (p = {p:.2g} < {alpha:.2g})"
+
+
+FEWER = (2, 4)
+FEWER_RAYS = (16, 256)
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+@pytest.mark.parametrize("rays", FEWER_RAYS)
+@pytest.mark.parametrize("replicates", FEWER)
+@pytest.mark.parametrize("qmc", ["stratified", "sobol"])
+def test_fewer_replicates_keep_coverage_and_calibration(qmc, replicates, rays, family):
+    """--replicates 2 and 4: the t interval on R - 1 degrees of freedom still covers the
+    exact AO in >= 93% of trials (the same one-sided binomial test), and on interior points
+    the stderr stays RMS-calibrated (the same delta-method interval as at R = 8), though
+    one point's stderr is far less steady."""
+    data = coverage_data(family, qmc, rays, replicates)
+    assert np.all(data["stderr"] > 0), "a stderr of 0 where the AO is not exact"
+    covered = (data["low"] <= data["exact"]) & (data["exact"] <= data["high"])
+    cases = 2 * len(FEWER) * len(FEWER_RAYS) * len(FAMILIES)
+    p = coverage_p_value(int(covered.sum()), covered.size)
+    assert p >= FWER / (2 * cases), f"coverage {covered.mean():.4f} (p = {p:.2g})"
+    if family == "interior":
+        z = z_two_sided(2 * cases)
+        ratio, lo, hi = rms_ratio_interval(data["ao"] - data["exact"], data["stderr"], z)
+        assert lo <= 1.1 and hi >= 0.9, (ratio, lo, hi)
 
 
 # --------------------------------------------------------------------------- 2. calibration

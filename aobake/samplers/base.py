@@ -27,8 +27,13 @@ import numpy as np
 
 from aobake.rng import GOLDEN, dim_salt, hash_key, mix, to_unit
 
-#: replicates for the randomised-QMC samplers' standard error.
+#: replicates for the randomised-QMC samplers' standard error (the default of
+#: ``--replicates``): more replicates give a steadier stderr (R - 1 degrees of freedom),
+#: fewer a more accurate mean for the rays (one net of R m points beats R nets of m:
+#: bunny, sobol, 128 rays: RMSE 0.0143 at R = 8, 0.0125 at 4, 0.0107 at 2)
 REPLICATES = 8
+#: the fewest replicates: a stderr needs at least two
+MIN_REPLICATES = 2
 
 #: rays of one point traced at once: a point with more streams them in pieces of
 #: PIECE_RAYS // R samples per replicate (a power of two), so memory is bounded whatever
@@ -124,7 +129,8 @@ def uniforms(hashes: np.ndarray) -> np.ndarray:
                         axis=-1)
 
 
-def split(n_rays: int) -> tuple[int, int]:
-    """(replicates R, points per replicate m) with R*m >= n_rays, m = ceil(n_rays / R)."""
-    groups = max(1, min(REPLICATES, n_rays))
+def split(n_rays: int, replicates: int = REPLICATES) -> tuple[int, int]:
+    """(replicates R, points per replicate m) with R*m >= n_rays, m = ceil(n_rays / R)
+    (R = min(replicates, n_rays))."""
+    groups = max(1, min(int(replicates), n_rays))
     return groups, -(-n_rays // groups)

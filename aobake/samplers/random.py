@@ -13,5 +13,6 @@ def values(keys, j0, count):
     return uniforms(sample_hashes(keys, j0, count))
 
 
-def sample(n_rays: int) -> SampleSet:
+def sample(n_rays: int, replicates: int = 1) -> SampleSet:
+    """All n_rays i.i.d. (one group: the per-ray spread is the error; replicates unused)."""
     return SampleSet("random", 1, n_rays, True, values, kernel=KERNEL)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from aobake.rng import mix
-from aobake.samplers.base import SALTS, SampleSet, split
+from aobake.samplers.base import REPLICATES, SALTS, SampleSet, split
 
 #: code of this sampler in aobake/_kernels.c
 KERNEL = 2
@@ -85,11 +85,11 @@ def scramble_seeds(keys: np.ndarray) -> np.ndarray:
                          for d in range(2)], axis=-1)
 
 
-def sample(n_rays: int) -> SampleSet:
-    """R = 8 replicates of m = 2^k points, the smallest power of two with R m >= n_rays: a
+def sample(n_rays: int, replicates: int = REPLICATES) -> SampleSet:
+    """R replicates (default 8) of m = 2^k points, the smallest power of two with R m >= n_rays: a
     full (0, k, 2)-net per replicate (a prefix of other length loses most of the gain:
     104 rays as 8 x 13 are about as accurate as 64, benchmarks/study_intervals.py)."""
-    groups, m = split(n_rays)
+    groups, m = split(n_rays, replicates)
     m = 1 << (m - 1).bit_length()
     piece = SampleSet("sobol", groups, m, False, None).piece  # a power of two, <= m
     # Stored reversed (owen_scramble reverses first), only the first piece: the Sobol

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aobake.samplers.base import SampleSet, sample_hashes, split, uniforms
+from aobake.samplers.base import REPLICATES, SampleSet, sample_hashes, split, uniforms
 
 #: code of this sampler in aobake/_kernels.c
 KERNEL = 1
@@ -18,8 +18,8 @@ def grid(m: int) -> tuple[int, int]:
     return nx, m // nx
 
 
-def sample(n_rays: int) -> SampleSet:
-    groups, m = split(n_rays)
+def sample(n_rays: int, replicates: int = REPLICATES) -> SampleSet:
+    groups, m = split(n_rays, replicates)
     nx, ny = grid(m)
 
     def values(keys, j0, count):

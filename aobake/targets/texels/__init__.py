@@ -82,7 +82,7 @@ class TexelTarget:
                                    plan.normals[traced], bent)
         quantities = [QUANTITIES[name] for name in config.quantities]
         # Degrees of freedom of one sample's stderr: n - 1 rays (i.i.d.) or R - 1 replicates.
-        sampling = sample_set(config.sampler, self.rays_per_point(config))
+        sampling = sample_set(config.sampler, self.rays_per_point(config), config.replicates)
         dof = sampling.rays - 1 if sampling.iid else sampling.groups - 1
         if config.tolerance is not None:  # samples end with different counts: the fewest
             from aobake.adaptive import min_final_dof
