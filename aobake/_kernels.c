@@ -1,5 +1,5 @@
-/* aobake._kernels: the per-ray part of ray generation, the AO escape counts and
- * the lightmap rasteriser's per-pair tests, compiled.
+/* aobake._kernels: the per-ray part of ray generation, the AO escape counts,
+ * the lightmap rasteriser's per-pair tests and the seam erasure's solve, compiled.
  *
  * numpy builds each chunk's rays at 10-40 Mrays/s per thread; Embree traces at
  * 3-5 Mrays/s per thread, so numpy ray generation costs 10-25% of the bake.
@@ -448,6 +448,212 @@ done:
     return result;
 }
 
+/* seam_blocks(lam, coef, starts, out)
+ *
+ * The seam term's 8 x 8 matrix of each group of seam points (aobake.targets.texels.seams),
+ * stored by columns: out[g, l, k] = sum over the group's points p, in order, of
+ * (lam[p] coef[p, k]) coef[p, l], the sum starting from 0.0 (as numpy's bincount of the
+ * reference).  lam (m,) float64, coef (m, 8) float64, starts (G + 1,) int64 (group g is
+ * points starts[g] .. starts[g + 1] - 1), out (G, 8, 8) float64 written.
+ */
+static PyObject *seam_blocks(PyObject *self, PyObject *args)
+{
+    Py_buffer bl = {0}, bc = {0}, bs = {0}, bo = {0};
+    PyObject *result = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*y*y*w*", &bl, &bc, &bs, &bo))
+        return NULL;
+    {
+        const Py_ssize_t m = bl.len / 8, groups = bs.len / 8 - 1;
+        if (groups < 0 || check(&bl, "lam", 8, m) || check(&bc, "coef", 8, 8 * m) ||
+            check(&bs, "starts", 8, groups + 1) || check(&bo, "out", 8, 64 * groups))
+            goto done;
+        const double *lam = bl.buf, *coef = bc.buf;
+        const int64_t *starts = bs.buf;
+        double *out = bo.buf;
+        for (Py_ssize_t g = 0; g < groups; ++g)
+            if (starts[g] < 0 || starts[g] > starts[g + 1] || starts[g + 1] > m) {
+                PyErr_SetString(PyExc_ValueError, "starts must be non-decreasing within 0..m");
+                goto done;
+            }
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t g = 0; g < groups; ++g) {
+            double acc[64];
+            for (int i = 0; i < 64; ++i)
+                acc[i] = 0.0;
+            for (int64_t p = starts[g]; p < starts[g + 1]; ++p) {
+                const double *c = coef + 8 * p;
+                for (int k = 0; k < 8; ++k) {
+                    const double a = lam[p] * c[k];
+                    for (int l = 0; l < 8; ++l)
+                        acc[8 * l + k] += a * c[l];
+                }
+            }
+            for (int i = 0; i < 64; ++i)
+                out[64 * g + i] = acc[i];
+        }
+        Py_END_ALLOW_THREADS
+    }
+    Py_INCREF(Py_None);
+    result = Py_None;
+
+done:
+    PyBuffer_Release(&bl); PyBuffer_Release(&bc); PyBuffer_Release(&bs); PyBuffer_Release(&bo);
+    return result;
+}
+
+/* The seam system's operator (W + P^T S P) x of aobake.targets.texels.seams._apply, in its
+ * order of operations: u = P x (fill), v = S u (per group, then scattered in group order),
+ * out = w x + P^T v.  tmp (n,) is scratch. */
+typedef struct {
+    Py_ssize_t n, groups, fills;
+    const double *seam, *w, *fill_weight;
+    const int64_t *slots, *fill_to, *fill_from;
+    const uint8_t *gutter;
+} SeamOp;
+
+static void seam_apply(const SeamOp *op, const double *x, double *u, double *v, double *out)
+{
+    const Py_ssize_t n = op->n;
+    for (Py_ssize_t i = 0; i < n; ++i)
+        v[i] = 0.0;
+    for (Py_ssize_t e = 0; e < op->fills; ++e)
+        v[op->fill_to[e]] += op->fill_weight[e] * x[op->fill_from[e]];
+    for (Py_ssize_t i = 0; i < n; ++i)
+        u[i] = (op->gutter[i] ? 0.0 : x[i]) + v[i];
+    for (Py_ssize_t i = 0; i < n; ++i)
+        v[i] = 0.0;
+    for (Py_ssize_t g = 0; g < op->groups; ++g) {
+        const int64_t *s = op->slots + 8 * g;
+        const double *a = op->seam + 64 * g;  /* by columns: a[8 l + k] */
+        /* eight independent sums, each over l in order: the same bits as one sum per k */
+        double acc[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+        for (int l = 0; l < 8; ++l) {
+            const double ul = u[s[l]];
+            for (int k = 0; k < 8; ++k)
+                acc[k] += a[8 * l + k] * ul;
+        }
+        for (int k = 0; k < 8; ++k)
+            v[s[k]] += acc[k];
+    }
+    /* P^T v: u is free again and holds the fill's share of each covered texel */
+    for (Py_ssize_t i = 0; i < n; ++i)
+        u[i] = 0.0;
+    for (Py_ssize_t e = 0; e < op->fills; ++e)
+        u[op->fill_from[e]] += op->fill_weight[e] * v[op->fill_to[e]];
+    for (Py_ssize_t i = 0; i < n; ++i)
+        out[i] = op->w[i] * x[i] + ((op->gutter[i] ? 0.0 : v[i]) + u[i]);
+}
+
+/* a . b summed in index order from the first product (numpy's cumsum of the reference) */
+static double seq_dot(const double *a, const double *b, Py_ssize_t n)
+{
+    if (n == 0)
+        return 0.0;
+    double acc = a[0] * b[0];
+    for (Py_ssize_t i = 1; i < n; ++i)
+        acc += a[i] * b[i];
+    return acc;
+}
+
+static double max_abs(const double *a, Py_ssize_t n)
+{
+    double m = 0.0;
+    for (Py_ssize_t i = 0; i < n; ++i)
+        if (fabs(a[i]) > m)
+            m = fabs(a[i]);
+    return m;
+}
+
+/* seam_cg(seam, slots, gutter, fill_to, fill_from, fill_weight, w, diag, b, x, tolerance,
+ *         max_iterations) -> (iterations, the last max |r / diag|)
+ *
+ * Jacobi-preconditioned conjugate gradients on (W + P^T S P) x = W b from x = b, stopping
+ * when max |r / diag| <= tolerance or after max_iterations: aobake.targets.texels.seams.
+ * _cg_numpy operation for operation (tested bit for bit).  seam (G, 8, 8) by columns, as
+ * seam_blocks writes it, slots (G, 8)
+ * int64 in 0..n-1, gutter (n,) bool, fill_* (e,) (fill_to, fill_from int64 in 0..n-1),
+ * w, diag, b (n,) float64; x (n,) float64 written.
+ */
+static PyObject *seam_cg(PyObject *self, PyObject *args)
+{
+    Py_buffer bseam = {0}, bslots = {0}, bgut = {0}, bto = {0}, bfrom = {0}, bfw = {0};
+    Py_buffer bw = {0}, bdiag = {0}, bb = {0}, bx = {0};
+    double tolerance;
+    Py_ssize_t max_iterations, it = 0;
+    double left = 0.0;
+    double *scratch = NULL;
+    PyObject *result = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*w*dn", &bseam, &bslots, &bgut, &bto, &bfrom,
+                          &bfw, &bw, &bdiag, &bb, &bx, &tolerance, &max_iterations))
+        return NULL;
+    {
+        const Py_ssize_t n = bgut.len, groups = bslots.len / 64, fills = bto.len / 8;
+        if (check(&bseam, "seam", 8, 64 * groups) || check(&bslots, "slots", 8, 8 * groups) ||
+            check(&bgut, "gutter", 1, n) || check(&bto, "fill_to", 8, fills) ||
+            check(&bfrom, "fill_from", 8, fills) || check(&bfw, "fill_weight", 8, fills) ||
+            check(&bw, "w", 8, n) || check(&bdiag, "diag", 8, n) || check(&bb, "b", 8, n) ||
+            check(&bx, "x", 8, n))
+            goto done;
+        const int64_t *slots = bslots.buf, *to = bto.buf, *from = bfrom.buf;
+        for (Py_ssize_t i = 0; i < 8 * groups; ++i)
+            if (slots[i] < 0 || slots[i] >= n) {
+                PyErr_SetString(PyExc_IndexError, "slot out of range");
+                goto done;
+            }
+        for (Py_ssize_t e = 0; e < fills; ++e)
+            if (to[e] < 0 || to[e] >= n || from[e] < 0 || from[e] >= n) {
+                PyErr_SetString(PyExc_IndexError, "fill index out of range");
+                goto done;
+            }
+        scratch = PyMem_RawMalloc(sizeof(double) * (size_t)(6 * n + 1));
+        if (!scratch) {
+            PyErr_NoMemory();
+            goto done;
+        }
+        const SeamOp op = {n, groups, fills, bseam.buf, bw.buf, bfw.buf, slots, to, from, bgut.buf};
+        const double *w = bw.buf, *diag = bdiag.buf, *b = bb.buf;
+        double *x = bx.buf;
+        double *r = scratch, *z = r + n, *p = z + n, *q = p + n, *u = q + n, *v = u + n;
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t i = 0; i < n; ++i)
+            x[i] = b[i];
+        seam_apply(&op, x, u, v, q);
+        for (Py_ssize_t i = 0; i < n; ++i) {
+            r[i] = w[i] * b[i] - q[i];
+            z[i] = r[i] / diag[i];
+            p[i] = z[i];
+        }
+        double rz = seq_dot(r, z, n);
+        while (max_abs(z, n) > tolerance && it < max_iterations) {
+            seam_apply(&op, p, u, v, q);
+            const double alpha = rz / seq_dot(p, q, n);
+            for (Py_ssize_t i = 0; i < n; ++i) {
+                x[i] += alpha * p[i];
+                r[i] -= alpha * q[i];
+                z[i] = r[i] / diag[i];
+            }
+            const double rz_old = rz;
+            rz = seq_dot(r, z, n);
+            const double beta = rz / rz_old;
+            for (Py_ssize_t i = 0; i < n; ++i)
+                p[i] = z[i] + beta * p[i];
+            ++it;
+        }
+        left = max_abs(z, n);
+        Py_END_ALLOW_THREADS
+    }
+    result = Py_BuildValue("nd", it, left);
+
+done:
+    PyMem_RawFree(scratch);
+    PyBuffer_Release(&bseam); PyBuffer_Release(&bslots); PyBuffer_Release(&bgut);
+    PyBuffer_Release(&bto); PyBuffer_Release(&bfrom); PyBuffer_Release(&bfw);
+    PyBuffer_Release(&bw); PyBuffer_Release(&bdiag); PyBuffer_Release(&bb); PyBuffer_Release(&bx);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"fill_rays", fill_rays, METH_VARARGS,
      "fill_rays(origins, normals, keys, table, sampler, weighting, nx, ny, k, R, m, js, mp, "
@@ -457,6 +663,11 @@ static PyMethodDef methods[] = {
      "out_centre, out_open, out_ins, out_bary): per-pair rasteriser tests."},
     {"row_counts", row_counts, METH_VARARGS,
      "row_counts(flags, rows, m, out): nonzero flags per row of m."},
+    {"seam_blocks", seam_blocks, METH_VARARGS,
+     "seam_blocks(lam, coef, starts, out): the seam term's 8 x 8 matrix per group of points."},
+    {"seam_cg", seam_cg, METH_VARARGS,
+     "seam_cg(seam, slots, gutter, fill_to, fill_from, fill_weight, w, diag, b, x, tolerance, "
+     "max_iterations) -> (iterations, max |r / diag|): the seam erasure's Jacobi-preconditioned CG."},
     {NULL, NULL, 0, NULL},
 };
 

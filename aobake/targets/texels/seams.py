@@ -30,9 +30,14 @@ Along a seam edge a bilinear lookup is quadratic between the points where either
 crosses a row or column of texel centres, so 3-point Gauss-Legendre quadrature on each
 such piece integrates (L_A - L_B)^2 exactly.  The normal equations (sparse, symmetric
 positive definite, over the touched texels only) are solved by Jacobi-preconditioned
-conjugate gradients in numpy (a block-Jacobi preconditioner over stretches of seam, both
-sides at once, saved a fifth of the iterations on the bunny in an earlier variant and cost
-more than that to build).
+conjugate gradients: in the compiled kernel (``seam_cg`` in aobake/_kernels.c; bunny
+1024^2: 1.6 -> 0.6 s, the numpy passes over the (G, 8, 8) group matrices and bincounts
+were most of it), or in numpy with the same operations in the same order (the same bits).
+A block-Jacobi preconditioner over stretches of seam, both sides at once, saved a fifth
+of the iterations on the bunny in an earlier variant and cost more than that to build;
+a direct sparse solve (SuperLU, COLAMD order) of the bunny's 114k covered unknowns took
+as long as these iterations, and a banded Cholesky after reverse Cuthill-McKee more
+(bandwidth ~500: the seams form one network).
 
 Error bars.  The seam term involves x only, never b.  In units of the texels' own errors
 (y = x / se), the solution is y = (I + H)^-1 y_b with H symmetric positive semi-definite
@@ -52,8 +57,11 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
+
+from aobake import _native
 
 log = logging.getLogger(__name__)
 
@@ -378,12 +386,15 @@ def seam_system(points: SeamPoints, covered, wrap: str = "clamp") -> SeamSystem:
 
 def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
           kappa: float | None = None, tolerance: float | None = None,
-          max_iterations: int | None = None) -> tuple[np.ndarray, dict]:
+          max_iterations: int | None = None, compiled: bool | None = None
+          ) -> tuple[np.ndarray, dict]:
     """Minimise the erasure energy (module docstring) over the covered ``system.texels``.
 
     values : (n, c) float64 baked values of ``system.texels`` (c channels sharing the
     weights, e.g. a bent normal's components; gutter rows ignored), stderr : (n,) float64
-    their stderr (gutter rows ignored).
+    their stderr (gutter rows ignored).  compiled : the group matrices and the conjugate
+    gradients in the compiled kernel (default: when it was built and not forced off, see
+    ``aobake._native``) or in numpy; the bits are the same.
     Returns (x (n, c) float64: the adjusted covered values, gutter rows the dilation of
     them; info: iterations, converged, and rms_before / rms_after, max_before / max_after of
     the lookup difference over the seam points (rms weighted by seam length)).
@@ -391,8 +402,10 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
     kappa = KAPPA if kappa is None else kappa  # module constants read at call time
     tolerance = TOLERANCE if tolerance is None else tolerance
     max_iterations = MAX_ITERATIONS if max_iterations is None else max_iterations
+    kernels = _native.kernels() if compiled in (None, True) else None
+    if compiled and kernels is None:
+        raise RuntimeError("aobake._kernels was not built")
     s = system
-    n = len(s.texels)
     values = np.array(values, dtype=np.float64)
     covered = ~s.gutter
     se = np.maximum(np.where(covered, np.asarray(stderr, dtype=np.float64), 0.0), SE_FLOOR)
@@ -404,22 +417,17 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
     var_d = np.maximum(np.einsum("pk,pk->p", s.coef ** 2, se_read[s.slots[s.group]] ** 2),
                        SE_FLOOR ** 2)
     lam = kappa * s.weight / var_d
-    # Each group's seam matrix, sum over its points of lam g g^T: (groups, 8, 8).
-    outer = (lam[:, None] * s.coef)[:, :, None] * s.coef[:, None, :]
-    starts = np.nonzero(np.r_[True, s.group[1:] != s.group[:-1]])[0]  # points in group order
-    seam = np.add.reduceat(outer, starts, axis=0)
-    flat_slots = s.slots.reshape(-1)
-
-    def apply(x):  # (W + P^T S P) x over the covered texels
-        y = np.einsum("gkl,gl->gk", seam, s.fill(x)[s.slots]).reshape(-1)
-        return w * x + s.fill_transpose(np.bincount(flat_slots, weights=y, minlength=n))
-
+    # Points are stored in group order: group g is points starts[g] .. starts[g + 1] - 1.
+    starts = np.r_[np.nonzero(np.r_[True, s.group[1:] != s.group[:-1]])[0], len(s.group)]
+    seam = _group_matrices(kernels, lam, s.coef, starts)
     # Jacobi preconditioner: the normal matrix's diagonal (its seam part through the fill
     # without the fill's cross terms: a preconditioner need not be exact).
-    diag = w + s.fill_transpose(np.bincount(flat_slots, minlength=n,
+    diag = w + s.fill_transpose(np.bincount(s.slots.reshape(-1), minlength=len(s.texels),
                                             weights=np.einsum("gkk->gk", seam).reshape(-1)),
                                 square=True)
     diag = np.where(covered, diag, 1.0)
+    operator = _Operator(seam, np.ascontiguousarray(s.slots, dtype=np.int64), s.gutter,
+                         s.fill_to, s.fill_from, s.fill_weight, w)
     info = {"iterations": 0, "converged": True}
     total = max(float(s.weight.sum()), 1e-300)
     before, after = [], []
@@ -427,25 +435,14 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
     for ch in range(values.shape[1]):
         b = np.where(covered, values[:, ch], 0.0)
         before.append(s.differences(b))
-        x = b.copy()
-        r = w * b - apply(x)  # minus the seam term's gradient at the bake
-        z = r / diag
-        p = z.copy()
-        # Dot products by einsum, not BLAS: a threaded BLAS call on vectors this short is
-        # slower than the sum itself, and much slower when other processes hold the cores.
-        rz = np.einsum("i,i->", r, z)
-        it = 0
-        while np.max(np.abs(z)) > tolerance and it < max_iterations:
-            q = apply(p)
-            alpha = rz / np.einsum("i,i->", p, q)
-            x += alpha * p
-            r -= alpha * q
-            z = r / diag
-            rz, rz_old = np.einsum("i,i->", r, z), rz
-            p = z + (rz / rz_old) * p
-            it += 1
+        if kernels is not None:
+            x = np.empty_like(b)
+            it, left = kernels.seam_cg(*operator, diag, b, x, float(tolerance),
+                                       int(max_iterations))
+        else:
+            x, it, left = _cg_numpy(operator, diag, b, tolerance, max_iterations)
         info["iterations"] = max(info["iterations"], it)
-        info["converged"] &= bool(np.max(np.abs(z)) <= tolerance)
+        info["converged"] &= bool(left <= tolerance)
         after.append(s.differences(x))
         out[:, ch] = s.fill(x)
     for name, d in (("before", np.concatenate(before)), ("after", np.concatenate(after))):
@@ -456,6 +453,91 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
         log.warning("seam erasure stopped after %d iterations short of its tolerance",
                     info["iterations"])
     return out, info
+
+
+class _Operator(NamedTuple):
+    """The normal matrix W + P^T S P of the solve as the buffers ``seam_cg`` takes.
+
+    seam (G, 8, 8) float64 each group's seam matrix by columns, slots (G, 8) int64,
+    gutter (n,) bool,
+    fill_to / fill_from (e,) int64 and fill_weight (e,) float64 the first dilation ring P
+    (``SeamSystem``), w (n,) float64 the data weights (0 on gutter rows).
+    """
+
+    seam: np.ndarray
+    slots: np.ndarray
+    gutter: np.ndarray
+    fill_to: np.ndarray
+    fill_from: np.ndarray
+    fill_weight: np.ndarray
+    w: np.ndarray
+
+
+# The solve's arithmetic is written so that the compiled kernel can repeat it operation for
+# operation: element-wise steps, and every sum in a fixed order (bincount adds in index
+# order from 0.0; a dot product is a cumsum), never einsum or BLAS, whose order of
+# summation depends on the CPU.
+
+
+def _group_matrices(kernels, lam, coef, starts) -> np.ndarray:
+    """(G, 8, 8) float64 each group's seam matrix by columns: [g, l, k] is the sum over the
+    group's points, in order, of (lam_p g_pk) g_pl (columns contiguous: the kernel's
+    product runs down them)."""
+    groups = len(starts) - 1
+    coef = np.ascontiguousarray(coef, dtype=np.float64)
+    if kernels is not None:
+        out = np.empty((groups, 8, 8))
+        kernels.seam_blocks(np.ascontiguousarray(lam, dtype=np.float64), coef,
+                            np.ascontiguousarray(starts, dtype=np.int64), out)
+        return out
+    outer = coef[:, :, None] * (lam[:, None] * coef)[:, None, :]  # [p, l, k]
+    group = np.repeat(np.arange(groups, dtype=np.int64), np.diff(starts))
+    index = (group[:, None] * 64 + np.arange(64)).reshape(-1)
+    return np.bincount(index, weights=outer.reshape(-1), minlength=64 * groups
+                       ).reshape(groups, 8, 8)
+
+
+def _apply(op: _Operator, x: np.ndarray) -> np.ndarray:
+    """(n,) (W + P^T S P) x: the fill P, each group's 8 x 8 product (summed over l in
+    order), scattered in group order, then P^T."""
+    n = len(x)
+    u = np.where(op.gutter, 0.0, x) + np.bincount(op.fill_to, weights=op.fill_weight
+                                                  * x[op.fill_from], minlength=n)
+    ug = u[op.slots]  # (G, 8)
+    y = np.zeros(op.slots.shape)
+    for l in range(8):
+        y += op.seam[:, l, :] * ug[:, l, None]
+    v = np.bincount(op.slots.reshape(-1), weights=y.reshape(-1), minlength=n)
+    back = np.bincount(op.fill_from, weights=op.fill_weight * v[op.fill_to], minlength=n)
+    return op.w * x + (np.where(op.gutter, 0.0, v) + back)
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> float:
+    """a . b summed in index order (the kernel's order)."""
+    return float(np.cumsum(a * b)[-1]) if len(a) else 0.0
+
+
+def _cg_numpy(op: _Operator, diag, b, tolerance, max_iterations
+              ) -> tuple[np.ndarray, int, float]:
+    """Jacobi-preconditioned conjugate gradients on (W + P^T S P) x = W b from x = b, until
+    max |r / diag| <= tolerance (value units) or max_iterations: (x (n,), iterations, the
+    last max |r / diag|)."""
+    x = b.copy()
+    r = op.w * b - _apply(op, x)  # minus the seam term's gradient at the bake
+    z = r / diag
+    p = z.copy()
+    rz = _dot(r, z)
+    it = 0
+    while np.max(np.abs(z), initial=0.0) > tolerance and it < max_iterations:
+        q = _apply(op, p)
+        alpha = rz / _dot(p, q)
+        x += alpha * p
+        r -= alpha * q
+        z = r / diag
+        rz, rz_old = _dot(r, z), rz
+        p = z + (rz / rz_old) * p
+        it += 1
+    return x, it, float(np.max(np.abs(z), initial=0.0))
 
 
 # --- the lightmap's channels -----------------------------------------------------------
@@ -477,7 +559,7 @@ class Erased:
 
 
 def erase_seams(images: dict, quantities, mesh: SeamMesh, covered, padding: int,
-                directions: bool = True) -> Erased | None:
+                directions: bool = True, compiled: bool | None = None) -> Erased | None:
     """Erase the seams of the value channels of ``images`` (covered texels, in place).
 
     images : channel name -> (H, W) float64 texel values and stderrs (covered texels
@@ -486,7 +568,7 @@ def erase_seams(images: dict, quantities, mesh: SeamMesh, covered, padding: int,
     angle error as weight, and renormalised, only when ``directions``: a tangent-space bent
     normal's frame turns across a seam, so its components do not meet there),
     covered : (H, W) bool, padding : the gutter rings the map gets (0: lookups at chart
-    edges read the push-pull fill, and nothing is erased).
+    edges read the push-pull fill, and nothing is erased), compiled : as in ``solve``.
     Adjusted AO and obscurance are clipped to [0, 1].  Returns None when there is nothing to
     erase.
     """
@@ -513,7 +595,7 @@ def erase_seams(images: dict, quantities, mesh: SeamMesh, covered, padding: int,
         b[~system.gutter] = np.stack([images[name][rows, cols] for name in names], axis=1)
         se = np.zeros(len(system.texels))
         se[~system.gutter] = images[q.error.exr[0]][rows, cols]
-        x, solved = solve(b, se, system)
+        x, solved = solve(b, se, system, compiled=compiled)
         x = x[~system.gutter]
         if direction:  # unit directions again (a zero mean stays zero)
             length = np.linalg.norm(x, axis=1, keepdims=True)
