@@ -200,9 +200,7 @@ def seam_edges(mesh: SeamMesh) -> tuple[np.ndarray, np.ndarray]:
     empty = np.zeros((0, 2, 2))
     if not len(faces):
         return empty, empty
-    _, weld = np.unique(np.asarray(mesh.positions, dtype=np.float64), axis=0,
-                        return_inverse=True)
-    weld = weld.reshape(-1)
+    weld = _weld(np.asarray(mesh.positions, dtype=np.float64))
     # Half-edges (face, corner k -> k + 1), each stored from its lower welded end.
     a_corner = faces.reshape(-1)
     b_corner = np.roll(faces, -1, axis=1).reshape(-1)
@@ -238,6 +236,20 @@ def seam_edges(mesh: SeamMesh) -> tuple[np.ndarray, np.ndarray]:
               & (np.einsum("ij,ij->i", normals[hi_v[one]], normals[hi_v[other]]) >= smooth_cos))
     seam = differ & smooth
     return uv_a[seam], uv_b[seam]
+
+
+def _weld(positions: np.ndarray) -> np.ndarray:
+    """(v,) int64 label of each position (v, 3): its rank among the distinct positions in
+    lexicographic (x, y, z) order, as ``np.unique(axis=0, return_inverse=True)`` numbers
+    them (a stable lexsort of the columns: 6x faster than unique's sort of row records)."""
+    if not len(positions):
+        return np.zeros(0, dtype=np.int64)
+    order = np.lexsort(positions.T[::-1])
+    ranked = positions[order]
+    new = np.r_[True, np.any(ranked[1:] != ranked[:-1], axis=1)]
+    weld = np.empty(len(positions), dtype=np.int64)
+    weld[order] = np.cumsum(new) - 1
+    return weld
 
 
 def _texel_coords(uv: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -341,7 +353,7 @@ def seam_system(points: SeamPoints, covered, wrap: str = "clamp") -> SeamSystem:
     texel = np.concatenate([ta, tb], axis=1)  # (m, 8)
     coef = np.concatenate([wa, -wb], axis=1)
     # Gutter texels read, and their covered 8-neighbours (the first dilation ring's mean).
-    gutter_read = np.unique(texel[~flat[texel]])
+    gutter_read = _distinct(texel[~flat[texel]], height * width)
     r, c = np.divmod(gutter_read, width)
     nb = np.full((len(gutter_read), 8), -1, dtype=np.int64)
     for i, (dr, dc) in enumerate(_NEIGHBOURS):
@@ -364,7 +376,7 @@ def seam_system(points: SeamPoints, covered, wrap: str = "clamp") -> SeamSystem:
     read[texel.reshape(-1)] = True
     gutter_used = read[gutter]
     gutter, nb, count = gutter[gutter_used], nb[gutter_used], count[gutter_used]
-    texels = np.unique(np.concatenate([texel.reshape(-1), nb[nb >= 0]]))
+    texels = _distinct(np.concatenate([texel.reshape(-1), nb[nb >= 0]]), height * width)
     index = np.searchsorted
     # Points reading the same 8 texels form a group (lexsort: faster than unique(axis=0)).
     order = np.lexsort(texel.T[::-1])
@@ -382,6 +394,14 @@ def seam_system(points: SeamPoints, covered, wrap: str = "clamp") -> SeamSystem:
     fill_weight = (1.0 / count)[:, None].repeat(8, axis=1)[has]
     return SeamSystem(texels, ~flat[texels], slots, group, coef, weight, fill_to, fill_from,
                       fill_weight, int(np.count_nonzero(~keep)))
+
+
+def _distinct(index: np.ndarray, size: int) -> np.ndarray:
+    """The distinct values of ``index`` (any shape, int in 0..size-1), increasing: (k,) int64,
+    as ``np.unique`` gives them, by marking a (size,) mask (no sort of millions of reads)."""
+    seen = np.zeros(size, dtype=bool)
+    seen[index.reshape(-1)] = True
+    return np.flatnonzero(seen)
 
 
 def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
