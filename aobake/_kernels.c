@@ -654,6 +654,167 @@ done:
     return result;
 }
 
+/* radix_argsort(keys, bits, out_order, out_sorted)
+ *
+ * The stable argsort of keys (n,) uint32 below 2^bits (aobake.rng.stable_argsort: a stable
+ * sort's permutation is unique, so the result is that of numpy's): a least-significant-digit
+ * radix sort, 11 bits a pass.  out_order (n,) int64 the permutation, out_sorted (n,) uint32
+ * keys[out_order], both written.
+ */
+#define RADIX_BITS 11
+static PyObject *radix_argsort(PyObject *self, PyObject *args)
+{
+    Py_buffer bk = {0}, bo = {0}, bs = {0};
+    Py_ssize_t bits;
+    uint32_t *tmp_key = NULL;
+    int64_t *tmp_idx = NULL;
+    Py_ssize_t *count = NULL;
+    PyObject *result = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*nw*w*", &bk, &bits, &bo, &bs))
+        return NULL;
+    {
+        const Py_ssize_t n = bk.len / 4;
+        if (bits < 0 || bits > 32) {
+            PyErr_SetString(PyExc_ValueError, "bits must be in 0..32");
+            goto done;
+        }
+        if (check(&bk, "keys", 4, n) || check(&bo, "out_order", 8, n) ||
+            check(&bs, "out_sorted", 4, n))
+            goto done;
+        const uint32_t *keys = bk.buf;
+        int64_t *order = bo.buf;
+        uint32_t *sorted = bs.buf;
+        const int passes = (int)((bits + RADIX_BITS - 1) / RADIX_BITS);
+        if (bits < 32)
+            for (Py_ssize_t i = 0; i < n; ++i)
+                if (keys[i] >> bits) {
+                    PyErr_SetString(PyExc_ValueError, "a key is not below 2^bits");
+                    goto done;
+                }
+        tmp_key = PyMem_RawMalloc(sizeof(uint32_t) * (size_t)(n + 1));
+        tmp_idx = PyMem_RawMalloc(sizeof(int64_t) * (size_t)(n + 1));
+        count = PyMem_RawMalloc(sizeof(Py_ssize_t) << RADIX_BITS);
+        if (!tmp_key || !tmp_idx || !count) {
+            PyErr_NoMemory();
+            goto done;
+        }
+        Py_BEGIN_ALLOW_THREADS
+        /* the pass that ends in the output buffers starts from the other pair */
+        uint32_t *src_key = (passes % 2) ? tmp_key : sorted, *dst_key;
+        int64_t *src_idx = (passes % 2) ? tmp_idx : order, *dst_idx;
+        for (Py_ssize_t i = 0; i < n; ++i) {
+            src_key[i] = keys[i];
+            src_idx[i] = i;
+        }
+        for (int p = 0; p < passes; ++p) {
+            const int shift = p * RADIX_BITS;
+            const uint32_t mask = (1u << RADIX_BITS) - 1u;
+            dst_key = src_key == sorted ? tmp_key : sorted;
+            dst_idx = src_idx == order ? tmp_idx : order;
+            for (int d = 0; d <= (int)mask; ++d)
+                count[d] = 0;
+            for (Py_ssize_t i = 0; i < n; ++i)
+                ++count[(src_key[i] >> shift) & mask];
+            Py_ssize_t at = 0;
+            for (int d = 0; d <= (int)mask; ++d) {
+                const Py_ssize_t c = count[d];
+                count[d] = at;
+                at += c;
+            }
+            for (Py_ssize_t i = 0; i < n; ++i) {  /* in input order: stable */
+                const Py_ssize_t to = count[(src_key[i] >> shift) & mask]++;
+                dst_key[to] = src_key[i];
+                dst_idx[to] = src_idx[i];
+            }
+            src_key = dst_key;
+            src_idx = dst_idx;
+        }
+        Py_END_ALLOW_THREADS
+    }
+    Py_INCREF(Py_None);
+    result = Py_None;
+
+done:
+    PyMem_RawFree(tmp_key);
+    PyMem_RawFree(tmp_idx);
+    PyMem_RawFree(count);
+    PyBuffer_Release(&bk); PyBuffer_Release(&bo); PyBuffer_Release(&bs);
+    return result;
+}
+
+/* surface_interp(positions, normals, faces, face, bary, out_points, out_normals, out_length)
+ *
+ * aobake.targets.texels.surface's interpolation at s samples, operation for operation:
+ * point = (b0 p[c0] + b1 p[c1]) + b2 p[c2] per coordinate (faces[face] = c), the same for
+ * the vertex normals, then the normal's length sqrt((x^2 + y^2) + z^2) (np.linalg.norm's
+ * order) and the unit normal (zero where the length is 0 or not finite: vectors.normalize).
+ * positions, normals (v, 3) float64 (normals may be empty: then out_normals and out_length
+ * are not touched), faces (f, 3) int64, face (s,) int64, bary (s, 3) float64;
+ * out_points, out_normals (s, 3) float64, out_length (s,) float64 written.
+ */
+static PyObject *surface_interp(PyObject *self, PyObject *args)
+{
+    Py_buffer bp = {0}, bn = {0}, bf = {0}, bface = {0}, bb = {0}, bop = {0}, bon = {0}, bol = {0};
+    PyObject *result = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*w*w*w*", &bp, &bn, &bf, &bface, &bb, &bop, &bon, &bol))
+        return NULL;
+    {
+        const Py_ssize_t v3 = bp.len / 8, f3 = bf.len / 8, s = bface.len / 8;
+        const int with_normals = bn.len > 0;
+        if (v3 % 3 || f3 % 3 || check(&bp, "positions", 8, v3) || check(&bf, "faces", 8, f3) ||
+            check(&bface, "face", 8, s) || check(&bb, "bary", 8, 3 * s) ||
+            check(&bop, "out_points", 8, 3 * s) ||
+            (with_normals && (check(&bn, "normals", 8, v3) || check(&bon, "out_normals", 8, 3 * s) ||
+                              check(&bol, "out_length", 8, s)))) {
+            if (!PyErr_Occurred())
+                PyErr_SetString(PyExc_ValueError, "rows must have 3 columns");
+            goto done;
+        }
+        const double *P = bp.buf, *N = bn.buf, *B = bb.buf;
+        const int64_t *F = bf.buf, *face = bface.buf;
+        double *op = bop.buf, *on = bon.buf, *ol = bol.buf;
+        const int64_t n_faces = f3 / 3, n_vertices = v3 / 3;
+        for (Py_ssize_t i = 0; i < s; ++i)
+            if (face[i] < 0 || face[i] >= n_faces) {
+                PyErr_SetString(PyExc_IndexError, "face index out of range");
+                goto done;
+            }
+        for (Py_ssize_t i = 0; i < f3; ++i)
+            if (F[i] < 0 || F[i] >= n_vertices) {
+                PyErr_SetString(PyExc_IndexError, "vertex index out of range");
+                goto done;
+            }
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t i = 0; i < s; ++i) {
+            const int64_t *c = F + 3 * face[i];
+            const double *b = B + 3 * i;
+            for (int d = 0; d < 3; ++d)
+                op[3 * i + d] = (b[0] * P[3 * c[0] + d] + b[1] * P[3 * c[1] + d])
+                                + b[2] * P[3 * c[2] + d];
+            if (!with_normals)
+                continue;
+            double n[3];
+            for (int d = 0; d < 3; ++d)
+                n[d] = (b[0] * N[3 * c[0] + d] + b[1] * N[3 * c[1] + d]) + b[2] * N[3 * c[2] + d];
+            const double length = sqrt((n[0] * n[0] + n[1] * n[1]) + n[2] * n[2]);
+            const int ok = isfinite(length) && length > 0;
+            for (int d = 0; d < 3; ++d)
+                on[3 * i + d] = ok ? n[d] / length : 0.0;
+            ol[i] = length;
+        }
+        Py_END_ALLOW_THREADS
+    }
+    Py_INCREF(Py_None);
+    result = Py_None;
+
+done:
+    PyBuffer_Release(&bp); PyBuffer_Release(&bn); PyBuffer_Release(&bf); PyBuffer_Release(&bface);
+    PyBuffer_Release(&bb); PyBuffer_Release(&bop); PyBuffer_Release(&bon); PyBuffer_Release(&bol);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"fill_rays", fill_rays, METH_VARARGS,
      "fill_rays(origins, normals, keys, table, sampler, weighting, nx, ny, k, R, m, js, mp, "
@@ -663,6 +824,11 @@ static PyMethodDef methods[] = {
      "out_centre, out_open, out_ins, out_bary): per-pair rasteriser tests."},
     {"row_counts", row_counts, METH_VARARGS,
      "row_counts(flags, rows, m, out): nonzero flags per row of m."},
+    {"radix_argsort", radix_argsort, METH_VARARGS,
+     "radix_argsort(keys, bits, out_order, out_sorted): stable argsort of uint32 keys."},
+    {"surface_interp", surface_interp, METH_VARARGS,
+     "surface_interp(positions, normals, faces, face, bary, out_points, out_normals, out_length): "
+     "lightmap sample points and unit shading normals."},
     {"seam_blocks", seam_blocks, METH_VARARGS,
      "seam_blocks(lam, coef, starts, out): the seam term's 8 x 8 matrix per group of points."},
     {"seam_cg", seam_cg, METH_VARARGS,

@@ -105,10 +105,11 @@ def _spread_bits(q: np.ndarray) -> np.ndarray:
     return q
 
 
-def morton_order(points: np.ndarray) -> np.ndarray:
+def morton_order(points: np.ndarray, kernels=None) -> np.ndarray:
     """(n,) int64 permutation sorting ``points`` (n, 3) along a Z-order curve (ray coherence).
 
-    10 bits per axis; ties keep their input order (a stable sort of packed keys).
+    10 bits per axis; ties keep their input order (a stable sort of packed keys; kernels:
+    the compiled module for its radix sort, the same permutation).
     """
     from aobake.rng import stable_argsort
 
@@ -121,7 +122,7 @@ def morton_order(points: np.ndarray) -> np.ndarray:
         lo, hi = x.min(), x.max()
         q = ((x - lo) * (1023.0 / (hi - lo) if hi > lo else 0.0)).astype(np.uint32)
         code |= _spread_bits(q) << np.uint32(axis)
-    return stable_argsort(code, 2**30)
+    return stable_argsort(code, 2**30, kernels)
 
 
 class Tracer:
@@ -284,7 +285,7 @@ class Tracer:
         n = len(points)
         normals = np.asarray(normals, dtype=np.float64)
         valid = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)
-        order = valid[morton_order(points[valid])]
+        order = valid[morton_order(points[valid], self.kernels)]
         per_chunk = max(1, int(chunk_rays) // self.samples.rays)
         n_chunks = -(-len(order) // per_chunk)
         out = self.no_information(normals)

@@ -109,3 +109,21 @@ def test_bakes_do_not_depend_on_the_compiled_kernel(kernel):
     assert compiled[1].channels.keys() == reference[1].channels.keys()
     for name, image in compiled[1].channels.items():
         np.testing.assert_array_equal(image, reference[1].channels[name], err_msg=name)
+
+
+def test_radix_sort_gives_the_stable_argsort(kernel):
+    """The compiled radix sort is the stable argsort (ties in input order) at every bound,
+    as numpy's, and returns the keys in that order."""
+    from aobake.rng import stable_sort
+
+    rng = np.random.default_rng(5)
+    for n, bound in [(0, 8), (1, 1), (5, 2), (3000, 2**11), (3000, 2**11 + 1), (20000, 2**22),
+                     (20000, 2**30), (5000, 2**32)]:
+        key = rng.integers(0, bound, n, dtype=np.int64)
+        key[: n // 3] = key[0] if n else 0  # many ties
+        order, ordered = stable_sort(key, bound, kernel)
+        reference, reference_keys = stable_sort(key, bound, None)
+        np.testing.assert_array_equal(order, np.argsort(key, kind="stable"))
+        np.testing.assert_array_equal(order, reference)
+        np.testing.assert_array_equal(ordered, reference_keys)
+        assert ordered.dtype == reference_keys.dtype == np.int64
