@@ -448,67 +448,16 @@ done:
     return result;
 }
 
-/* seam_blocks(lam, coef, starts, out)
- *
- * The seam term's 8 x 8 matrix of each group of seam points (aobake.targets.texels.seams),
- * stored by columns: out[g, l, k] = sum over the group's points p, in order, of
- * (lam[p] coef[p, k]) coef[p, l], the sum starting from 0.0 (as numpy's bincount of the
- * reference).  lam (m,) float64, coef (m, 8) float64, starts (G + 1,) int64 (group g is
- * points starts[g] .. starts[g + 1] - 1), out (G, 8, 8) float64 written.
- */
-static PyObject *seam_blocks(PyObject *self, PyObject *args)
-{
-    Py_buffer bl = {0}, bc = {0}, bs = {0}, bo = {0};
-    PyObject *result = NULL;
-    (void)self;
-    if (!PyArg_ParseTuple(args, "y*y*y*w*", &bl, &bc, &bs, &bo))
-        return NULL;
-    {
-        const Py_ssize_t m = bl.len / 8, groups = bs.len / 8 - 1;
-        if (groups < 0 || check(&bl, "lam", 8, m) || check(&bc, "coef", 8, 8 * m) ||
-            check(&bs, "starts", 8, groups + 1) || check(&bo, "out", 8, 64 * groups))
-            goto done;
-        const double *lam = bl.buf, *coef = bc.buf;
-        const int64_t *starts = bs.buf;
-        double *out = bo.buf;
-        for (Py_ssize_t g = 0; g < groups; ++g)
-            if (starts[g] < 0 || starts[g] > starts[g + 1] || starts[g + 1] > m) {
-                PyErr_SetString(PyExc_ValueError, "starts must be non-decreasing within 0..m");
-                goto done;
-            }
-        Py_BEGIN_ALLOW_THREADS
-        for (Py_ssize_t g = 0; g < groups; ++g) {
-            double acc[64];
-            for (int i = 0; i < 64; ++i)
-                acc[i] = 0.0;
-            for (int64_t p = starts[g]; p < starts[g + 1]; ++p) {
-                const double *c = coef + 8 * p;
-                for (int k = 0; k < 8; ++k) {
-                    const double a = lam[p] * c[k];
-                    for (int l = 0; l < 8; ++l)
-                        acc[8 * l + k] += a * c[l];
-                }
-            }
-            for (int i = 0; i < 64; ++i)
-                out[64 * g + i] = acc[i];
-        }
-        Py_END_ALLOW_THREADS
-    }
-    Py_INCREF(Py_None);
-    result = Py_None;
-
-done:
-    PyBuffer_Release(&bl); PyBuffer_Release(&bc); PyBuffer_Release(&bs); PyBuffer_Release(&bo);
-    return result;
-}
-
 /* The seam system's operator (W + P^T S P) x of aobake.targets.texels.seams._apply, in its
- * order of operations: u = P x (fill), v = S u (per group, then scattered in group order),
- * out = w x + P^T v.  tmp (n,) is scratch. */
+ * order of operations: u = P x (fill); per group of seam points, its eight texels' sums
+ * over the group's points p, in order, of (lam_p d_p) g_p with d_p = g_p . u (a fixed
+ * pairwise tree of the eight products), scattered in group order; out = w x + P^T v.  The points'
+ * weights (m, 8) are read, not 8 x 8 group matrices: half the bytes per iteration, and
+ * the solve is bound by memory. */
 typedef struct {
     Py_ssize_t n, groups, fills;
-    const double *seam, *w, *fill_weight;
-    const int64_t *slots, *fill_to, *fill_from;
+    const double *coef, *lam, *w, *fill_weight;
+    const int64_t *starts, *slots, *fill_to, *fill_from;
     const uint8_t *gutter;
 } SeamOp;
 
@@ -525,13 +474,17 @@ static void seam_apply(const SeamOp *op, const double *x, double *u, double *v, 
         v[i] = 0.0;
     for (Py_ssize_t g = 0; g < op->groups; ++g) {
         const int64_t *s = op->slots + 8 * g;
-        const double *a = op->seam + 64 * g;  /* by columns: a[8 l + k] */
-        /* eight independent sums, each over l in order: the same bits as one sum per k */
-        double acc[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
-        for (int l = 0; l < 8; ++l) {
-            const double ul = u[s[l]];
+        double ug[8], acc[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+        for (int l = 0; l < 8; ++l)
+            ug[l] = u[s[l]];
+        for (int64_t p = op->starts[g]; p < op->starts[g + 1]; ++p) {
+            const double *c = op->coef + 8 * p;
+            /* a fixed pairwise tree: three additions deep, not seven */
+            const double d = ((c[0] * ug[0] + c[1] * ug[1]) + (c[2] * ug[2] + c[3] * ug[3]))
+                             + ((c[4] * ug[4] + c[5] * ug[5]) + (c[6] * ug[6] + c[7] * ug[7]));
+            const double t = op->lam[p] * d;
             for (int k = 0; k < 8; ++k)
-                acc[k] += a[8 * l + k] * ul;
+                acc[k] += t * c[k];
         }
         for (int k = 0; k < 8; ++k)
             v[s[k]] += acc[k];
@@ -565,19 +518,20 @@ static double max_abs(const double *a, Py_ssize_t n)
     return m;
 }
 
-/* seam_cg(seam, slots, gutter, fill_to, fill_from, fill_weight, w, diag, b, x, tolerance,
- *         max_iterations) -> (iterations, the last max |r / diag|)
+/* seam_cg(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w, diag, b, x,
+ *         tolerance, max_iterations) -> (iterations, the last max |r / diag|)
  *
  * Jacobi-preconditioned conjugate gradients on (W + P^T S P) x = W b from x = b, stopping
  * when max |r / diag| <= tolerance or after max_iterations: aobake.targets.texels.seams.
- * _cg_numpy operation for operation (tested bit for bit).  seam (G, 8, 8) by columns, as
- * seam_blocks writes it, slots (G, 8)
- * int64 in 0..n-1, gutter (n,) bool, fill_* (e,) (fill_to, fill_from int64 in 0..n-1),
- * w, diag, b (n,) float64; x (n,) float64 written.
+ * _cg_numpy operation for operation (tested bit for bit).  coef (m, 8), lam (m,) float64
+ * the seam points' weights, starts (G + 1,) int64 (group g is points starts[g] ..
+ * starts[g + 1] - 1), slots (G, 8) int64 in 0..n-1, gutter (n,) bool, fill_* (e,)
+ * (fill_to, fill_from int64 in 0..n-1), w, diag, b (n,) float64; x (n,) float64 written.
  */
 static PyObject *seam_cg(PyObject *self, PyObject *args)
 {
-    Py_buffer bseam = {0}, bslots = {0}, bgut = {0}, bto = {0}, bfrom = {0}, bfw = {0};
+    Py_buffer bcoef = {0}, blam = {0}, bstarts = {0};
+    Py_buffer bslots = {0}, bgut = {0}, bto = {0}, bfrom = {0}, bfw = {0};
     Py_buffer bw = {0}, bdiag = {0}, bb = {0}, bx = {0};
     double tolerance;
     Py_ssize_t max_iterations, it = 0;
@@ -585,17 +539,30 @@ static PyObject *seam_cg(PyObject *self, PyObject *args)
     double *scratch = NULL;
     PyObject *result = NULL;
     (void)self;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*w*dn", &bseam, &bslots, &bgut, &bto, &bfrom,
-                          &bfw, &bw, &bdiag, &bb, &bx, &tolerance, &max_iterations))
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*w*dn", &bcoef, &blam, &bstarts, &bslots,
+                          &bgut, &bto, &bfrom, &bfw, &bw, &bdiag, &bb, &bx, &tolerance,
+                          &max_iterations))
         return NULL;
     {
         const Py_ssize_t n = bgut.len, groups = bslots.len / 64, fills = bto.len / 8;
-        if (check(&bseam, "seam", 8, 64 * groups) || check(&bslots, "slots", 8, 8 * groups) ||
+        const Py_ssize_t m = blam.len / 8;
+        if (check(&bcoef, "coef", 8, 8 * m) || check(&blam, "lam", 8, m) ||
+            check(&bstarts, "starts", 8, groups + 1) || check(&bslots, "slots", 8, 8 * groups) ||
             check(&bgut, "gutter", 1, n) || check(&bto, "fill_to", 8, fills) ||
             check(&bfrom, "fill_from", 8, fills) || check(&bfw, "fill_weight", 8, fills) ||
             check(&bw, "w", 8, n) || check(&bdiag, "diag", 8, n) || check(&bb, "b", 8, n) ||
             check(&bx, "x", 8, n))
             goto done;
+        const int64_t *starts = bstarts.buf;
+        if (starts[0] != 0 || starts[groups] != m) {
+            PyErr_SetString(PyExc_ValueError, "starts must run from 0 to m");
+            goto done;
+        }
+        for (Py_ssize_t g = 0; g < groups; ++g)
+            if (starts[g] > starts[g + 1]) {
+                PyErr_SetString(PyExc_ValueError, "starts must be non-decreasing");
+                goto done;
+            }
         const int64_t *slots = bslots.buf, *to = bto.buf, *from = bfrom.buf;
         for (Py_ssize_t i = 0; i < 8 * groups; ++i)
             if (slots[i] < 0 || slots[i] >= n) {
@@ -612,7 +579,8 @@ static PyObject *seam_cg(PyObject *self, PyObject *args)
             PyErr_NoMemory();
             goto done;
         }
-        const SeamOp op = {n, groups, fills, bseam.buf, bw.buf, bfw.buf, slots, to, from, bgut.buf};
+        const SeamOp op = {n, groups, fills, bcoef.buf, blam.buf, bw.buf, bfw.buf, starts, slots, to,
+                           from, bgut.buf};
         const double *w = bw.buf, *diag = bdiag.buf, *b = bb.buf;
         double *x = bx.buf;
         double *r = scratch, *z = r + n, *p = z + n, *q = p + n, *u = q + n, *v = u + n;
@@ -648,7 +616,8 @@ static PyObject *seam_cg(PyObject *self, PyObject *args)
 
 done:
     PyMem_RawFree(scratch);
-    PyBuffer_Release(&bseam); PyBuffer_Release(&bslots); PyBuffer_Release(&bgut);
+    PyBuffer_Release(&bcoef); PyBuffer_Release(&blam); PyBuffer_Release(&bstarts);
+    PyBuffer_Release(&bslots); PyBuffer_Release(&bgut);
     PyBuffer_Release(&bto); PyBuffer_Release(&bfrom); PyBuffer_Release(&bfw);
     PyBuffer_Release(&bw); PyBuffer_Release(&bdiag); PyBuffer_Release(&bb); PyBuffer_Release(&bx);
     return result;
@@ -829,10 +798,9 @@ static PyMethodDef methods[] = {
     {"surface_interp", surface_interp, METH_VARARGS,
      "surface_interp(positions, normals, faces, face, bary, out_points, out_normals, out_length): "
      "lightmap sample points and unit shading normals."},
-    {"seam_blocks", seam_blocks, METH_VARARGS,
-     "seam_blocks(lam, coef, starts, out): the seam term's 8 x 8 matrix per group of points."},
     {"seam_cg", seam_cg, METH_VARARGS,
-     "seam_cg(seam, slots, gutter, fill_to, fill_from, fill_weight, w, diag, b, x, tolerance, "
+     "seam_cg(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w, diag, b, x, "
+     "tolerance, "
      "max_iterations) -> (iterations, max |r / diag|): the seam erasure's Jacobi-preconditioned CG."},
     {NULL, NULL, 0, NULL},
 };

@@ -30,9 +30,14 @@ Along a seam edge a bilinear lookup is quadratic between the points where either
 crosses a row or column of texel centres, so 3-point Gauss-Legendre quadrature on each
 such piece integrates (L_A - L_B)^2 exactly.  The normal equations (sparse, symmetric
 positive definite, over the touched texels only) are solved by Jacobi-preconditioned
-conjugate gradients: in the compiled kernel (``seam_cg`` in aobake/_kernels.c; bunny
-1024^2: 1.6 -> 0.6 s, the numpy passes over the (G, 8, 8) group matrices and bincounts
-were most of it), or in numpy with the same operations in the same order (the same bits).
+conjugate gradients: in the compiled kernel (``seam_cg`` in aobake/_kernels.c), or in
+numpy with the same operations in the same order (the same bits).  Each iteration reads the
+seam points' weights (m, 8), not 8 x 8 matrices per group of points: the solve is bound by
+memory, and they are half the bytes; the eight products of a point's d_p = g_p . u are
+summed as a fixed pairwise tree (three additions deep).  Bunny 1024^2, 127 iterations:
+numpy's einsum and bincount passes 1.6 s; the kernel with 8 x 8 group matrices 0.6 s wall
+on a quiet machine; CPU seconds on a loaded one: group matrices 0.87, points' weights
+summed in order 0.67, as a tree 0.64.
 A block-Jacobi preconditioner over stretches of seam, both sides at once, saved a fifth
 of the iterations on the bunny in an earlier variant and cost more than that to build;
 a direct sparse solve (SuperLU, COLAMD order) of the bunny's 114k covered unknowns took
@@ -412,9 +417,9 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
 
     values : (n, c) float64 baked values of ``system.texels`` (c channels sharing the
     weights, e.g. a bent normal's components; gutter rows ignored), stderr : (n,) float64
-    their stderr (gutter rows ignored).  compiled : the group matrices and the conjugate
-    gradients in the compiled kernel (default: when it was built and not forced off, see
-    ``aobake._native``) or in numpy; the bits are the same.
+    their stderr (gutter rows ignored).  compiled : the conjugate gradients in the compiled
+    kernel (default: when it was built and not forced off, see ``aobake._native``) or in
+    numpy; the bits are the same.
     Returns (x (n, c) float64: the adjusted covered values, gutter rows the dilation of
     them; info: iterations, converged, and rms_before / rms_after, max_before / max_after of
     the lookup difference over the seam points (rms weighted by seam length)).
@@ -439,15 +444,16 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
     lam = kappa * s.weight / var_d
     # Points are stored in group order: group g is points starts[g] .. starts[g + 1] - 1.
     starts = np.r_[np.nonzero(np.r_[True, s.group[1:] != s.group[:-1]])[0], len(s.group)]
-    seam = _group_matrices(kernels, lam, s.coef, starts)
-    # Jacobi preconditioner: the normal matrix's diagonal (its seam part through the fill
-    # without the fill's cross terms: a preconditioner need not be exact).
+    operator = _Operator(np.ascontiguousarray(s.coef, dtype=np.float64), lam,
+                         starts.astype(np.int64), np.ascontiguousarray(s.slots, dtype=np.int64),
+                         s.gutter, s.fill_to, s.fill_from, s.fill_weight, w)
+    # Jacobi preconditioner: the normal matrix's diagonal (its seam part, each group's
+    # sum over its points of lam_p g_pk^2, through the fill without the fill's cross terms:
+    # a preconditioner need not be exact).
+    seam_diag = _group_sums(operator, (lam[:, None] * operator.coef) * operator.coef)
     diag = w + s.fill_transpose(np.bincount(s.slots.reshape(-1), minlength=len(s.texels),
-                                            weights=np.einsum("gkk->gk", seam).reshape(-1)),
-                                square=True)
+                                            weights=seam_diag.reshape(-1)), square=True)
     diag = np.where(covered, diag, 1.0)
-    operator = _Operator(seam, np.ascontiguousarray(s.slots, dtype=np.int64), s.gutter,
-                         s.fill_to, s.fill_from, s.fill_weight, w)
     info = {"iterations": 0, "converged": True}
     total = max(float(s.weight.sum()), 1e-300)
     before, after = [], []
@@ -478,13 +484,17 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
 class _Operator(NamedTuple):
     """The normal matrix W + P^T S P of the solve as the buffers ``seam_cg`` takes.
 
-    seam (G, 8, 8) float64 each group's seam matrix by columns, slots (G, 8) int64,
+    S is the sum over the seam points p of lam_p g_p g_p^T (g_p the lookup difference's
+    weights on its group's 8 texels), kept as the points: coef (m, 8) float64 g_p, lam (m,)
+    float64, starts (G + 1,) int64 the groups' first points, slots (G, 8) int64,
     gutter (n,) bool,
     fill_to / fill_from (e,) int64 and fill_weight (e,) float64 the first dilation ring P
     (``SeamSystem``), w (n,) float64 the data weights (0 on gutter rows).
     """
 
-    seam: np.ndarray
+    coef: np.ndarray
+    lam: np.ndarray
+    starts: np.ndarray
     slots: np.ndarray
     gutter: np.ndarray
     fill_to: np.ndarray
@@ -499,34 +509,26 @@ class _Operator(NamedTuple):
 # summation depends on the CPU.
 
 
-def _group_matrices(kernels, lam, coef, starts) -> np.ndarray:
-    """(G, 8, 8) float64 each group's seam matrix by columns: [g, l, k] is the sum over the
-    group's points, in order, of (lam_p g_pk) g_pl (columns contiguous: the kernel's
-    product runs down them)."""
-    groups = len(starts) - 1
-    coef = np.ascontiguousarray(coef, dtype=np.float64)
-    if kernels is not None:
-        out = np.empty((groups, 8, 8))
-        kernels.seam_blocks(np.ascontiguousarray(lam, dtype=np.float64), coef,
-                            np.ascontiguousarray(starts, dtype=np.int64), out)
-        return out
-    outer = coef[:, :, None] * (lam[:, None] * coef)[:, None, :]  # [p, l, k]
-    group = np.repeat(np.arange(groups, dtype=np.int64), np.diff(starts))
-    index = (group[:, None] * 64 + np.arange(64)).reshape(-1)
-    return np.bincount(index, weights=outer.reshape(-1), minlength=64 * groups
-                       ).reshape(groups, 8, 8)
+def _group_sums(op: "_Operator", values: np.ndarray) -> np.ndarray:
+    """(G, 8) float64 the sums over each group's points, in order, of values (m, 8)."""
+    groups = len(op.starts) - 1
+    group = np.repeat(np.arange(groups, dtype=np.int64), np.diff(op.starts))
+    index = (group[:, None] * 8 + np.arange(8)).reshape(-1)
+    return np.bincount(index, weights=values.reshape(-1), minlength=8 * groups
+                       ).reshape(groups, 8)
 
 
 def _apply(op: _Operator, x: np.ndarray) -> np.ndarray:
-    """(n,) (W + P^T S P) x: the fill P, each group's 8 x 8 product (summed over l in
-    order), scattered in group order, then P^T."""
+    """(n,) (W + P^T S P) x: the fill P; each point's d_p = g_p . u (summed as a fixed
+    pairwise tree), its group's sums of (lam_p d_p) g_p, scattered in group order; then P^T."""
     n = len(x)
     u = np.where(op.gutter, 0.0, x) + np.bincount(op.fill_to, weights=op.fill_weight
                                                   * x[op.fill_from], minlength=n)
-    ug = u[op.slots]  # (G, 8)
-    y = np.zeros(op.slots.shape)
-    for l in range(8):
-        y += op.seam[:, l, :] * ug[:, l, None]
+    ug = u[op.slots][np.repeat(np.arange(len(op.slots)), np.diff(op.starts))]  # (m, 8)
+    t = op.coef * ug
+    d = (((t[:, 0] + t[:, 1]) + (t[:, 2] + t[:, 3]))
+         + ((t[:, 4] + t[:, 5]) + (t[:, 6] + t[:, 7])))  # the kernel's pairwise tree
+    y = _group_sums(op, (op.lam * d)[:, None] * op.coef)
     v = np.bincount(op.slots.reshape(-1), weights=y.reshape(-1), minlength=n)
     back = np.bincount(op.fill_from, weights=op.fill_weight * v[op.fill_to], minlength=n)
     return op.w * x + (np.where(op.gutter, 0.0, v) + back)
