@@ -88,7 +88,9 @@ def point_offsets(local: np.ndarray, sizes: np.ndarray | None, fraction: float) 
     triangle size: Embree's float32 hit distances carry the rounding of the triangle's
     vertex coordinates, which reach that far even where the point sits at the origin.
     """
-    magnitude = np.abs(local).max(axis=1)
+    # Column by column: a max over the short last axis of (n, 3) is ~3x slower (exact either way).
+    magnitude = np.maximum(np.maximum(np.abs(local[:, 0]), np.abs(local[:, 1])),
+                           np.abs(local[:, 2]))
     if sizes is not None:
         magnitude = magnitude + sizes
     floor = OFFSET_ULPS * np.spacing(magnitude.astype(np.float32)).astype(np.float64)
@@ -284,8 +286,14 @@ class Tracer:
         """
         n = len(points)
         normals = np.asarray(normals, dtype=np.float64)
-        valid = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)
-        order = valid[morton_order(points[valid], self.kernels)]
+        # |normal| column by column (np.linalg.norm's sum, left to right: the same bits,
+        # 3x faster than its reduction over the short last axis)
+        length = np.sqrt((normals[:, 0] * normals[:, 0] + normals[:, 1] * normals[:, 1])
+                         + normals[:, 2] * normals[:, 2])
+        valid = np.flatnonzero(length > 0.5)
+        every = len(valid) == n  # the usual case: no copies of the points
+        kept = points if every else points[valid]
+        order = valid[morton_order(kept, self.kernels)]
         per_chunk = max(1, int(chunk_rays) // self.samples.rays)
         n_chunks = -(-len(order) // per_chunk)
         out = self.no_information(normals)
@@ -293,8 +301,9 @@ class Tracer:
         rays[valid] = self.samples.rays
 
         if len(valid):
-            used = point_offsets((points[valid] - self.center) * self.scale,
-                                 None if sizes is None else sizes[valid] * self.scale,
+            used = point_offsets((kept - self.center) * self.scale,
+                                 None if sizes is None else
+                                 (sizes if every else sizes[valid]) * self.scale,
                                  self.config.ray_offset) / self.scale  # scene units
             self.offsets = (float(used.min()), float(np.median(used)), float(used.max()))
 
