@@ -374,8 +374,10 @@ def seam_system(points: SeamPoints, covered, wrap: str = "clamp") -> SeamSystem:
         i0, f0 = np.zeros(0, dtype=np.int64), np.zeros(0)
         return SeamSystem(i0, np.zeros(0, dtype=bool), np.zeros((0, 8), dtype=np.int64), i0,
                           np.zeros((0, 8)), f0, i0, i0, f0, int(np.count_nonzero(~keep)))
-    texel, coef = texel[keep], coef[keep]
-    weight = points.weight[keep]
+    if keep.all():  # the usual case: no copies
+        weight = points.weight
+    else:
+        texel, coef, weight = texel[keep], coef[keep], points.weight[keep]
     gutter, nb, count = gutter_read[count > 0], nb[count > 0], count[count > 0]
     read = np.zeros(height * width, dtype=bool)
     read[texel.reshape(-1)] = True
