@@ -1,5 +1,5 @@
-/* aobake._kernels: the per-ray part of ray generation, the AO escape counts and
- * the lightmap rasteriser's per-pair tests, compiled.
+/* aobake._kernels: the per-ray part of ray generation, the AO escape counts,
+ * the lightmap rasteriser's per-pair tests and the seam erasure's solve, compiled.
  *
  * numpy builds each chunk's rays at 10-40 Mrays/s per thread; Embree traces at
  * 3-5 Mrays/s per thread, so numpy ray generation costs 10-25% of the bake.
@@ -448,6 +448,342 @@ done:
     return result;
 }
 
+/* The seam system's operator (W + P^T S P) x of aobake.targets.texels.seams._apply, in its
+ * order of operations: u = P x (fill); per group of seam points, its eight texels' sums
+ * over the group's points p, in order, of (lam_p d_p) g_p with d_p = g_p . u (a fixed
+ * pairwise tree of the eight products), scattered in group order; out = w x + P^T v.  The points'
+ * weights (m, 8) are read, not 8 x 8 group matrices: half the bytes per iteration, and
+ * the solve is bound by memory. */
+typedef struct {
+    Py_ssize_t n, groups, fills;
+    const double *coef, *lam, *w, *fill_weight;
+    const int64_t *starts, *slots, *fill_to, *fill_from;
+    const uint8_t *gutter;
+} SeamOp;
+
+static void seam_apply(const SeamOp *op, const double *x, double *u, double *v, double *out)
+{
+    const Py_ssize_t n = op->n;
+    for (Py_ssize_t i = 0; i < n; ++i)
+        v[i] = 0.0;
+    for (Py_ssize_t e = 0; e < op->fills; ++e)
+        v[op->fill_to[e]] += op->fill_weight[e] * x[op->fill_from[e]];
+    for (Py_ssize_t i = 0; i < n; ++i)
+        u[i] = (op->gutter[i] ? 0.0 : x[i]) + v[i];
+    for (Py_ssize_t i = 0; i < n; ++i)
+        v[i] = 0.0;
+    for (Py_ssize_t g = 0; g < op->groups; ++g) {
+        const int64_t *s = op->slots + 8 * g;
+        double ug[8], acc[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+        for (int l = 0; l < 8; ++l)
+            ug[l] = u[s[l]];
+        for (int64_t p = op->starts[g]; p < op->starts[g + 1]; ++p) {
+            const double *c = op->coef + 8 * p;
+            /* a fixed pairwise tree: three additions deep, not seven */
+            const double d = ((c[0] * ug[0] + c[1] * ug[1]) + (c[2] * ug[2] + c[3] * ug[3]))
+                             + ((c[4] * ug[4] + c[5] * ug[5]) + (c[6] * ug[6] + c[7] * ug[7]));
+            const double t = op->lam[p] * d;
+            for (int k = 0; k < 8; ++k)
+                acc[k] += t * c[k];
+        }
+        for (int k = 0; k < 8; ++k)
+            v[s[k]] += acc[k];
+    }
+    /* P^T v: u is free again and holds the fill's share of each covered texel */
+    for (Py_ssize_t i = 0; i < n; ++i)
+        u[i] = 0.0;
+    for (Py_ssize_t e = 0; e < op->fills; ++e)
+        u[op->fill_from[e]] += op->fill_weight[e] * v[op->fill_to[e]];
+    for (Py_ssize_t i = 0; i < n; ++i)
+        out[i] = op->w[i] * x[i] + ((op->gutter[i] ? 0.0 : v[i]) + u[i]);
+}
+
+/* a . b summed in index order from the first product (numpy's cumsum of the reference) */
+static double seq_dot(const double *a, const double *b, Py_ssize_t n)
+{
+    if (n == 0)
+        return 0.0;
+    double acc = a[0] * b[0];
+    for (Py_ssize_t i = 1; i < n; ++i)
+        acc += a[i] * b[i];
+    return acc;
+}
+
+static double max_abs(const double *a, Py_ssize_t n)
+{
+    double m = 0.0;
+    for (Py_ssize_t i = 0; i < n; ++i)
+        if (fabs(a[i]) > m)
+            m = fabs(a[i]);
+    return m;
+}
+
+/* seam_cg(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w, diag, b, x,
+ *         tolerance, max_iterations) -> (iterations, the last max |r / diag|)
+ *
+ * Jacobi-preconditioned conjugate gradients on (W + P^T S P) x = W b from x = b, stopping
+ * when max |r / diag| <= tolerance or after max_iterations: aobake.targets.texels.seams.
+ * _cg_numpy operation for operation (tested bit for bit).  coef (m, 8), lam (m,) float64
+ * the seam points' weights, starts (G + 1,) int64 (group g is points starts[g] ..
+ * starts[g + 1] - 1), slots (G, 8) int64 in 0..n-1, gutter (n,) bool, fill_* (e,)
+ * (fill_to, fill_from int64 in 0..n-1), w, diag, b (n,) float64; x (n,) float64 written.
+ */
+static PyObject *seam_cg(PyObject *self, PyObject *args)
+{
+    Py_buffer bcoef = {0}, blam = {0}, bstarts = {0};
+    Py_buffer bslots = {0}, bgut = {0}, bto = {0}, bfrom = {0}, bfw = {0};
+    Py_buffer bw = {0}, bdiag = {0}, bb = {0}, bx = {0};
+    double tolerance;
+    Py_ssize_t max_iterations, it = 0;
+    double left = 0.0;
+    double *scratch = NULL;
+    PyObject *result = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*w*dn", &bcoef, &blam, &bstarts, &bslots,
+                          &bgut, &bto, &bfrom, &bfw, &bw, &bdiag, &bb, &bx, &tolerance,
+                          &max_iterations))
+        return NULL;
+    {
+        const Py_ssize_t n = bgut.len, groups = bslots.len / 64, fills = bto.len / 8;
+        const Py_ssize_t m = blam.len / 8;
+        if (check(&bcoef, "coef", 8, 8 * m) || check(&blam, "lam", 8, m) ||
+            check(&bstarts, "starts", 8, groups + 1) || check(&bslots, "slots", 8, 8 * groups) ||
+            check(&bgut, "gutter", 1, n) || check(&bto, "fill_to", 8, fills) ||
+            check(&bfrom, "fill_from", 8, fills) || check(&bfw, "fill_weight", 8, fills) ||
+            check(&bw, "w", 8, n) || check(&bdiag, "diag", 8, n) || check(&bb, "b", 8, n) ||
+            check(&bx, "x", 8, n))
+            goto done;
+        const int64_t *starts = bstarts.buf;
+        if (starts[0] != 0 || starts[groups] != m) {
+            PyErr_SetString(PyExc_ValueError, "starts must run from 0 to m");
+            goto done;
+        }
+        for (Py_ssize_t g = 0; g < groups; ++g)
+            if (starts[g] > starts[g + 1]) {
+                PyErr_SetString(PyExc_ValueError, "starts must be non-decreasing");
+                goto done;
+            }
+        const int64_t *slots = bslots.buf, *to = bto.buf, *from = bfrom.buf;
+        for (Py_ssize_t i = 0; i < 8 * groups; ++i)
+            if (slots[i] < 0 || slots[i] >= n) {
+                PyErr_SetString(PyExc_IndexError, "slot out of range");
+                goto done;
+            }
+        for (Py_ssize_t e = 0; e < fills; ++e)
+            if (to[e] < 0 || to[e] >= n || from[e] < 0 || from[e] >= n) {
+                PyErr_SetString(PyExc_IndexError, "fill index out of range");
+                goto done;
+            }
+        scratch = PyMem_RawMalloc(sizeof(double) * (size_t)(6 * n + 1));
+        if (!scratch) {
+            PyErr_NoMemory();
+            goto done;
+        }
+        const SeamOp op = {n, groups, fills, bcoef.buf, blam.buf, bw.buf, bfw.buf, starts, slots, to,
+                           from, bgut.buf};
+        const double *w = bw.buf, *diag = bdiag.buf, *b = bb.buf;
+        double *x = bx.buf;
+        double *r = scratch, *z = r + n, *p = z + n, *q = p + n, *u = q + n, *v = u + n;
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t i = 0; i < n; ++i)
+            x[i] = b[i];
+        seam_apply(&op, x, u, v, q);
+        for (Py_ssize_t i = 0; i < n; ++i) {
+            r[i] = w[i] * b[i] - q[i];
+            z[i] = r[i] / diag[i];
+            p[i] = z[i];
+        }
+        double rz = seq_dot(r, z, n);
+        while (max_abs(z, n) > tolerance && it < max_iterations) {
+            seam_apply(&op, p, u, v, q);
+            const double alpha = rz / seq_dot(p, q, n);
+            for (Py_ssize_t i = 0; i < n; ++i) {
+                x[i] += alpha * p[i];
+                r[i] -= alpha * q[i];
+                z[i] = r[i] / diag[i];
+            }
+            const double rz_old = rz;
+            rz = seq_dot(r, z, n);
+            const double beta = rz / rz_old;
+            for (Py_ssize_t i = 0; i < n; ++i)
+                p[i] = z[i] + beta * p[i];
+            ++it;
+        }
+        left = max_abs(z, n);
+        Py_END_ALLOW_THREADS
+    }
+    result = Py_BuildValue("nd", it, left);
+
+done:
+    PyMem_RawFree(scratch);
+    PyBuffer_Release(&bcoef); PyBuffer_Release(&blam); PyBuffer_Release(&bstarts);
+    PyBuffer_Release(&bslots); PyBuffer_Release(&bgut);
+    PyBuffer_Release(&bto); PyBuffer_Release(&bfrom); PyBuffer_Release(&bfw);
+    PyBuffer_Release(&bw); PyBuffer_Release(&bdiag); PyBuffer_Release(&bb); PyBuffer_Release(&bx);
+    return result;
+}
+
+/* radix_argsort(keys, bits, out_order, out_sorted)
+ *
+ * The stable argsort of keys (n,) uint32 below 2^bits (aobake.rng.stable_argsort: a stable
+ * sort's permutation is unique, so the result is that of numpy's): a least-significant-digit
+ * radix sort, 11 bits a pass.  out_order (n,) int64 the permutation, out_sorted (n,) uint32
+ * keys[out_order], both written.
+ */
+#define RADIX_BITS 11
+static PyObject *radix_argsort(PyObject *self, PyObject *args)
+{
+    Py_buffer bk = {0}, bo = {0}, bs = {0};
+    Py_ssize_t bits;
+    uint32_t *tmp_key = NULL;
+    int64_t *tmp_idx = NULL;
+    Py_ssize_t *count = NULL;
+    PyObject *result = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*nw*w*", &bk, &bits, &bo, &bs))
+        return NULL;
+    {
+        const Py_ssize_t n = bk.len / 4;
+        if (bits < 0 || bits > 32) {
+            PyErr_SetString(PyExc_ValueError, "bits must be in 0..32");
+            goto done;
+        }
+        if (check(&bk, "keys", 4, n) || check(&bo, "out_order", 8, n) ||
+            check(&bs, "out_sorted", 4, n))
+            goto done;
+        const uint32_t *keys = bk.buf;
+        int64_t *order = bo.buf;
+        uint32_t *sorted = bs.buf;
+        const int passes = (int)((bits + RADIX_BITS - 1) / RADIX_BITS);
+        if (bits < 32)
+            for (Py_ssize_t i = 0; i < n; ++i)
+                if (keys[i] >> bits) {
+                    PyErr_SetString(PyExc_ValueError, "a key is not below 2^bits");
+                    goto done;
+                }
+        tmp_key = PyMem_RawMalloc(sizeof(uint32_t) * (size_t)(n + 1));
+        tmp_idx = PyMem_RawMalloc(sizeof(int64_t) * (size_t)(n + 1));
+        count = PyMem_RawMalloc(sizeof(Py_ssize_t) << RADIX_BITS);
+        if (!tmp_key || !tmp_idx || !count) {
+            PyErr_NoMemory();
+            goto done;
+        }
+        Py_BEGIN_ALLOW_THREADS
+        /* the pass that ends in the output buffers starts from the other pair */
+        uint32_t *src_key = (passes % 2) ? tmp_key : sorted, *dst_key;
+        int64_t *src_idx = (passes % 2) ? tmp_idx : order, *dst_idx;
+        for (Py_ssize_t i = 0; i < n; ++i) {
+            src_key[i] = keys[i];
+            src_idx[i] = i;
+        }
+        for (int p = 0; p < passes; ++p) {
+            const int shift = p * RADIX_BITS;
+            const uint32_t mask = (1u << RADIX_BITS) - 1u;
+            dst_key = src_key == sorted ? tmp_key : sorted;
+            dst_idx = src_idx == order ? tmp_idx : order;
+            for (int d = 0; d <= (int)mask; ++d)
+                count[d] = 0;
+            for (Py_ssize_t i = 0; i < n; ++i)
+                ++count[(src_key[i] >> shift) & mask];
+            Py_ssize_t at = 0;
+            for (int d = 0; d <= (int)mask; ++d) {
+                const Py_ssize_t c = count[d];
+                count[d] = at;
+                at += c;
+            }
+            for (Py_ssize_t i = 0; i < n; ++i) {  /* in input order: stable */
+                const Py_ssize_t to = count[(src_key[i] >> shift) & mask]++;
+                dst_key[to] = src_key[i];
+                dst_idx[to] = src_idx[i];
+            }
+            src_key = dst_key;
+            src_idx = dst_idx;
+        }
+        Py_END_ALLOW_THREADS
+    }
+    Py_INCREF(Py_None);
+    result = Py_None;
+
+done:
+    PyMem_RawFree(tmp_key);
+    PyMem_RawFree(tmp_idx);
+    PyMem_RawFree(count);
+    PyBuffer_Release(&bk); PyBuffer_Release(&bo); PyBuffer_Release(&bs);
+    return result;
+}
+
+/* surface_interp(positions, normals, faces, face, bary, out_points, out_normals, out_length)
+ *
+ * aobake.targets.texels.surface's interpolation at s samples, operation for operation:
+ * point = (b0 p[c0] + b1 p[c1]) + b2 p[c2] per coordinate (faces[face] = c), the same for
+ * the vertex normals, then the normal's length sqrt((x^2 + y^2) + z^2) (np.linalg.norm's
+ * order) and the unit normal (zero where the length is 0 or not finite: vectors.normalize).
+ * positions, normals (v, 3) float64 (normals may be empty: then out_normals and out_length
+ * are not touched), faces (f, 3) int64, face (s,) int64, bary (s, 3) float64;
+ * out_points, out_normals (s, 3) float64, out_length (s,) float64 written.
+ */
+static PyObject *surface_interp(PyObject *self, PyObject *args)
+{
+    Py_buffer bp = {0}, bn = {0}, bf = {0}, bface = {0}, bb = {0}, bop = {0}, bon = {0}, bol = {0};
+    PyObject *result = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*w*w*w*", &bp, &bn, &bf, &bface, &bb, &bop, &bon, &bol))
+        return NULL;
+    {
+        const Py_ssize_t v3 = bp.len / 8, f3 = bf.len / 8, s = bface.len / 8;
+        const int with_normals = bn.len > 0;
+        if (v3 % 3 || f3 % 3 || check(&bp, "positions", 8, v3) || check(&bf, "faces", 8, f3) ||
+            check(&bface, "face", 8, s) || check(&bb, "bary", 8, 3 * s) ||
+            check(&bop, "out_points", 8, 3 * s) ||
+            (with_normals && (check(&bn, "normals", 8, v3) || check(&bon, "out_normals", 8, 3 * s) ||
+                              check(&bol, "out_length", 8, s)))) {
+            if (!PyErr_Occurred())
+                PyErr_SetString(PyExc_ValueError, "rows must have 3 columns");
+            goto done;
+        }
+        const double *P = bp.buf, *N = bn.buf, *B = bb.buf;
+        const int64_t *F = bf.buf, *face = bface.buf;
+        double *op = bop.buf, *on = bon.buf, *ol = bol.buf;
+        const int64_t n_faces = f3 / 3, n_vertices = v3 / 3;
+        for (Py_ssize_t i = 0; i < s; ++i)
+            if (face[i] < 0 || face[i] >= n_faces) {
+                PyErr_SetString(PyExc_IndexError, "face index out of range");
+                goto done;
+            }
+        for (Py_ssize_t i = 0; i < f3; ++i)
+            if (F[i] < 0 || F[i] >= n_vertices) {
+                PyErr_SetString(PyExc_IndexError, "vertex index out of range");
+                goto done;
+            }
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t i = 0; i < s; ++i) {
+            const int64_t *c = F + 3 * face[i];
+            const double *b = B + 3 * i;
+            for (int d = 0; d < 3; ++d)
+                op[3 * i + d] = (b[0] * P[3 * c[0] + d] + b[1] * P[3 * c[1] + d])
+                                + b[2] * P[3 * c[2] + d];
+            if (!with_normals)
+                continue;
+            double n[3];
+            for (int d = 0; d < 3; ++d)
+                n[d] = (b[0] * N[3 * c[0] + d] + b[1] * N[3 * c[1] + d]) + b[2] * N[3 * c[2] + d];
+            const double length = sqrt((n[0] * n[0] + n[1] * n[1]) + n[2] * n[2]);
+            const int ok = isfinite(length) && length > 0;
+            for (int d = 0; d < 3; ++d)
+                on[3 * i + d] = ok ? n[d] / length : 0.0;
+            ol[i] = length;
+        }
+        Py_END_ALLOW_THREADS
+    }
+    Py_INCREF(Py_None);
+    result = Py_None;
+
+done:
+    PyBuffer_Release(&bp); PyBuffer_Release(&bn); PyBuffer_Release(&bf); PyBuffer_Release(&bface);
+    PyBuffer_Release(&bb); PyBuffer_Release(&bop); PyBuffer_Release(&bon); PyBuffer_Release(&bol);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"fill_rays", fill_rays, METH_VARARGS,
      "fill_rays(origins, normals, keys, table, sampler, weighting, nx, ny, k, R, m, js, mp, "
@@ -457,6 +793,15 @@ static PyMethodDef methods[] = {
      "out_centre, out_open, out_ins, out_bary): per-pair rasteriser tests."},
     {"row_counts", row_counts, METH_VARARGS,
      "row_counts(flags, rows, m, out): nonzero flags per row of m."},
+    {"radix_argsort", radix_argsort, METH_VARARGS,
+     "radix_argsort(keys, bits, out_order, out_sorted): stable argsort of uint32 keys."},
+    {"surface_interp", surface_interp, METH_VARARGS,
+     "surface_interp(positions, normals, faces, face, bary, out_points, out_normals, out_length): "
+     "lightmap sample points and unit shading normals."},
+    {"seam_cg", seam_cg, METH_VARARGS,
+     "seam_cg(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w, diag, b, x, "
+     "tolerance, "
+     "max_iterations) -> (iterations, max |r / diag|): the seam erasure's Jacobi-preconditioned CG."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -53,6 +53,7 @@ def run(
     if int(chunk_rays) != chunk_rays or chunk_rays < 1:
         raise InputError(f"chunk_rays must be a positive integer, got {chunk_rays}")
     threads = threads or default_threads()
+    reports.prefetch_versions()  # for the report; looked up while the bake runs
     phase = getattr(progress, "phase", None) or (lambda name: None)
     timings: dict = {}
     start = clock = time.perf_counter()

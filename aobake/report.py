@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import threading
 
 import numpy as np
 
@@ -12,7 +13,23 @@ from aobake.quantities import conventions
 
 def versions() -> dict:
     """Versions of aobake and the libraries whose behaviour decides the numbers."""
+    lookup = _prefetch
+    if lookup is not None:
+        lookup.join()
     return dict(_versions())
+
+
+_prefetch: threading.Thread | None = None
+
+
+def prefetch_versions() -> None:
+    """Start looking the versions up on a thread of its own: importing importlib.metadata
+    and reading six packages' metadata takes ~0.1 s, which a bake hides behind loading,
+    unwrapping and tracing (its threads wait in C with the GIL released)."""
+    global _prefetch
+    if _prefetch is None:
+        _prefetch = threading.Thread(target=_versions, name="aobake-versions", daemon=True)
+        _prefetch.start()
 
 
 @functools.lru_cache(maxsize=1)

@@ -58,17 +58,34 @@ def hash_uniform(seed: int, stream: int, index, dim: int) -> np.ndarray:
     return to_unit(x)
 
 
-def stable_argsort(key: np.ndarray, bound: int) -> np.ndarray:
-    """(n,) int64 stable argsort of non-negative integer keys below ``bound``.
+def stable_argsort(key: np.ndarray, bound: int, kernels=None) -> np.ndarray:
+    """(n,) int64 stable argsort of non-negative integer keys below ``bound``
+    (``stable_sort``'s permutation)."""
+    return stable_sort(key, bound, kernels)[0]
 
-    Sorting (key << 32 | index) as one uint64 is a stable argsort at the cost of a
-    plain sort (~5x cheaper for millions of samples).
+
+def stable_sort(key: np.ndarray, bound: int, kernels=None) -> tuple[np.ndarray, np.ndarray]:
+    """(order (n,) int64, sorted keys (n,) int64): the stable argsort of non-negative
+    integer keys (n,) below ``bound``, and the keys in that order.
+
+    A stable sort's permutation is unique, so every way gives the same result.
+    kernels : the compiled module (``aobake._native.kernels()``) or None: a radix sort
+    (11 bits a pass: 6x faster than numpy for 2M raster keys), else numpy: sorting
+    (key << 32 | index) as one uint64 is a stable argsort at the cost of a plain sort
+    (~5x cheaper than numpy's stable argsort for millions of samples).
     """
     n = len(key)
     if n == 0:
-        return np.zeros(0, dtype=np.int64)
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     if n >= 2**32 or bound > 2**32:  # pragma: no cover - beyond any texture budget
-        return np.argsort(key, kind="stable")
+        order = np.argsort(key, kind="stable")
+        return order, np.asarray(key, dtype=np.int64)[order]
+    if kernels is not None:
+        order, ordered = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.uint32)
+        kernels.radix_argsort(np.ascontiguousarray(key, dtype=np.uint32),
+                              max(int(bound) - 1, 0).bit_length(), order, ordered)
+        return order, ordered.astype(np.int64)
     packed = (key.astype(np.uint64) << np.uint64(32)) | np.arange(n, dtype=np.uint64)
     packed.sort()
-    return (packed & np.uint64(0xFFFFFFFF)).astype(np.int64)
+    return ((packed & np.uint64(0xFFFFFFFF)).astype(np.int64),
+            (packed >> np.uint64(32)).astype(np.int64))

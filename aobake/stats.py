@@ -166,9 +166,24 @@ def t_quantile(confidence: float, dof):
     scipy is not a dependency of the package (only of its tests).
     """
     dof = np.floor(np.asarray(dof, dtype=np.float64)).clip(1.0, None)
+    if dof.ndim == 0:
+        return _t_quantile(float(confidence), float(dof))
+    top = float(dof.max()) if dof.size else 1.0
+    if top <= _TABLE_DOF:
+        # A texture's dof are small integers: index a table by them (a sort-based unique of
+        # a 1024^2 image took 0.17 s; the table lookup 0.01 s, the same values).
+        whole = dof.astype(np.int64)
+        table = np.zeros(int(top) + 1)
+        for v in np.flatnonzero(np.bincount(whole.reshape(-1), minlength=len(table))):
+            table[v] = _t_quantile(float(confidence), float(v))
+        return table[whole]
     levels, inverse = np.unique(dof, return_inverse=True)
     values = np.array([_t_quantile(float(confidence), float(v)) for v in levels])
-    return values[inverse].reshape(dof.shape) if dof.ndim else float(values[0])
+    return values[inverse].reshape(dof.shape)
+
+
+#: t_quantile looks dof up in a table up to this many degrees of freedom (larger: unique)
+_TABLE_DOF = 1 << 20
 
 
 def _betacf(a: float, b: float, x: float) -> float:

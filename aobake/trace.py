@@ -88,7 +88,9 @@ def point_offsets(local: np.ndarray, sizes: np.ndarray | None, fraction: float) 
     triangle size: Embree's float32 hit distances carry the rounding of the triangle's
     vertex coordinates, which reach that far even where the point sits at the origin.
     """
-    magnitude = np.abs(local).max(axis=1)
+    # Column by column: a max over the short last axis of (n, 3) is ~3x slower (exact either way).
+    magnitude = np.maximum(np.maximum(np.abs(local[:, 0]), np.abs(local[:, 1])),
+                           np.abs(local[:, 2]))
     if sizes is not None:
         magnitude = magnitude + sizes
     floor = OFFSET_ULPS * np.spacing(magnitude.astype(np.float32)).astype(np.float64)
@@ -105,10 +107,11 @@ def _spread_bits(q: np.ndarray) -> np.ndarray:
     return q
 
 
-def morton_order(points: np.ndarray) -> np.ndarray:
+def morton_order(points: np.ndarray, kernels=None) -> np.ndarray:
     """(n,) int64 permutation sorting ``points`` (n, 3) along a Z-order curve (ray coherence).
 
-    10 bits per axis; ties keep their input order (a stable sort of packed keys).
+    10 bits per axis; ties keep their input order (a stable sort of packed keys; kernels:
+    the compiled module for its radix sort, the same permutation).
     """
     from aobake.rng import stable_argsort
 
@@ -121,7 +124,7 @@ def morton_order(points: np.ndarray) -> np.ndarray:
         lo, hi = x.min(), x.max()
         q = ((x - lo) * (1023.0 / (hi - lo) if hi > lo else 0.0)).astype(np.uint32)
         code |= _spread_bits(q) << np.uint32(axis)
-    return stable_argsort(code, 2**30)
+    return stable_argsort(code, 2**30, kernels)
 
 
 class Tracer:
@@ -223,16 +226,20 @@ class Tracer:
         return params
 
     def traced(self, points: np.ndarray, normals: np.ndarray, ids: np.ndarray,
-               sizes: np.ndarray | None = None, j0: int = 0, count: int | None = None) -> Traced:
+               sizes: np.ndarray | None = None, j0: int = 0, count: int | None = None,
+               offsets_out: np.ndarray | None = None) -> Traced:
         """Trace samples j0 .. j0 + count - 1 (default all) of every replicate of k points.
 
         points (k, 3) float64, normals (k, 3) float64 unit, ids (k,) int64, sizes (k,) float64
-        own triangle sizes | None."""
+        own triangle sizes | None; offsets_out (k,) float64 | None written with the origin
+        offsets used (local units)."""
         # Into the backend's frame first, then offset: the offset is then exact relative to
         # the float32 grid the backend sees, however far from the origin and at any scale.
         local = (points - self.center) * self.scale
         offsets = point_offsets(local, None if sizes is None else sizes * self.scale,
                                 self.config.ray_offset)
+        if offsets_out is not None:
+            offsets_out[:] = offsets
         origins = local + offsets[:, None] * normals
         rays = self.generator.rays(origins, normals, ids, j0, count)
         k, groups, m, _ = rays.directions.shape
@@ -284,40 +291,49 @@ class Tracer:
         """
         n = len(points)
         normals = np.asarray(normals, dtype=np.float64)
-        valid = np.flatnonzero(np.linalg.norm(normals, axis=1) > 0.5)
-        order = valid[morton_order(points[valid])]
+        # |normal| column by column (np.linalg.norm's sum, left to right: the same bits,
+        # 3x faster than its reduction over the short last axis)
+        length = np.sqrt((normals[:, 0] * normals[:, 0] + normals[:, 1] * normals[:, 1])
+                         + normals[:, 2] * normals[:, 2])
+        valid = np.flatnonzero(length > 0.5)
+        every = len(valid) == n  # the usual case: no copies of the points
+        kept = points if every else points[valid]
+        order = valid[morton_order(kept, self.kernels)]
         per_chunk = max(1, int(chunk_rays) // self.samples.rays)
         n_chunks = -(-len(order) // per_chunk)
         out = self.no_information(normals)
         rays = np.zeros(n, dtype=np.int32)
         rays[valid] = self.samples.rays
 
-        if len(valid):
-            used = point_offsets((points[valid] - self.center) * self.scale,
-                                 None if sizes is None else sizes[valid] * self.scale,
-                                 self.config.ray_offset) / self.scale  # scene units
-            self.offsets = (float(used.min()), float(np.median(used)), float(used.max()))
-
         keep = self.config.keep_distances
         if keep:
             self.distances = np.full((n, self.samples.groups, self.samples.m), np.inf,
                                      dtype=np.float32)
         if self.samples.piece < self.samples.m:
+            if len(valid):
+                self._report_offsets(point_offsets(
+                    (kept - self.center) * self.scale,
+                    None if sizes is None else (sizes if every else sizes[valid]) * self.scale,
+                    self.config.ray_offset))
             self._stream(points, normals, ids, sizes, order, out, threads, progress)
             return out, rays
+        # The offsets each chunk uses, kept for the report (not computed twice).
+        offsets = np.zeros(n)
 
         def work(i):
             sel = order[i * per_chunk:(i + 1) * per_chunk]
+            used = np.empty(len(sel))
             traced = self.traced(points[sel], normals[sel], ids[sel],
-                                 None if sizes is None else sizes[sel])
-            return sel, self.estimate_traced(traced), traced.distance if keep else None
+                                 None if sizes is None else sizes[sel], offsets_out=used)
+            return sel, self.estimate_traced(traced), traced.distance if keep else None, used
 
         def land(i, result):
-            sel, values, distance = result
+            sel, values, distance, used = result
             for name, array in values.items():
                 out[name][sel] = array
             if distance is not None:
                 self.distances[sel] = distance
+            offsets[sel] = used
 
         done = [0]
 
@@ -327,7 +343,15 @@ class Tracer:
                 progress(done[0], len(order))
 
         run_chunks(n_chunks, work, land, threads or default_threads(), tick)
+        if len(valid):
+            self._report_offsets(offsets[valid])
         return out, rays
+
+    def _report_offsets(self, local: np.ndarray) -> None:
+        """The report's (min, median, max) ray offset in scene units, from the offsets
+        (k,) float64 of every traced point in local units (any order)."""
+        used = local / self.scale
+        self.offsets = (float(used.min()), float(np.median(used)), float(used.max()))
 
     def _stream(self, points, normals, ids, sizes, order, out, threads, progress) -> None:
         """Points whose rays exceed one piece: each work item traces one piece (samples j0 ..

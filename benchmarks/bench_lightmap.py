@@ -2,16 +2,28 @@
 and where the time goes (unwrap, rasterise, trace, write).
 
     python benchmarks/bench_lightmap.py [--resolution 1024] [--rays 256] [--threads 2] [--padding P]
+                                        [--phases-only]
 
-Cases: ../shared/meshes/spot.obj (baked into the UVs it ships) and
-../shared/meshes/stanford-bunny.obj (no UVs: a new atlas).  Also printed: the share of the
-image the surface covers, the charts and the spread of their texel densities (p95 / p5) from
-the report; benchmarks/bench_atlas.py compares atlases in more detail.
+First table (in-process bakes against the bare loop): ../shared/meshes/spot.obj (baked into
+the UVs it ships) and ../shared/meshes/stanford-bunny.obj (no UVs: a new atlas).  Also
+printed: the share of the image the surface covers, the charts and the spread of their texel
+densities (p95 / p5) from the report; benchmarks/bench_atlas.py compares atlases in more
+detail.
+
+Second table (``--phases-only``: this one alone): the ``aobake`` command as a user runs it
+(its own process, EXR and report written, the atlas mesh beside it when it is new) on spot,
+the bunny and the ogre, one after the other, and its phases from the report: load, unwrap
+(+ the own-UV check), rasterise, trace, seams, splat (gutters, intervals, the rest of
+splat+dilate), write, and import/other (the process's wall time outside the bake and the
+write: interpreter start, imports, the CLI), with the share of the wall time that is not
+tracing.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import subprocess
 import sys
 import tempfile
 import time
@@ -82,6 +94,49 @@ def case(path: Path, unwrap: str, args):
     }
 
 
+#: the phases of the CLI table: (column, report keys summed)
+PHASES = [("load", ("load_s",)), ("unwrap", ("unwrap_s", "uv_check_s")),
+          ("rasterize", ("rasterize_s",)), ("trace", ("trace_s",)), ("seams", ("seams_s",))]
+
+
+def cli_phases(path: Path, args) -> dict:
+    """One run of the ``aobake`` command on ``path`` (EXR + report in a temporary folder):
+    phase name -> seconds, from its report and its wall time."""
+    with tempfile.TemporaryDirectory() as tmp:
+        report = Path(tmp, "report.json")
+        command = [sys.executable, "-m", "aobake", str(path), "--out", str(Path(tmp, "ao.exr")),
+                   "--report", str(report), "--quiet", "--resolution", str(args.resolution),
+                   "--rays", str(args.rays), "--texel-samples", str(args.texel_samples),
+                   "--threads", str(args.threads), "--padding", str(args.padding)]
+        clock = time.perf_counter()
+        subprocess.run(command, check=True, cwd=Path(__file__).resolve().parents[1])
+        wall = time.perf_counter() - clock
+        data = json.loads(report.read_text())
+    t = data["timings"]
+    row = {name: sum(t.get(key, 0.0) for key in keys) for name, keys in PHASES}
+    row["splat"] = t["splat_dilate_s"] - t.get("seams_s", 0.0)
+    row["write"] = t["write_s"]
+    row["import/other"] = wall - t["total_s"] - t["write_s"]
+    row["total"] = wall
+    row["atlas"] = data["texture"]["atlas"]
+    return row
+
+
+def print_phases(args) -> None:
+    """The CLI phase table for spot (own UVs), the bunny and the ogre (new atlases)."""
+    meshes = [SHARED / name for name in ("spot.obj", "stanford-bunny.obj", "ogre.obj")]
+    rows = [(m.name, cli_phases(m, args)) for m in meshes if m.is_file()]
+    names = [name for name, _ in PHASES] + ["splat", "write", "import/other", "total"]
+    print(f"aobake CLI, resolution {args.resolution}^2, padding {args.padding}, {args.rays} rays "
+          f"per texel over {args.texel_samples} samples, {args.threads} threads (seconds)\n")
+    print("| mesh | atlas | " + " | ".join(names) + " | non-trace share |")
+    print("|" + "---|" * (len(names) + 3))
+    for mesh, r in rows:
+        share = 1.0 - r["trace"] / r["total"]
+        print(f"| {mesh} | {r['atlas']} | " + " | ".join(f"{r[n]:.2f}" for n in names)
+              + f" | {share:.0%} |")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--resolution", type=int, default=1024)
@@ -89,7 +144,12 @@ def main():
     parser.add_argument("--texel-samples", type=int, default=4)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--padding", type=int, default=DEFAULTS["padding"])
+    parser.add_argument("--phases-only", action="store_true",
+                        help="only the CLI phase table (spot, bunny, ogre)")
     args = parser.parse_args()
+    if args.phases_only:
+        print_phases(args)
+        return
     # spot's own UVs (10 faces reach slightly outside [0, 1], so "auto" would
     # re-unwrap; "never" bakes them as shipped), the bunny through xatlas.
     cases = [(SHARED / "spot.obj", "never"), (SHARED / "stanford-bunny.obj", "auto")]
@@ -111,6 +171,8 @@ def main():
               f"{r['load_s']:.2f} | {r['check_s']:.2f} | {r['unwrap_s']:.2f} | {r['raster_s']:.2f} | {r['trace_s']:.2f} | {r['post_s']:.2f} | "
               f"{r['write_s']:.2f} | {r['total_s']:.2f} | {other / r['total_s']:.0%} | "
               f"{r['stderr_p95']:.4f} |")
+    print()
+    print_phases(args)
 
 
 if __name__ == "__main__":

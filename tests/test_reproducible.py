@@ -95,14 +95,35 @@ def test_bakes_do_not_depend_on_the_compiled_kernel(kernel):
     with _native.numpy_only():
         reference = run()
     everything = {"ray_generation": "compiled", "escape_counts": "compiled",
-                  "rasterizer": "not used"}
+                  "rasterizer": "not used", "seam_solve": "not used"}
     assert compiled[0].report["parameters"]["kernels"] == everything
-    assert compiled[1].report["parameters"]["kernels"] == dict(everything, rasterizer="compiled")
+    assert compiled[1].report["parameters"]["kernels"] == dict(everything, rasterizer="compiled",
+                                                               seam_solve="compiled")
+    assert compiled[1].report["texture"]["seams"]["iterations"] > 0  # the solve ran
     assert reference[0].report["parameters"]["kernels"] == {
-        "ray_generation": "numpy", "escape_counts": "numpy", "rasterizer": "not used"}
+        "ray_generation": "numpy", "escape_counts": "numpy", "rasterizer": "not used",
+        "seam_solve": "not used"}
     assert set(reference[1].report["parameters"]["kernels"].values()) == {"numpy"}
     for name, array in compiled[0].fields().items():
         np.testing.assert_array_equal(array, getattr(reference[0], name), err_msg=name)
     assert compiled[1].channels.keys() == reference[1].channels.keys()
     for name, image in compiled[1].channels.items():
         np.testing.assert_array_equal(image, reference[1].channels[name], err_msg=name)
+
+
+def test_radix_sort_gives_the_stable_argsort(kernel):
+    """The compiled radix sort is the stable argsort (ties in input order) at every bound,
+    as numpy's, and returns the keys in that order."""
+    from aobake.rng import stable_sort
+
+    rng = np.random.default_rng(5)
+    for n, bound in [(0, 8), (1, 1), (5, 2), (3000, 2**11), (3000, 2**11 + 1), (20000, 2**22),
+                     (20000, 2**30), (5000, 2**32)]:
+        key = rng.integers(0, bound, n, dtype=np.int64)
+        key[: n // 3] = key[0] if n else 0  # many ties
+        order, ordered = stable_sort(key, bound, kernel)
+        reference, reference_keys = stable_sort(key, bound, None)
+        np.testing.assert_array_equal(order, np.argsort(key, kind="stable"))
+        np.testing.assert_array_equal(order, reference)
+        np.testing.assert_array_equal(ordered, reference_keys)
+        assert ordered.dtype == reference_keys.dtype == np.int64

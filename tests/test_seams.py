@@ -323,3 +323,26 @@ def test_config_field():
     assert BakeConfig.from_dict(config.to_dict()) == config
     with pytest.raises(InputError, match="seams"):
         BakeConfig(seams="blend")
+
+
+@pytest.mark.parametrize("case", ["torus-own-uvs", "sphere-xatlas"])
+def test_compiled_solve_gives_the_numpy_bits(torus, case, kernel):
+    """The seam solve's kernel (group matrices and conjugate gradients) repeats the numpy
+    formulation operation for operation: the same iterations and the same bits, for
+    several channels at once and with gutter unknowns."""
+    if case == "torus-own-uvs":
+        result = bake_texels(torus, seams="off", seed=0, **OPTIONS)
+    else:
+        result = bake_texels(sphere_under_plate(1), seams="off", resolution=48, rays=32,
+                             texel_samples=2, padding=2, unwrap="always")
+    mesh = seam_mesh(result)
+    h, w = result.covered.shape
+    system = seam_system(seam_points(mesh, w, h), result.covered, mesh.wrap)
+    rows, cols = np.divmod(system.texels, w)
+    b = np.stack([result.channels[name][rows, cols] for name in ("ao", "ao_ci_low")], axis=1)
+    se = result.channels["ao_stderr"][rows, cols].astype(np.float64)
+    assert system.gutter.any() == (case == "sphere-xatlas")
+    fast, fast_info = solve(b, se, system, compiled=True)
+    slow, slow_info = solve(b, se, system, compiled=False)
+    assert fast_info["iterations"] > 5 and fast_info == slow_info
+    np.testing.assert_array_equal(fast, slow)

@@ -57,7 +57,8 @@ class TexelTarget:
         timings["unwrap_s"] = phases["unwrap_s"]
         clock = time.perf_counter()
         points, normals, _ = surface_points(scene.vertices, scene.vertex_normals, scene.faces,
-                                            samples)
+                                            samples, threads,
+                                            _native.kernels() if compiled else None)
         # Rasterising the UVs baked into (a rejected own-UV pass is in uv_check_s) + surface points.
         timings["rasterize_s"] = phases["raster_s"] + time.perf_counter() - clock
         # Point ids: position in the (texel, sample, face)-sorted sample list, a pure
@@ -65,9 +66,9 @@ class TexelTarget:
         ids = np.arange(len(points), dtype=np.int64)
         sizes = np.sqrt(2.0 * scene.areas()[samples.face])
         state = dict(atlas=atlas, uv=bake_uv, faces_uv=bake_faces_uv, check=check,
-                     samples=samples)
-        return SamplePoints(points, normals, ids, sizes=sizes, kernels={"rasterizer": compiled},
-                            state=state)
+                     samples=samples, compiled=compiled)
+        kernels = {"rasterizer": compiled, "seam_solve": None if config.seams == "off" else compiled}
+        return SamplePoints(points, normals, ids, sizes=sizes, kernels=kernels, state=state)
 
     def finish(self, scene, config, plan, values, rays, timings, warnings) -> Finished:
         from aobake.quantities import QUANTITIES
@@ -101,7 +102,8 @@ class TexelTarget:
         images, covered, filled = gather_channels(quantities, samples, values, rays,
                                                   config.padding, to_tangent, dof,
                                                   config.confidence, seams, timings,
-                                                  seam_info, denoise)
+                                                  seam_info, denoise,
+                                                  compiled=state["compiled"])
         timings["splat_dilate_s"] = time.perf_counter() - clock
         shared = int(np.count_nonzero(samples.shared >= 2))
         if shared:

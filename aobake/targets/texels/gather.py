@@ -71,8 +71,8 @@ def subset(samples: TexelSamples, keep: np.ndarray) -> TexelSamples:
 
 def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, padding: int,
              to_tangent=None, dof: int = 0, confidence: float = 0.95, seams=None,
-             timings: dict | None = None, seam_info: dict | None = None, denoise=None
-             ) -> tuple[dict, np.ndarray, np.ndarray]:
+             timings: dict | None = None, seam_info: dict | None = None, denoise=None,
+             compiled: bool | None = None) -> tuple[dict, np.ndarray, np.ndarray]:
     """Texel channels of a bake.
 
     quantities : the Quantity objects baked, samples : s sample points,
@@ -88,14 +88,14 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     seams : None (no seam erasure) or the ``aobake.targets.texels.seams.SeamMesh`` baked:
     before the gutters are filled, the value channels are adjusted so that bilinear lookups
     agree across its UV seams (``seams.erase_seams``; the time goes to ``timings["seams_s"]``
-    and its counts to ``seam_info``).
+    and its counts to ``seam_info``; ``compiled`` as in ``seams.solve``).  An adjusted
+    texel keeps its stderr (an upper bound on the adjusted value's: see ``seams``) and its
+    interval becomes the hull of the baked one and the one around the adjusted value.
     denoise : None, or (points (s, 3), normals (s, 3) float64 of all samples, faces_uv (f, 3)
     int, spacing float scene units per texel): adds ``<q>_denoised`` and
     ``<q>_denoised_stderr`` for each scalar quantity, filtered from the baked texels
     (``aobake.targets.texels.denoise``), then seam-erased and gutter-filled like the rest
-    (time in ``timings["denoise_s"]``).  An adjusted texel keeps its stderr (an upper bound on
-    the adjusted value's: see ``seams``) and its interval becomes the hull of the baked one
-    and the one around the adjusted value.
+    (time in ``timings["denoise_s"]``).
     """
     width, height = samples.width, samples.height
     traced = rays > 0  # samples on zero-area faces have no normal: left out of the texel means
@@ -149,7 +149,7 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
 
         clock = time.perf_counter()
         erased = erase_seams(out, erase, seams, covered, padding,
-                             directions=to_tangent is None)
+                             directions=to_tangent is None, compiled=compiled)
         if timings is not None:
             timings["seams_s"] = time.perf_counter() - clock
         if seam_info is not None and erased is not None:

@@ -35,7 +35,7 @@ from typing import NamedTuple
 import numpy as np
 
 from aobake import _native
-from aobake.rng import GOLDEN, mix, stable_argsort, to_unit
+from aobake.rng import GOLDEN, mix, stable_sort, to_unit
 
 log = logging.getLogger(__name__)
 
@@ -524,8 +524,9 @@ def rasterize(
     # triangle order and the sort is stable, so ties (stacked shells) end up
     # ordered by face: the result does not depend on chunking.
     key = texel * n_sub + sub
-    order = stable_argsort(key, width * height * n_sub)
-    key, texel, face, bary, sub = key[order], texel[order], face[order], bary[order], sub[order]
+    order, key = stable_sort(key, width * height * n_sub, kernels)
+    texel, sub = np.divmod(key, n_sub)  # exact: the sorted texels and sub-positions
+    face, bary = face[order], bary[order]
     # Coverage counts distinct sub-positions, so stacked (overlapping) shells
     # do not push a texel above 1.
     distinct = np.ones(len(key), dtype=bool)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -12,11 +13,15 @@ from aobake.vectors import check_rows, normalize
 log = logging.getLogger(__name__)
 
 
-def surface_points(positions, normals, faces, samples: TexelSamples):
+def surface_points(positions, normals, faces, samples: TexelSamples, threads: int = 1,
+                   kernels=None):
     """Interpolate positions and shading normals at the samples.
 
     positions : (n, 3) float; normals : (n, 3) float vertex normals, or None
-    for flat shading; faces : (f, 3) int, the faces the samples refer to.
+    for flat shading; faces : (f, 3) int, the faces the samples refer to; threads : blocks
+    interpolated at once (the result does not depend on it); kernels : the compiled module
+    (``aobake._native.kernels()``: interpolation and normalisation in one pass, the same
+    bits) or None (numpy).
 
     Returns (points (s, 3) float64, normals (s, 3) float64 unit, face_normals
     (s, 3) float64 unit).  The shading normal is the normalised interpolated
@@ -52,28 +57,35 @@ def surface_points(positions, normals, faces, samples: TexelSamples):
         corner_sum = unit_normals[faces].sum(axis=1)  # (f, 3)
         turned = np.einsum("ij,ij->i", corner_sum, unit) < 0  # (f,) bool, False if f = 0
     s = samples.n_samples
+    if kernels is not None:  # C-contiguous buffers for the kernel
+        positions, faces = np.ascontiguousarray(positions), np.ascontiguousarray(faces)
+        normals = None if normals is None else np.ascontiguousarray(normals)
+        empty = np.zeros((0, 3))
     points, shading, face_normals = np.empty((s, 3)), np.empty((s, 3)), np.empty((s, 3))
-    n_bad = n_turned = 0
-    # In blocks: row-wise arithmetic, so the result is the same, but the temporaries
-    # stay small (whole-array temporaries of millions of rows cost more in page
-    # faults than in arithmetic).
-    for lo in range(0, s, _SURFACE_BLOCK):
+
+    def block(lo):
+        """Fill rows lo .. lo + _SURFACE_BLOCK - 1; returns (n_bad, n_turned) of the block."""
         hi = min(s, lo + _SURFACE_BLOCK)
         face = samples.face[lo:hi]
         bary = samples.bary[lo:hi]
-        corners = faces[face]  # (b, 3)
 
-        def interpolate(values):
+        def interpolate(values):  # the numpy formulation (the kernel's, operation for operation)
+            corners = faces[face]  # (b, 3)
             return (bary[:, 0, None] * values[corners[:, 0]] + bary[:, 1, None] * values[corners[:, 1]]
                     + bary[:, 2, None] * values[corners[:, 2]])
 
         fnorm = face_normals[lo:hi] = unit[face]
-        points[lo:hi] = interpolate(positions)
+        if kernels is not None:
+            n, n_len = np.empty((hi - lo, 3)), np.empty((hi - lo, 1))
+            kernels.surface_interp(positions, empty if normals is None else normals, faces,
+                                   face, bary, points[lo:hi], n, n_len)
+        else:
+            points[lo:hi] = interpolate(positions)
         if normals is None:
             shading[lo:hi] = fnorm
-            continue
-        n = interpolate(normals)
-        n, n_len = normalize(n)
+            return 0, 0
+        if kernels is None:
+            n, n_len = normalize(interpolate(normals))
         has_face = fn_len[face, 0] > 0
         zero = n_len[:, 0] == 0
         against = turned[face]
@@ -81,9 +93,21 @@ def surface_points(positions, normals, faces, samples: TexelSamples):
         n[bad] = fnorm[bad]
         flip = against & zero  # no interpolated direction: the face's, on its normals' side
         n[flip] = -fnorm[flip]
-        n_bad += int(bad.sum() + flip.sum())
-        n_turned += int(against.sum())
         shading[lo:hi] = n
+        return int(bad.sum() + flip.sum()), int(against.sum())
+
+    # In blocks: row-wise arithmetic, so the result is the same, but the temporaries
+    # stay small (whole-array temporaries of millions of rows cost more in page
+    # faults than in arithmetic).  Blocks write disjoint rows, so threads (numpy releases
+    # the GIL in these passes) change nothing but the time.
+    starts = range(0, s, _SURFACE_BLOCK)
+    if threads > 1 and len(starts) > 1:
+        with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="aobake-surface") as pool:
+            counts = list(pool.map(block, starts))
+    else:
+        counts = [block(lo) for lo in starts]
+    n_bad = sum(c[0] for c in counts)
+    n_turned = sum(c[1] for c in counts)
     if n_bad:
         log.debug("%d samples use the face normal (vertex normal zero or flipped)", n_bad)
     if n_turned:
