@@ -214,6 +214,21 @@ def test_error_channels_present_finite_and_intervals_hold_the_values(torus):
             assert np.all(high[moved] >= a.channels[name + "_ci_high"][moved])
 
 
+def _unerased_case(torus, case, torus_resolution, atlas_resolution):
+    """A bake without erasure (the torus's own UVs, or a sphere under a plate in a new atlas)
+    and its seam system: (result, system, rows (t,), cols (t,) of the system's texels)."""
+    if case == "torus-own-uvs":
+        result = bake_texels(torus, seams="off", seed=0,
+                             **{**OPTIONS, "resolution": torus_resolution})
+    else:
+        result = bake_texels(sphere_under_plate(1), seams="off", resolution=atlas_resolution,
+                             rays=32, texel_samples=2, padding=2, unwrap="always")
+    mesh = seam_mesh(result)
+    h, w = result.covered.shape
+    system = seam_system(seam_points(mesh, w, h), result.covered, mesh.wrap)
+    return (result, system, *np.divmod(system.texels, w))
+
+
 def sphere_under_plate(subdivisions=2):
     sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
     plate = trimesh.creation.box(extents=[0.8, 0.8, 0.1])
@@ -228,15 +243,8 @@ def test_kept_stderr_bounds_the_adjusted_values_noise(torus, case):
     claim is that this never exceeds se_i^2 (the seam and tie terms involve x only, so K
     is a contraction in units of the errors): the kept stderr is an upper bound.  The
     torus's seams lie on the image border (no gutter unknowns); the atlas's have gutters."""
-    if case == "torus-own-uvs":
-        result = bake_texels(torus, seams="off", seed=0, **{**OPTIONS, "resolution": 24})
-    else:
-        result = bake_texels(sphere_under_plate(1), seams="off", resolution=32, rays=32,
-                             texel_samples=2, padding=2, unwrap="always")
-    mesh = seam_mesh(result)
-    h, w = result.covered.shape
-    system = seam_system(seam_points(mesh, w, h), result.covered, mesh.wrap)
-    rows, cols = np.divmod(system.texels, w)
+    result, system, rows, cols = _unerased_case(torus, case, torus_resolution=24,
+                                                atlas_resolution=32)
     se = result.channels["ao_stderr"][rows, cols].astype(np.float64)
     covered = ~system.gutter
     n = len(system.texels)
@@ -330,15 +338,8 @@ def test_compiled_solve_gives_the_numpy_bits(torus, case, kernel):
     """The seam solve's kernel (group matrices and conjugate gradients) repeats the numpy
     formulation operation for operation: the same iterations and the same bits, for
     several channels at once and with gutter unknowns."""
-    if case == "torus-own-uvs":
-        result = bake_texels(torus, seams="off", seed=0, **OPTIONS)
-    else:
-        result = bake_texels(sphere_under_plate(1), seams="off", resolution=48, rays=32,
-                             texel_samples=2, padding=2, unwrap="always")
-    mesh = seam_mesh(result)
-    h, w = result.covered.shape
-    system = seam_system(seam_points(mesh, w, h), result.covered, mesh.wrap)
-    rows, cols = np.divmod(system.texels, w)
+    result, system, rows, cols = _unerased_case(torus, case, torus_resolution=OPTIONS["resolution"],
+                                                atlas_resolution=48)
     b = np.stack([result.channels[name][rows, cols] for name in ("ao", "ao_ci_low")], axis=1)
     se = result.channels["ao_stderr"][rows, cols].astype(np.float64)
     assert system.gutter.any() == (case == "sphere-xatlas")
