@@ -399,12 +399,6 @@ def refit_main(bake, out, tau, max_distance, quantities, report_path, quiet):
     import aobake
     from aobake.refit import refit
 
-    if config["resolution"] is not None and config["texel_density"] is not None:
-        raise click.UsageError("give --resolution or --texel-density, not both")
-    if config["resolution"] is None:
-        config["resolution"] = DEFAULTS["resolution"]
-    if config["texel_density"] is None:
-        del config["texel_density"]
     logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING,
                         format="aobake: warning: %(message)s", stream=sys.stderr)
     _route_python_warnings(quiet)

@@ -82,6 +82,9 @@ ACCEPT_ROWS = 0.985
 #: Scale search: stop when the next scale is within SCALE_TOLERANCE of the best that fits.
 SCALE_TOLERANCE = 0.01
 MAX_PACKS = 4
+#: ... and up to WIDE_PACKS more while the largest fit and the smallest failure are still
+#: more than WIDE_BRACKET apart (the ogre at 1024^2 P8: [1.380, 1.480] after 4 packs)
+WIDE_PACKS, WIDE_BRACKET = 2, 0.03
 #: ... with at most FEW_CHARTS charts, where a pack costs milliseconds and a few large
 #: charts make the fit jump with the scale (a box's six faces at 128^2: 55.7% covered
 #: after 4 packs, 58.6% after 9, as xatlas's own pack)
@@ -672,9 +675,12 @@ def _layout(uv, faces, face_chart, R: int, P: int, chart_image: bool):
     best, tried, fails = None, [], []
     few = n_charts <= FEW_CHARTS
     max_packs, tolerance = (FEW_PACKS, FEW_TOLERANCE) if few else (MAX_PACKS, SCALE_TOLERANCE)
-    for _ in range(max_packs + 12):  # the last 12 only while nothing fits yet
+    for _ in range(max_packs + WIDE_PACKS + 12):  # the last 12 only while nothing fits yet
         if len(tried) >= max_packs and best is not None:
-            break
+            above = [f for f in fails if f > best[0]]
+            wide = bool(above) and min(above) > best[0] * (1 + WIDE_BRACKET)
+            if not wide or len(tried) >= max_packs + WIDE_PACKS:
+                break
         origin, covered, padded = _chart_masks(uv, faces, face_chart, n_charts, scale, P)
         texels = max(1, sum(int(m.sum()) for m in padded))
         place, placed, used = (None, 0, strip) if texels > strip * strip else _pack(
