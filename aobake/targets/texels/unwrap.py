@@ -212,16 +212,17 @@ def chart_cap(resolution: int, padding: int) -> float:
     Every chart costs a band of about (P + 1/2) texels along its boundary (its padded
     mask) plus (2P + 1)^2 at least, so the padding's share of a chart of A texels goes as
     (P + 1/2) / sqrt(A).  CHART_FACES keeps that share small at 1024^2 and P = 2; at a
-    lower resolution (fewer texels per triangle) or a larger padding the same share needs
-    charts of ((P + 1/2) / 2.5)^2 (1024 / R)^2 times the area.  Larger charts cost
-    charting time (xatlas grows and re-parameterises them face by face), so the cap never
-    falls below CHART_FACES; at most the parts bound a chart (``_parts``).  Measured on the
-    bunny (69k triangles; 227 charts at CHART_FACES): at 256^2 P = 8 the cap of 500 left
-    0.5% of the image covered (xatlas's own default charts 18%), charts of up to 4000+
-    triangles (63 charts) cover 22%.
+    lower resolution (fewer texels per triangle) or a larger padding the same share would
+    need charts of g = ((P + 1/2) / 2.5)^2 (1024 / R)^2 times the area.  Charting time
+    grows about linearly with the cap (the bunny: x1.7 at 1000, x2.8 at 2000), so the cap
+    grows as sqrt(g) only, never below CHART_FACES; the parts bound a chart anyway
+    (``_parts``).  Measured on the bunny (69k triangles; 227 charts at CHART_FACES): at
+    256^2 P = 8 the cap of 500 left 0.5% of the image covered (xatlas's own default charts
+    18%), charts of up to 4000+ triangles (63 charts) cover 22%; at 512^2 P = 2, 51.8%
+    (xatlas 51.9%) and 55.1% with a cap of 1000.
     """
     share = ((padding + 0.5) / (CHART_CAP_PADDING + 0.5)) ** 2
-    return CHART_FACES * max(1.0, share * (CHART_CAP_RESOLUTION / resolution) ** 2)
+    return CHART_FACES * max(1.0, math.sqrt(share * (CHART_CAP_RESOLUTION / resolution) ** 2))
 
 
 def _chart_parts(V, F, parts, sizes, max_chart_faces):
