@@ -183,11 +183,11 @@ def test_coverage_never_below_xatlas_default_at_any_padding(atlases, name, res, 
 
 def test_chart_cap_grows_with_padding_and_shrinking_resolution():
     """The chart area cap is CHART_FACES at 1024^2, P = 2 (the default bake is charted as
-    before) and never less; it follows (P + 1/2) / 2.5 (1024 / R) above."""
+    before) and never less; it follows (((P + 1/2) / 2.5)^2 (1024 / R)^2)^0.75 above."""
     cap = unwrapping.chart_cap
     assert cap(1024, 2) == unwrapping.CHART_FACES == cap(2048, 2) == cap(1024, 0)
-    assert cap(1024, 8) == pytest.approx(500 * 8.5 / 2.5)
-    assert cap(256, 2) == pytest.approx(500 * 4)
+    assert cap(1024, 8) == pytest.approx(500 * (8.5 / 2.5) ** 1.5)
+    assert cap(256, 2) == pytest.approx(500 * 16 ** 0.75)
     assert cap(512, 4) > cap(512, 2) > cap(1024, 2)
 
 

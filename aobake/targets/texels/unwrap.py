@@ -56,6 +56,9 @@ CHART_FACES = 500
 #: ... at the resolution and padding it was tuned at.  Elsewhere the cap follows the
 #: padding's share of a chart (``chart_cap``).
 CHART_CAP_RESOLUTION, CHART_CAP_PADDING = 1024, 2
+#: ... growing as this power of the area factor that would keep the padding's share
+#: (between 0.5, cheap, and 1, the same share; measured on the bunny, ``chart_cap``)
+CHART_CAP_POWER = 0.75
 #: A connected piece above this many triangles is cut into spatial parts, charted in
 #: parallel (xatlas charts one piece per thread); smaller pieces whose triangle sizes agree
 #: within GROUP_SIZE_RATIO are charted together.
@@ -215,14 +218,16 @@ def chart_cap(resolution: int, padding: int) -> float:
     lower resolution (fewer texels per triangle) or a larger padding the same share would
     need charts of g = ((P + 1/2) / 2.5)^2 (1024 / R)^2 times the area.  Charting time
     grows about linearly with the cap (the bunny: x1.7 at 1000, x2.8 at 2000), so the cap
-    grows as sqrt(g) only, never below CHART_FACES; the parts bound a chart anyway
-    (``_parts``).  Measured on the bunny (69k triangles; 227 charts at CHART_FACES): at
-    256^2 P = 8 the cap of 500 left 0.5% of the image covered (xatlas's own default charts
-    18%), charts of up to 4000+ triangles (63 charts) cover 22%; at 512^2 P = 2, 51.8%
-    (xatlas 51.9%) and 55.1% with a cap of 1000.
+    grows as g^CHART_CAP_POWER only, never below CHART_FACES; the parts bound a chart
+    anyway (``_parts``).  Measured on the bunny (69k triangles; 227 charts at CHART_FACES):
+    at 256^2 P = 8 the cap of 500 left 0.5% of the image covered (xatlas's own default
+    charts 18%), charts of up to 4000+ triangles (63 charts) cover 22%; at 512^2 P = 2,
+    51.8% (xatlas 51.9%) and 55.1% with a cap of 1000; with sqrt(g) (1700) 1024^2 P = 8
+    stayed below xatlas (44.4% vs 45.2%).
     """
     share = ((padding + 0.5) / (CHART_CAP_PADDING + 0.5)) ** 2
-    return CHART_FACES * max(1.0, math.sqrt(share * (CHART_CAP_RESOLUTION / resolution) ** 2))
+    growth = share * (CHART_CAP_RESOLUTION / resolution) ** 2
+    return CHART_FACES * max(1.0, growth ** CHART_CAP_POWER)
 
 
 def _chart_parts(V, F, parts, sizes, max_chart_faces):
