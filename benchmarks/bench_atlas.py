@@ -138,12 +138,15 @@ def main():
                               capture_output=True, text=True, check=True).stdout
         old_file = Path(tempfile.mkdtemp(prefix="aobake-bench-")) / "unwrap_old.py"
         old_file.write_text(text)
-    rows = []
+    print(f"unwrap seconds: minimum of {args.repeat} runs (in-process, without the bake's "
+          "~0.3 s child process); xatlas default: its packs only (charts cached)\n")
+    print("| mesh | resolution | atlas | padding | charts | coverage | density p5 | density p95 "
+          "| p95/p5 | unwrap s |")
+    print("|" + "---|" * 10, flush=True)
     for resolution in args.resolutions.split(","):
         for name, path in meshes.items():
             if name == "spot":
-                rows.append((name, resolution, "own UVs", "-",
-                             measure(path, resolution, 0, "own")))
+                row(name, resolution, "own UVs", "-", measure(path, resolution, 0, "own"))
             for padding in paddings:
                 kinds = [("new atlas", "new", "-")]
                 if old_file:
@@ -154,20 +157,18 @@ def main():
                     runs = [measure(path, resolution, padding, how, old)
                             for _ in range(args.repeat if how == "new" else 1)]
                     best = dict(runs[0], seconds=min((r["seconds"] or 0) for r in runs))
-                    rows.append((name, resolution, label, padding, best))
-    print(f"unwrap seconds: minimum of {args.repeat} runs (in-process, without the bake's "
-          "~0.3 s child process); xatlas default: its packs only (charts cached)\n")
-    print("| mesh | resolution | atlas | padding | charts | coverage | density p5 | density p95 "
-          "| p95/p5 | unwrap s |")
-    print("|" + "---|" * 10)
-    for name, resolution, label, padding, r in rows:
-        seconds = "-" if not r["seconds"] else f"{r['seconds']:.2f}"
-        if "error" in r:
-            print(f"| {name} | {resolution} | {label} | {padding} | {r['error']} |||||")
-            continue
-        print(f"| {name} | {resolution} | {label} | {padding} | {r['charts']} | "
-              f"{r['coverage']:.1%} | {r['p5']:.4g} | {r['p95']:.4g} | {r['p95'] / r['p5']:.3f} "
-              f"| {seconds} |", flush=True)
+                    row(name, resolution, label, padding, best)
+
+
+def row(name, resolution, label, padding, r):
+    """One table row, printed as soon as it is measured."""
+    seconds = "-" if not r["seconds"] else f"{r['seconds']:.2f}"
+    if "error" in r:
+        print(f"| {name} | {resolution} | {label} | {padding} | {r['error']} |||||", flush=True)
+        return
+    print(f"| {name} | {resolution} | {label} | {padding} | {r['charts']} | "
+          f"{r['coverage']:.1%} | {r['p5']:.4g} | {r['p95']:.4g} | {r['p95'] / r['p5']:.3f} "
+          f"| {seconds} |", flush=True)
 
 if __name__ == "__main__":
     main()
