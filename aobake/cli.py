@@ -228,8 +228,13 @@ SUBCOMMANDS = {"compare": _compare_command, "refit": _refit_command}
                    "charts and seams (docs/lightmaps.md).")
 @click.option("--threads", default=None, type=click.IntRange(min=1),
               help="Worker threads. Default: all cores.")
-@click.option("--resolution", default=str(DEFAULTS["resolution"][0]), show_default=True,
+@click.option("--resolution", default=None, show_default=str(DEFAULTS["resolution"][0]),
               type=ResolutionType(), help="Lightmap size: N (square) or WxH.")
+@click.option("--texel-density", default=None, type=click.FloatRange(min=0.0, min_open=True),
+              help="Instead of --resolution: texels per scene unit along the surface. A new "
+                   "atlas puts every chart at exactly this density in the smallest square "
+                   "image that holds them (own UVs: the smallest square reaching it on "
+                   "average).")
 @click.option("--padding", default=DEFAULTS["padding"], show_default=True,
               type=click.IntRange(min=0),
               help="Texels of dilation into the gutters (seamless bilinear/mip lookups).")
@@ -264,6 +269,12 @@ def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, report_p
          unwrap, quantities, **config):
     """Bake ambient occlusion of MESH (OBJ, PLY, STL, OFF, GLB/glTF) per vertex or into a
     UV lightmap, written to --out."""
+    if config["resolution"] is not None and config["texel_density"] is not None:
+        raise click.UsageError("give --resolution or --texel-density, not both")
+    if config["resolution"] is None:
+        config["resolution"] = DEFAULTS["resolution"]
+    if config["texel_density"] is None:
+        del config["texel_density"]
     logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING,
                         format="aobake: warning: %(message)s", stream=sys.stderr)
     _route_python_warnings(quiet)

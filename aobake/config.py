@@ -130,6 +130,10 @@ class BakeConfig:
                  or tau without tracing (per vertex / point, not with a tolerance)
     Lightmaps only (ignored per vertex):
     resolution   (width, height) texels
+    texel_density None, or texels per scene unit along the surface instead of a resolution:
+                 a new atlas puts every chart at exactly this density in the smallest square
+                 image that holds them; own UVs get the smallest square at which their mean
+                 density reaches it.  ``resolution`` must then be left at its default
     padding      texels of gutter dilation; a new atlas leaves 2 x padding empty texels between
                  charts (default 2: bilinear lookups at mip levels 0 and 1 read one chart)
     texel_samples surface positions per texel; ``rays`` is split over them
@@ -161,6 +165,7 @@ class BakeConfig:
     max_rays: int = 65536
     keep_distances: bool = False
     resolution: tuple = (1024, 1024)
+    texel_density: float | None = None
     padding: int = 2
     texel_samples: int = 4
     unwrap: str = "auto"
@@ -196,6 +201,21 @@ class BakeConfig:
             object.__setattr__(self, "tolerance", tolerance)
         object.__setattr__(self, "max_distance", parse_distance(self.max_distance))
         object.__setattr__(self, "resolution", parse_resolution(self.resolution))
+        if self.texel_density is not None:
+            try:
+                density = float(self.texel_density)
+            except (TypeError, ValueError):
+                raise InputError(f"texel density must be a positive number (texels per scene "
+                                 f"unit), got {self.texel_density!r}") from None
+            if isinstance(self.texel_density, bool) or not (math.isfinite(density)
+                                                            and density > 0):
+                raise InputError(f"texel density must be a positive number (texels per scene "
+                                 f"unit), got {self.texel_density!r}")
+            # the image size then follows from the density: a resolution too would be two
+            # answers to one question
+            if self.resolution != _DEFAULT_RESOLUTION:
+                raise InputError("give a resolution or a texel density, not both")
+            object.__setattr__(self, "texel_density", density)
         if self.tau is not None:
             try:
                 tau = float(self.tau)
@@ -262,6 +282,8 @@ class BakeConfig:
             data["tau"] = float(data["tau"])
         return cls(**data)
 
+
+_DEFAULT_RESOLUTION = BakeConfig.resolution
 
 #: field -> allowed values (the CLI's choices come from the same registries)
 CHOICES = {

@@ -1,6 +1,7 @@
 """New-atlas quality and cost: coverage, charts, texel density spread, unwrap seconds.
 
-    python benchmarks/bench_atlas.py [--resolution 1024] [--paddings 8,2] [--repeat 3]
+    python benchmarks/bench_atlas.py [--resolutions 1024,512x1024] [--paddings 8,2]
+                                     [--meshes spot,stanford-bunny,ogre] [--repeat 3]
                                      [--old REV] [--baseline]
 
 Cases: ../shared/meshes/spot.obj (the UVs it ships, and a new atlas), stanford-bunny.obj
@@ -16,8 +17,9 @@ and ogre.obj (no UVs: new atlases).  For each padding:
 ``--old REV`` adds the same rows for the unwrapper of git revision REV (its
 aobake/targets/texels/unwrap.py, loaded on its own).  ``--baseline`` adds xatlas's own
 default charting (uncapped: ~20 s for the bunny), its charts repacked by xatlas (default
-PackOptions but the padding) at the largest texels_per_unit whose one atlas fits
-(bisection to 0.3%).
+PackOptions but the padding) at the largest texels_per_unit whose one atlas fits in
+W x H (bisection to 0.3%); its charts are made once per mesh (cached in the system's
+temporary directory) and packed for every resolution and padding.
 """
 
 from __future__ import annotations
@@ -41,31 +43,38 @@ CHILD = textwrap.dedent("""
     from aobake.scene import load_scene
     from aobake.targets.texels.raster import rasterize
     from aobake.targets.texels.unwrap import chart_texel_density
-    mesh, resolution, padding, how, old = sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5], sys.argv[6]
+    mesh, resolution, padding, how, old = sys.argv[2], sys.argv[3], int(sys.argv[4]), sys.argv[5], sys.argv[6]
     scene = load_scene(mesh)
-    R = resolution
+    W, H = (int(x) for x in (resolution.split("x") * 2)[:2])
     seconds = None
     if how == "own":
         uv, faces_uv = scene.uv, scene.faces_uv
     elif how == "baseline":
-        import xatlas
-        # normalised as the unwrapper does (mean triangle area 1): xatlas's tolerances are
-        # absolute, and the raw bunny (metres) or ogre charts into many more charts
-        v = scene.vertices - 0.5 * (scene.vertices.min(axis=0) + scene.vertices.max(axis=0))
-        v = v / np.sqrt(scene.areas().sum() / len(scene.faces))
-        first = xatlas.Atlas()
-        first.add_mesh(v.astype(np.float32), scene.faces.astype(np.uint32))
+        import os, tempfile, xatlas
+        cache = os.path.join(tempfile.gettempdir(), "aobake-bench-atlas-" + os.path.basename(mesh)
+                             + "-%d.npz" % os.stat(mesh).st_size)
         clock = time.perf_counter()
-        o = xatlas.PackOptions()  # default charts; a fine first pack (4 R across)
-        o.texels_per_unit = 4 * R / float(np.sqrt(len(scene.faces)))
-        first.generate(pack_options=o)
-        _, f0, uv0 = first[0]
-        uv0 = np.ascontiguousarray(uv0 * [first.width, first.height], np.float32)
+        if os.path.exists(cache):  # xatlas's default charts of this mesh, made before
+            with np.load(cache) as d:
+                f0, uv0 = d["f"], d["uv"]
+        else:
+            # normalised as the unwrapper does (mean triangle area 1): xatlas's tolerances are
+            # absolute, and the raw bunny (metres) or ogre charts into many more charts
+            v = scene.vertices - 0.5 * (scene.vertices.min(axis=0) + scene.vertices.max(axis=0))
+            v = v / np.sqrt(scene.areas().sum() / len(scene.faces))
+            first = xatlas.Atlas()
+            first.add_mesh(v.astype(np.float32), scene.faces.astype(np.uint32))
+            o = xatlas.PackOptions()  # default charts; a fine first pack (4096 across)
+            o.texels_per_unit = 4 * 1024 / float(np.sqrt(len(scene.faces)))
+            first.generate(pack_options=o)
+            _, f0, uv0 = first[0]
+            uv0 = np.ascontiguousarray(uv0 * [first.width, first.height], np.float32)
+            np.savez(cache, f=f0, uv=uv0)
         def pack(tpu):  # xatlas repacks its charts (the UV islands)
             global atlas
             o = xatlas.PackOptions(); o.padding, o.texels_per_unit = padding, tpu
             atlas = xatlas.Atlas(); atlas.add_uv_mesh(uv0, f0); atlas.generate(pack_options=o)
-            return atlas.atlas_count == 1 and max(atlas.width, atlas.height) <= R
+            return atlas.atlas_count == 1 and atlas.width <= W and atlas.height <= H
         lo, hi = 1e-4, 1e2
         for _ in range(40):
             mid = (lo * hi) ** 0.5
@@ -75,7 +84,7 @@ CHILD = textwrap.dedent("""
         pack(lo)
         seconds = time.perf_counter() - clock
         vm, faces_uv, uv = atlas[0]
-        uv = uv.astype(np.float64) * [atlas.width / R, atlas.height / R]
+        uv = uv.astype(np.float64) * [atlas.width / W, atlas.height / H]
         uv[:, 1] = 1.0 - uv[:, 1]
         faces_uv = faces_uv.astype(np.int64)
     else:
@@ -87,37 +96,40 @@ CHILD = textwrap.dedent("""
             from aobake.targets.texels.unwrap import unwrap
         import xatlas  # noqa: F401  (its import is not the unwrap's time)
         clock = time.perf_counter()
-        un = unwrap(scene.vertices, scene.faces, R, padding, isolate=False)
+        un = unwrap(scene.vertices, scene.faces, (W, H), padding, isolate=False)
         seconds = time.perf_counter() - clock
         uv, faces_uv = un.uv, un.faces
-    s = rasterize(uv, faces_uv, R, R, 1, 0)
-    density = chart_texel_density(uv, faces_uv, scene.vertices, scene.faces, R, R)
+    s = rasterize(uv, faces_uv, W, H, 1, 0)
+    density = chart_texel_density(uv, faces_uv, scene.vertices, scene.faces, W, H)
     p5, p95 = np.percentile(density, [5, 95])
-    print(json.dumps({"coverage": np.unique(s.texel).size / R**2, "charts": len(density),
+    print(json.dumps({"coverage": np.unique(s.texel).size / (W * H), "charts": len(density),
                       "p5": p5, "p95": p95, "seconds": seconds}))
 """)
 
 
-def measure(mesh: Path, resolution: int, padding: int, how: str, old: str = "-") -> dict:
+def measure(mesh: Path, resolution: str, padding: int, how: str, old: str = "-") -> dict:
     out = subprocess.run([sys.executable, "-c", CHILD, str(ROOT), str(mesh), str(resolution),
                           str(padding), how, old], capture_output=True, text=True, timeout=3600)
-    if out.returncode != 0:
-        raise RuntimeError(f"{mesh.name} {how}: {out.stderr.strip().splitlines()[-1:]}")
+    if out.returncode != 0:  # e.g. charts that cannot fit at that padding: a row saying so
+        last = (out.stderr.strip().splitlines() or ["failed"])[-1]
+        return {"error": last.split(": ", 1)[-1][:60], "seconds": None}
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--resolution", type=int, default=1024)
+    parser.add_argument("--resolutions", default="1024",
+                        help="comma-separated N or WxH (e.g. 256,512,1024,512x1024)")
     parser.add_argument("--paddings", default="8,2", help="comma-separated (8 was the default, 2 is)")
+    parser.add_argument("--meshes", default="spot,stanford-bunny,ogre")
     parser.add_argument("--repeat", type=int, default=3, help="unwrap runs; the minimum is shown")
     parser.add_argument("--old", metavar="REV", help="also the unwrapper of this git revision")
     parser.add_argument("--baseline", action="store_true",
                         help="also xatlas's default charting packed by xatlas (slow)")
     args = parser.parse_args()
-    meshes = {name: SHARED / f"{name}.obj" for name in ("spot", "stanford-bunny", "ogre")}
+    meshes = {name: SHARED / f"{name}.obj" for name in args.meshes.split(",")}
     if not all(m.is_file() for m in meshes.values()):
-        sys.exit("benchmarks need ../shared/meshes (spot.obj, stanford-bunny.obj, ogre.obj)")
+        sys.exit(f"benchmarks need ../shared/meshes ({', '.join(p.name for p in meshes.values())})")
     paddings = [int(p) for p in args.paddings.split(",")]
     old_file = None
     if args.old:
@@ -126,31 +138,37 @@ def main():
                               capture_output=True, text=True, check=True).stdout
         old_file = Path(tempfile.mkdtemp(prefix="aobake-bench-")) / "unwrap_old.py"
         old_file.write_text(text)
-    rows = []
-    for name, path in meshes.items():
-        if name == "spot":
-            rows.append((name, "own UVs", "-", measure(path, args.resolution, 0, "own")))
-        for padding in paddings:
-            kinds = [("new atlas", "new", "-")]
-            if old_file:
-                kinds.append((f"atlas of {args.old}", "new", str(old_file)))
-            if args.baseline:
-                kinds.append(("xatlas default", "baseline", "-"))
-            for label, how, old in kinds:
-                runs = [measure(path, args.resolution, padding, how, old)
-                        for _ in range(args.repeat if how == "new" else 1)]
-                best = dict(runs[0], seconds=min(r["seconds"] for r in runs))
-                rows.append((name, label, padding, best))
-    print(f"{args.resolution}^2; unwrap seconds: minimum of {args.repeat} runs "
-          "(in-process, without the bake's ~0.3 s child process)\n")
-    print("| mesh | atlas | padding | charts | coverage | density p5 | density p95 | p95/p5 "
-          "| unwrap s |")
-    print("|" + "---|" * 9)
-    for name, label, padding, r in rows:
-        seconds = "-" if r["seconds"] is None else f"{r['seconds']:.2f}"
-        print(f"| {name} | {label} | {padding} | {r['charts']} | {r['coverage']:.1%} | "
-              f"{r['p5']:.4g} | {r['p95']:.4g} | {r['p95'] / r['p5']:.3f} | {seconds} |")
+    print(f"unwrap seconds: minimum of {args.repeat} runs (in-process, without the bake's "
+          "~0.3 s child process); xatlas default: its packs only (charts cached)\n")
+    print("| mesh | resolution | atlas | padding | charts | coverage | density p5 | density p95 "
+          "| p95/p5 | unwrap s |")
+    print("|" + "---|" * 10, flush=True)
+    for resolution in args.resolutions.split(","):
+        for name, path in meshes.items():
+            if name == "spot":
+                row(name, resolution, "own UVs", "-", measure(path, resolution, 0, "own"))
+            for padding in paddings:
+                kinds = [("new atlas", "new", "-")]
+                if old_file:
+                    kinds.append((f"atlas of {args.old}", "new", str(old_file)))
+                if args.baseline:
+                    kinds.append(("xatlas default", "baseline", "-"))
+                for label, how, old in kinds:
+                    runs = [measure(path, resolution, padding, how, old)
+                            for _ in range(args.repeat if how == "new" else 1)]
+                    best = dict(runs[0], seconds=min((r["seconds"] or 0) for r in runs))
+                    row(name, resolution, label, padding, best)
 
+
+def row(name, resolution, label, padding, r):
+    """One table row, printed as soon as it is measured."""
+    seconds = "-" if not r["seconds"] else f"{r['seconds']:.2f}"
+    if "error" in r:
+        print(f"| {name} | {resolution} | {label} | {padding} | {r['error']} |||||", flush=True)
+        return
+    print(f"| {name} | {resolution} | {label} | {padding} | {r['charts']} | "
+          f"{r['coverage']:.1%} | {r['p5']:.4g} | {r['p95']:.4g} | {r['p95'] / r['p5']:.3f} "
+          f"| {seconds} |", flush=True)
 
 if __name__ == "__main__":
     main()

@@ -166,6 +166,31 @@ def test_coverage_beats_xatlas_default_packing(atlases, name):
     assert ours >= _xatlas_default_coverage(mesh, res, pad)
 
 
+@pytest.mark.parametrize("name", ["icosphere", "torus", "capsule"])
+@pytest.mark.parametrize("res, pad", [(128, 1), (128, 4), (128, 8), (256, 1), (256, 4),
+                                      (256, 8)])
+def test_coverage_never_below_xatlas_default_at_any_padding(atlases, name, res, pad):
+    """At other paddings and resolutions too, the new atlas covers at least what xatlas's
+    default charts packed by xatlas cover at the same padding, with every chart at one
+    texel density (p95 / p5 within the +-10% asked for)."""
+    mesh, un = atlases(name, res, pad)
+    ids, _ = _chart_ids(un, res)
+    assert (ids >= 0).mean() >= _xatlas_default_coverage(mesh, res, pad)
+    density = chart_texel_density(un.uv, un.faces, mesh.vertices[un.vmapping], un.faces, res, res)
+    p5, p95 = np.percentile(density, [5, 95])
+    assert p95 / p5 <= 1.1
+
+
+def test_chart_cap_grows_with_padding_and_shrinking_resolution():
+    """The chart area cap is CHART_FACES at 1024^2, P = 2 (the default bake is charted as
+    before) and never less; it follows (((P + 1/2) / 2.5)^2 (1024 / R)^2)^0.75 above."""
+    cap = unwrapping.chart_cap
+    assert cap(1024, 2) == unwrapping.CHART_FACES == cap(2048, 2) == cap(1024, 0)
+    assert cap(1024, 8) == pytest.approx(500 * (8.5 / 2.5) ** 1.5)
+    assert cap(256, 2) == pytest.approx(500 * 16 ** 0.75)
+    assert cap(512, 4) > cap(512, 2) > cap(1024, 2)
+
+
 def test_pack_tiles_equal_squares_exactly():
     """16 equal 8 x 8 masks tile a 32 x 32 strip without a gap: the skyline drop fills rows."""
     masks = [np.ones((8, 8), bool) for _ in range(16)]

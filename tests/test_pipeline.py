@@ -68,9 +68,11 @@ def test_config_round_trips_through_a_report_with_every_field_changed():
                          unwrap="always", bent_space="tangent", seams="off", denoise=True)
     # keep_distances cannot go with a tolerance: the second config changes it
     kept = replace(changed, tolerance=None, keep_distances=True)
-    assert all(getattr(changed, k) != v or getattr(kept, k) != v for k, v in DEFAULTS.items()), \
-        "change every field"
-    for config in (BakeConfig(), changed, kept, BakeConfig(max_distance=0.5)):
+    # a texel density replaces the resolution: the third config sets it
+    dense = replace(kept, resolution=DEFAULTS["resolution"], texel_density=12.5)
+    assert all(getattr(changed, k) != v or getattr(kept, k) != v or getattr(dense, k) != v
+               for k, v in DEFAULTS.items()), "change every field"
+    for config in (BakeConfig(), changed, kept, dense, BakeConfig(max_distance=0.5)):
         assert BakeConfig.from_dict(_through_json(config.to_dict())) == config
     with pytest.raises(ValueError, match="unknown configuration keys"):
         BakeConfig.from_dict({"rayz": 3})

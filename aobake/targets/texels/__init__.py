@@ -41,7 +41,8 @@ class TexelTarget:
             raise InputError("keep_distances is for per-vertex and query-point bakes (NPZ), "
                              "not lightmaps")
         width, height = config.resolution
-        check_texture_budget(width, height, config.texel_samples)
+        if config.texel_density is None:  # else checked once the size is known
+            check_texture_budget(width, height, config.texel_samples)
 
     def rays_per_point(self, config) -> int:
         return -(-config.rays // config.texel_samples)
@@ -52,7 +53,8 @@ class TexelTarget:
         compiled = _native.kernels() is not None  # decided once, recorded as decided
         atlas, bake_uv, bake_faces_uv, check, samples = make_atlas(
             scene, config.unwrap, width, height, config.padding, config.texel_samples,
-            config.seed, threads, warnings, phases, compiled, phase or (lambda name: None))
+            config.seed, threads, warnings, phases, compiled, phase or (lambda name: None),
+            texel_density=config.texel_density)
         timings["uv_check_s"] = phases["uv_check_s"]
         timings["unwrap_s"] = phases["unwrap_s"]
         clock = time.perf_counter()
@@ -66,7 +68,7 @@ class TexelTarget:
         ids = np.arange(len(points), dtype=np.int64)
         sizes = np.sqrt(2.0 * scene.areas()[samples.face])
         state = dict(atlas=atlas, uv=bake_uv, faces_uv=bake_faces_uv, check=check,
-                     samples=samples, compiled=compiled)
+                     samples=samples, compiled=compiled, size=atlas.size)
         kernels = {"rasterizer": compiled, "seam_solve": None if config.seams == "off" else compiled}
         return SamplePoints(points, normals, ids, sizes=sizes, kernels=kernels, state=state)
 
@@ -109,13 +111,15 @@ class TexelTarget:
         if shared:
             warnings.append(f"{scene.source}: {shared} texels are shared by overlapping or "
                             "mirrored UV shells; their values average the surfaces that share them")
-        width, height = config.resolution
+        width, height = state["size"]  # config.resolution, or chosen for config.texel_density
         texture = _texture_stats(images, covered, filled, shared, width, height, config.padding,
                                  config.texel_samples, state["atlas"], state["check"],
                                  config.bent_space)
         texture["seams"] = seam_info or {"mode": config.seams}
         texture["denoise"] = _denoise_stats(images, covered, quantities) if config.denoise \
             else None
+        if config.texel_density is not None:  # the size was chosen for it
+            texture["texel_density_requested"] = config.texel_density
         # Texels per scene unit along the surface, and a warning where charts shrink to a few
         # texels (the map then holds little more than one value per chart).
         area = float(scene.areas().sum())

@@ -5,6 +5,7 @@ The atlas is the mesh the map belongs to, split so each vertex has one atlas UV.
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from dataclasses import dataclass
@@ -36,7 +37,8 @@ class Atlas:
     charts : int | None number of charts of a new atlas,
     wrap : str "clamp" | "repeat": how the map is sampled; "repeat" when own UVs
     outside [0, 1] were baked wrapped (``uvcheck.wrap_uvs``; ``uv`` keeps the mesh's
-    values, the texels hold them modulo 1).
+    values, the texels hold them modulo 1),
+    size : (width, height) of the image the map is baked into.
     """
 
     positions: np.ndarray
@@ -50,6 +52,7 @@ class Atlas:
     face_material: np.ndarray | None = None
     charts: int | None = None
     wrap: str = "clamp"
+    size: tuple | None = None
 
 
 def check_texture_budget(width: int, height: int, texel_samples: int) -> int:
@@ -79,17 +82,49 @@ def split_corners(*corner_indices):
     return keys, inverse.reshape(-1, 3)
 
 
+def own_uv_side(scene, texel_density: float) -> int:
+    """The smallest square image side at which the mesh's own UVs reach ``texel_density``
+    texels per scene unit on average: ceil(D sqrt(surface area / UV area)), UV area in
+    units of the [0, 1]^2 square (at side N a UV area a holds a N^2 texels)."""
+    t = scene.uv[scene.faces_uv]
+    uv_area = 0.5 * float(np.abs((t[:, 1, 0] - t[:, 0, 0]) * (t[:, 2, 1] - t[:, 0, 1])
+                                 - (t[:, 1, 1] - t[:, 0, 1]) * (t[:, 2, 0] - t[:, 0, 0])).sum())
+    area = float(scene.areas().sum())
+    if not (uv_area > 0 and area > 0):
+        raise InputError(f"{scene.source}: the mesh's UVs cover no area: a texel density "
+                         "cannot choose their resolution")
+    return max(1, math.ceil(texel_density * math.sqrt(area / uv_area)))
+
+
+def check_density_budget(scene, texel_density: float, texel_samples: int) -> None:
+    """Refuse a texel density whose image cannot be made before charting: the surface alone
+    at that density needs a side of at least D sqrt(surface area) texels."""
+    side = max(1, math.ceil(texel_density * math.sqrt(float(scene.areas().sum()))))
+    try:
+        check_texture_budget(side, side, texel_samples)
+    except InputError as exc:
+        raise InputError(f"texel density {texel_density:g} needs an image of at least "
+                         f"{side}x{side}: {exc}") from None
+
+
 def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_samples: int,
                seed: int, threads: int, warnings: list, timings: dict, compiled: bool | None,
-               phase=lambda name: None):
+               phase=lambda name: None, texel_density: float | None = None):
     """Choose the UVs to bake into (the mesh's own when valid, wrapped into [0, 1] where
     they stray out of it, else a fresh xatlas atlas) and rasterise them.
 
     Returns (atlas, bake_uv (t, 2), bake_faces_uv (f, 3), uv_check or None, samples);
     ``samples.face`` indexes ``scene.faces`` (with wrapped own UVs, a face may have
     samples at two tile positions; ``bake_uv`` are the mesh's own UVs, unwrapped).
+    ``atlas.size`` is the image (width, height): ``width`` x ``height``, or with a
+    ``texel_density`` (texels per scene unit) the size chosen for it.
     Fills ``timings`` with uv_check_s, unwrap_s and raster_s.
     """
+    if texel_density is not None:
+        check_density_budget(scene, texel_density, texel_samples)
+        if scene.faces_uv is not None and unwrap != "always":
+            width = height = own_uv_side(scene, texel_density)
+            check_texture_budget(width, height, texel_samples)
 
     def raster(uv, faces_uv):
         phase("rasterising")
@@ -127,24 +162,28 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
         atlas = Atlas(scene.vertices[keys[:, 0]], scene.vertex_normals[keys[:, 0]], faces,
                       scene.uv[keys[:, 1]], None, keys[:, 0], new=False, materials=scene.materials,
                       face_material=scene.face_material,
-                      wrap="repeat" if layout.wrapped else "clamp")
+                      wrap="repeat" if layout.wrapped else "clamp", size=(width, height))
         return atlas, scene.uv, scene.faces_uv, check, samples
     if scene.faces_uv is not None and unwrap == "auto":
         warnings.append(f"{scene.source}: the mesh's UVs cannot be baked ({check.message}); "
                         "made a new atlas with xatlas")
     if samples is not None:  # rasterising the rejected own UVs was part of checking them
         timings["uv_check_s"] += timings.pop("raster_s")
-    if width != height:
+    if width != height and texel_density is None:
         warnings.append(f"{scene.source}: xatlas packs square layouts: the new atlas uses the "
                         f"top-left {min(width, height)}x{min(width, height)} of the "
                         f"{width}x{height} image")
     phase("unwrapping")
     clock = time.perf_counter()
     try:
-        unwrapped = xatlas_unwrap(scene.vertices, scene.faces, (width, height), padding)
+        unwrapped = xatlas_unwrap(scene.vertices, scene.faces, (width, height), padding,
+                                  texel_density=texel_density)
     except InputError as exc:  # name the mesh: the unwrapper knows only its triangles
         raise InputError(f"{scene.source}: {exc}") from None
     timings["unwrap_s"] = time.perf_counter() - clock
+    if texel_density is not None:  # the image the charts were packed for
+        width, height = unwrapped.size
+        check_texture_budget(width, height, texel_samples)
     if not np.array_equal(unwrapped.vmapping[unwrapped.faces], scene.faces):
         raise RuntimeError("xatlas changed the face order")  # the texel->face mapping relies on it
     if scene.faces_uv is not None:
@@ -158,5 +197,5 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
                   unwrapped.uv[keys[:, 0]], base_uv, source, new=True,
                   materials=scene.materials if base_uv is not None else None,
                   face_material=scene.face_material if base_uv is not None else None,
-                  charts=unwrapped.charts)
+                  charts=unwrapped.charts, size=(width, height))
     return atlas, unwrapped.uv, unwrapped.faces, check, raster(unwrapped.uv, unwrapped.faces)

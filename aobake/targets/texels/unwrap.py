@@ -38,18 +38,27 @@ class Unwrapped(NamedTuple):
     faces : (f, 3) int64    triangles over the new vertices (same order as input)
     uv : (m, 2) float64     UVs in [0, 1], OBJ convention (v = 0 at the bottom)
     charts : int            number of charts
+    size : (width, height)  the image the UVs are laid out for (the one asked for, or the
+                            one chosen for a texel density); None when not known
     """
 
     vmapping: np.ndarray
     faces: np.ndarray
     uv: np.ndarray
     charts: int = 0
+    size: tuple | None = None
 
 
 #: A chart grows to at most this many triangles' worth of area, counted in the triangles of
 #: its own part (``_parts``): xatlas re-parameterises a chart at every face it adds, so
 #: charting time grows faster than linearly with the faces per chart.
 CHART_FACES = 500
+#: ... at the resolution and padding it was tuned at.  Elsewhere the cap follows the
+#: padding's share of a chart (``chart_cap``).
+CHART_CAP_RESOLUTION, CHART_CAP_PADDING = 1024, 2
+#: ... growing as this power of the area factor that would keep the padding's share
+#: (between 0.5, cheap, and 1, the same share; measured on the bunny, ``chart_cap``)
+CHART_CAP_POWER = 0.75
 #: A connected piece above this many triangles is cut into spatial parts, charted in
 #: parallel (xatlas charts one piece per thread); smaller pieces whose triangle sizes agree
 #: within GROUP_SIZE_RATIO are charted together.
@@ -76,6 +85,13 @@ ACCEPT_ROWS = 0.985
 #: Scale search: stop when the next scale is within SCALE_TOLERANCE of the best that fits.
 SCALE_TOLERANCE = 0.01
 MAX_PACKS = 4
+#: ... and up to WIDE_PACKS more while the largest fit and the smallest failure are still
+#: more than WIDE_BRACKET apart (the ogre at 1024^2 P8: [1.380, 1.480] after 4 packs)
+WIDE_PACKS, WIDE_BRACKET = 2, 0.03
+#: ... with at most FEW_CHARTS charts, where a pack costs milliseconds and a few large
+#: charts make the fit jump with the scale (a box's six faces at 128^2: 55.7% covered
+#: after 4 packs, 58.6% after 9, as xatlas's own pack)
+FEW_TOLERANCE, FEW_PACKS = 0.002, 12
 
 
 def _split_faces(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> list[np.ndarray]:
@@ -193,16 +209,91 @@ def _parts(vertices, faces, face_area) -> list[np.ndarray]:
     return sorted(parts, key=lambda p: int(p[0]))
 
 
-def _xatlas_charts(positions, faces):
+def chart_cap(resolution: int, padding: int) -> float:
+    """The chart area cap (in triangles of the chart's own part) for an R x R layout.
+
+    Every chart costs a band of about (P + 1/2) texels along its boundary (its padded
+    mask) plus (2P + 1)^2 at least, so the padding's share of a chart of A texels goes as
+    (P + 1/2) / sqrt(A).  CHART_FACES keeps that share small at 1024^2 and P = 2; at a
+    lower resolution (fewer texels per triangle) or a larger padding the same share would
+    need charts of g = ((P + 1/2) / 2.5)^2 (1024 / R)^2 times the area.  Charting time
+    grows about linearly with the cap (the bunny: x1.7 at 1000, x2.8 at 2000), so the cap
+    grows as g^CHART_CAP_POWER only, never below CHART_FACES; the parts bound a chart
+    anyway (``_parts``).  Measured on the bunny (69k triangles; 227 charts at CHART_FACES):
+    at 256^2 P = 8 the cap of 500 left 0.5% of the image covered (xatlas's own default
+    charts 18%), charts of up to 4000+ triangles (63 charts) cover 22%; at 512^2 P = 2,
+    51.8% (xatlas 51.9%) and 55.1% with a cap of 1000; with sqrt(g) (1700) 1024^2 P = 8
+    stayed below xatlas (44.4% vs 45.2%).
+    """
+    share = ((padding + 0.5) / (CHART_CAP_PADDING + 0.5)) ** 2
+    growth = share * (CHART_CAP_RESOLUTION / resolution) ** 2
+    return CHART_FACES * max(1.0, growth ** CHART_CAP_POWER)
+
+
+def _chart_parts(V, F, parts, sizes, max_chart_faces):
+    """xatlas charts of each part (one xatlas mesh per part, charted on its threads).
+
+    V (v, 3) float64 normalised positions, F (f, 3) int64, parts: list of face index
+    arrays, sizes: each part's length unit (its triangles are charted at V / size), cap:
+    chart area cap in those units or None.  Returns per part (vmapping (m,) int64 into V,
+    faces (p, 3) int64 over the part's new vertices in the part's face order, uv (m, 2)
+    float64, any scale: charts are rescaled to their surface area afterwards).
+    """
+    import xatlas
+
+    if not parts:
+        return []
+    chart_options = xatlas.ChartOptions()
+    if max_chart_faces is not None:
+        chart_options.max_chart_area = float(max_chart_faces)
+    atlas = xatlas.Atlas()
+    part_vertices = []
+    for part, size in zip(parts, sizes):
+        used, local = np.unique(F[part], return_inverse=True)
+        part_vertices.append(used)
+        atlas.add_mesh(np.ascontiguousarray(V[used] / size, dtype=np.float32),
+                       np.ascontiguousarray(local.reshape(-1, 3), dtype=np.uint32))
+    # xatlas's own pack only hands back each chart's parameterisation; it rounds every chart
+    # up to whole texels (stretching it to fill them), so it runs at FIRST_PACK_TEXELS per
+    # unit area, where that rounding barely changes a chart's shape.
+    cheap = xatlas.PackOptions()
+    cheap.padding, cheap.bilinear = 0, False
+    cheap.texels_per_unit = math.sqrt(FIRST_PACK_TEXELS)
+    atlas.generate(chart_options=chart_options, pack_options=cheap)
+    out = []
+    for i, used in enumerate(part_vertices):
+        vm, fi, uv = atlas[i]
+        out.append((used[vm.astype(np.int64)], fi.astype(np.int64),
+                    uv.astype(np.float64) * [atlas.width, atlas.height]))
+    return out
+
+
+#: A part is charted again with a larger cap when at least this share of its area is in
+#: charts that reached CAP_FULL of the cap (``_cap_share``).
+CAP_BINDS, CAP_FULL = 0.6, 0.7
+
+
+def _cap_share(area, faces) -> float:
+    """Share of a part's area (area (p,) float64 per face, in the part's units; faces
+    (p, 3) int64 its charted faces) in charts of at least CAP_FULL CHART_FACES: how much
+    the cap, not the geometry, ended its charts."""
+    chart = connected_labels(int(faces.max()) + 1 if len(faces) else 0, faces)
+    per_chart = np.bincount(chart, area)
+    total = float(per_chart.sum())
+    return float(per_chart[per_chart >= CAP_FULL * CHART_FACES].sum()) / total if total else 0.0
+
+
+def _xatlas_charts(positions, faces, max_chart_faces: float = CHART_FACES):
     """Chart the mesh with xatlas; each chart's UVs at one texel per normalised unit.
+
+    ``max_chart_faces``: the chart area cap in triangles of the chart's part
+    (``chart_cap``); meshes of at most 20 CHART_FACES triangles are charted uncapped.
 
     Returns (vmapping (m,) int64 into the input vertices, faces (f, 3) int64 over the new
     vertices in input order, uv (m, 2) float64, face_chart (f,) int64, unit): the mesh is
     normalised by ``unit`` (the root mean triangle area), and every chart's UV area equals
     its surface area / unit^2, so a scale s puts s / unit texels on a scene unit everywhere.
     """
-    import xatlas
-
     F = np.asarray(faces, dtype=np.int64)
     # xatlas works in float32 with absolute tolerances: recentre on the used vertices'
     # bounding box and scale so the mean triangle area is 1, so the atlas depends on
@@ -228,37 +319,35 @@ def _xatlas_charts(positions, faces):
     # grew 10,000-triangle ones, slow to chart.)  Weighting the mean by area lets the
     # coarse regions of a part whose tessellation varies grow larger charts.
     parts = _parts(V, F, face_area)
-    chart_options = xatlas.ChartOptions()
-    if len(F) > 20 * CHART_FACES:  # small meshes chart fast uncapped
-        chart_options.max_chart_area = float(CHART_FACES)
-    first = xatlas.Atlas()
-    part_vertices = []
+    sizes = []
     for part in parts:
         a = face_area[part]
-        size = math.sqrt(float((a * a).sum() / a.sum())) if a.sum() > 0 else 1.0
-        used, local = np.unique(F[part], return_inverse=True)
-        part_vertices.append(used)
-        first.add_mesh(np.ascontiguousarray(V[used] / size, dtype=np.float32),
-                       np.ascontiguousarray(local.reshape(-1, 3), dtype=np.uint32))
-    # xatlas's own pack only hands back each chart's parameterisation; it rounds every chart
-    # up to whole texels (stretching it to fill them), so it runs at FIRST_PACK_TEXELS per
-    # unit area, where that rounding barely changes a chart's shape.
-    cheap = xatlas.PackOptions()
-    cheap.padding, cheap.bilinear = 0, False
-    cheap.texels_per_unit = math.sqrt(FIRST_PACK_TEXELS)
-    first.generate(chart_options=chart_options, pack_options=cheap)
-
+        sizes.append(math.sqrt(float((a * a).sum() / a.sum())) if a.sum() > 0 else 1.0)
+    capped = len(F) > 20 * CHART_FACES  # small meshes chart fast uncapped
+    charted = _chart_parts(V, F, parts, sizes, CHART_FACES if capped else None)
+    if capped and max_chart_faces > CHART_FACES:
+        # A larger cap only makes larger charts where the cap is what stopped them (the
+        # bunny: 75% of its area in charts within 70% of the cap); where geometry stops
+        # them (the ogre: 36%) xatlas splits what it cannot flatten into more slivers, and
+        # is slower for it.  So only the parts whose charts filled the cap are charted again.
+        again = [i for i, (part, got) in enumerate(zip(parts, charted))
+                 if _cap_share(face_area[part] / sizes[i] ** 2, got[1]) >= CAP_BINDS]
+        redone = _chart_parts(V, F, [parts[i] for i in again], [sizes[i] for i in again],
+                              max_chart_faces)
+        for i, got in zip(again, redone):
+            charted[i] = got
+        log.debug("charted %d of %d parts again with charts up to %.0f triangles",
+                  len(again), len(parts), max_chart_faces)
     vm_list, face_list, uv_list, offset = [], [], [], 0
-    for i, used in enumerate(part_vertices):
-        vm, fi, uv = first[i]
-        vm_list.append(used[vm.astype(np.int64)])
-        face_list.append(fi.astype(np.int64) + offset)
+    for vm, fi, uv in charted:
+        vm_list.append(vm)
+        face_list.append(fi + offset)
         uv_list.append(uv)
         offset += len(vm)
     vmapping = np.concatenate(vm_list)
     new_faces = np.empty_like(F)
     new_faces[np.concatenate(parts)] = np.concatenate(face_list)
-    uv = np.concatenate(uv_list).astype(np.float64) * [first.width, first.height]
+    uv = np.concatenate(uv_list)
     # xatlas never shares a vertex between charts: its charts are the UV islands.
     face_chart = connected_labels(len(uv), new_faces)
     n_charts = int(face_chart.max()) + 1
@@ -479,16 +568,47 @@ class _Packer:
             self.row_best[y0:y1] = self.square[y0:y1].max(axis=1)
 
 
+#: Packing orders (``_pack``) and whether charts stand upright: longest short side first,
+#: then (tried when few charts make each pack cheap and a greedy order decides much) most
+#: texels first, longest side first, and upright (a capsule's four long cylinder charts
+#: at 256^2 P4: 51.4% covered flat, as a stair down the strip; side by side upright more)
+ORDERS = (("short_side", False), ("texels", False), ("long_side", False),
+          ("short_side", True), ("long_side", True))
+#: ... at most this many charts for the other orders
+FEW_CHARTS = 64
+
+
+def _order(padded, how: str) -> np.ndarray:
+    """(k,) int64 packing order of the masks (stable, so a function of the masks only)."""
+    key = {"short_side": [-min(m.shape) for m in padded],
+           "texels": [-int(m.sum()) for m in padded],
+           "long_side": [-max(m.shape) for m in padded]}[how]
+    return np.argsort(key, kind="stable")
+
+
 def _pack(padded, width: int, height: int):
-    """Place every padded mask in a width x height strip.
+    """Place every padded mask in a width x height strip: the first of ORDERS whose
+    layout fits (the later ones only for at most FEW_CHARTS charts) or, when they all
+    fit, the one using the fewest rows.
 
     Returns (place: per chart (row, column, quarter turns as np.rot90) or None when they do
     not fit, padded texels placed, strip rows used (``height`` when they did not fit)).
     """
+    best = None
+    for how, upright in ORDERS if len(padded) <= FEW_CHARTS else ORDERS[:1]:
+        got = _pack_in_order(padded, width, height, _order(padded, how), upright)
+        if best is None or (got[0] is not None and (best[0] is None or got[2] < best[2])) \
+                or (got[0] is None and best[0] is None and got[1] > best[1]):
+            best = got
+    return best
+
+
+def _pack_in_order(padded, width: int, height: int, order, upright: bool = False):
+    """``_pack`` in one order ((k,) int64: longest short side first: large, square-ish
+    charts make the skyline, slivers and small charts fill in).  ``upright``: only the
+    turns that stand each chart on its short side (a greedy drop lays long charts flat,
+    where they may stair-step down a strip too narrow for two side by side)."""
     packer = _Packer(width, height)
-    # longest short side first: large, square-ish charts make the skyline, slivers and small
-    # charts fill in
-    order = np.argsort([-min(m.shape) for m in padded], kind="stable")
     place = [(0, 0, 0)] * len(padded)
     placed = searches = 0
     for c in order:
@@ -497,12 +617,15 @@ def _pack(padded, width: int, height: int):
         best = None
         turns = [np.rot90(padded[c], k) for k in range(4)]
         shapes = [_profiles(m) for m in turns]
-        for k, (top, bottom, marked) in enumerate(shapes):
+        allowed = [k for k in range(4) if not upright or turns[k].shape[0] >= turns[k].shape[1]]
+        boxes = [k for k in (0, 1) if k in allowed or k + 2 in allowed]  # same box as k + 2
+        for k in allowed:
+            top, bottom, marked = shapes[k]
             found = packer.skyline(top, bottom, marked, turns[k].shape[1])
             if found is not None and found[1] + turns[k].shape[0] <= height and (
                     best is None or found[0] < best[0]):
                 best = (*found, k)
-        for k in (0, 1):
+        for k in boxes:
             h, w = turns[k].shape
             found = packer.hole(h, w, shapes[k][1][shapes[k][2]].mean(),
                                 best[0] if best else math.inf)
@@ -510,7 +633,7 @@ def _pack(padded, width: int, height: int):
                 best = (*found, k)
         if best is None:  # no room on the skyline or in the holes tried
             searches += 1
-            for k in (0, 1) if searches <= MAX_SEARCHES else ():
+            for k in boxes if searches <= MAX_SEARCHES else ():
                 found = packer.anywhere(*turns[k].shape)
                 if found is not None:
                     score = found[0] + shapes[k][1][shapes[k][2]].mean()
@@ -556,9 +679,14 @@ def _layout(uv, faces, face_chart, R: int, P: int, chart_image: bool):
                          "texels of padding: raise --resolution or lower --padding")
     scale = solve(FIRST_EFFICIENCY * strip * strip)
     best, tried, fails = None, [], []
-    for _ in range(MAX_PACKS + 12):  # the last 12 only while nothing fits yet
-        if len(tried) >= MAX_PACKS and best is not None:
-            break
+    few = n_charts <= FEW_CHARTS
+    max_packs, tolerance = (FEW_PACKS, FEW_TOLERANCE) if few else (MAX_PACKS, SCALE_TOLERANCE)
+    for _ in range(max_packs + WIDE_PACKS + 12):  # the last 12 only while nothing fits yet
+        if len(tried) >= max_packs and best is not None:
+            above = [f for f in fails if f > best[0]]
+            wide = bool(above) and min(above) > best[0] * (1 + WIDE_BRACKET)
+            if not wide or len(tried) >= max_packs + WIDE_PACKS:
+                break
         origin, covered, padded = _chart_masks(uv, faces, face_chart, n_charts, scale, P)
         texels = max(1, sum(int(m.sum()) for m in padded))
         place, placed, used = (None, 0, strip) if texels > strip * strip else _pack(
@@ -577,7 +705,7 @@ def _layout(uv, faces, face_chart, R: int, P: int, chart_image: bool):
             efficiency = max(placed / (strip * strip), 0.72 * texels / (strip * strip))
         # the scale whose padded texels fill the strip at the efficiency just seen (the
         # model corrected by the texels just counted)
-        target = efficiency * strip * strip * (1 - SCALE_TOLERANCE)
+        target = efficiency * strip * strip * (1 - tolerance)
         new = solve(target * model(scale) / texels)
         if place is None:
             new = min(new, 0.97 * scale)
@@ -585,15 +713,28 @@ def _layout(uv, faces, face_chart, R: int, P: int, chart_image: bool):
             above = [f for f in fails if f > best[0]]
             if above:  # bracketed by a fit and a failure: bisect
                 top = min(above)
-                if top <= best[0] * (1 + SCALE_TOLERANCE):
+                if top <= best[0] * (1 + tolerance):
                     break
                 new = math.sqrt(best[0] * top)
-            elif new <= best[0] * (1 + SCALE_TOLERANCE):
+            elif new <= best[0] * (1 + tolerance):
                 break  # no room to grow
         scale = new
     if best is None:
         raise InputError(f"could not pack the {n_charts} charts into one {R}x{R} atlas with {P} "
                          "texels of padding: raise --resolution or lower --padding")
+    log.debug("packing: %d tries %s, %d charts, %d of %d rows", len(tried), tried, n_charts,
+              best[5], strip)
+    return _placed(uv, faces, face_chart, best, R, P, chart_image, len(tried))
+
+
+def _placed(uv, faces, face_chart, best, R: int, P: int, chart_image: bool, packs: int):
+    """The packed layout ``best`` = (scale, origin, covered, padded, place, used) as UVs.
+
+    Returns (uv (m, 2) float64 in texels of the R x R square, xatlas orientation (y down),
+    scale, chart image (R, R, 3) uint8 or None, info).
+    """
+    n_charts = len(best[2])
+    strip = R + 2 * P
     scale, origin, covered, padded, place, used = best
     # each chart: its frame (origin, scale), quarter turns as np.rot90, then its place
     vertex_chart = _vertex_charts(len(uv), faces, face_chart)
@@ -623,13 +764,45 @@ def _layout(uv, faces, face_chart, R: int, P: int, chart_image: bool):
     info = {"charts": n_charts,
             "coverage": sum(int(m.sum()) for m in covered) / (R * R),
             "utilization": sum(int(m.sum()) for m in padded) / (strip * strip),
-            "packs": len(tried)}
-    log.debug("packing: %d tries %s, %d charts, %d of %d rows", len(tried), tried, n_charts,
-              used, strip)
+            "packs": packs}
     return out, scale, image, info
 
 
-def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False):
+def _layout_at_density(uv, faces, face_chart, scale: float, P: int, chart_image: bool):
+    """The smallest square R x R holding every chart at ``scale`` (texels per normalised
+    unit, so the texel density is exactly the one asked for).
+
+    The charts' padded texels T bound R from below (R + 2P >= sqrt(T)); strips of that
+    width are packed with room below, and the width grown to the geometric mean of the
+    width and the rows used until the rows fit in the width (each pack at least 1% wider,
+    at most 12 packs).  Returns (uv, scale, image, info, R) as ``_layout``, plus R.
+    """
+    from aobake.targets.texels.atlas import MAX_RESOLUTION
+
+    n_charts = int(face_chart.max()) + 1
+    origin, covered, padded = _chart_masks(uv, faces, face_chart, n_charts, scale, P)
+    texels = sum(int(m.sum()) for m in padded)
+    side = max(2 * P + 1, int(math.ceil(math.sqrt(texels / ACCEPT_ROWS))))  # strip width
+    largest = max((max(m.shape) for m in padded if m.any()), default=1)
+    side = max(side, largest)
+    for packs in range(1, 13):
+        if side > MAX_RESOLUTION + 2 * P:
+            break
+        place, _, used = _pack(padded, side, 2 * side + largest)
+        if place is not None and used <= side:
+            R = side - 2 * P
+            best = (scale, origin, covered, padded, place, used)
+            log.debug("packing at a fixed density: %d packs, %dx%d", packs, R, R)
+            return (*_placed(uv, faces, face_chart, best, R, P, chart_image, packs), R)
+        side = max(int(math.ceil(1.01 * side)),
+                   int(math.ceil(math.sqrt(side * used))) if place is not None else 0)
+    raise InputError(f"the charts at this texel density need an image larger than "
+                     f"{MAX_RESOLUTION}x{MAX_RESOLUTION} (about {side - 2 * P} per side): "
+                     "lower --texel-density")
+
+
+def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False,
+                  texel_density=None):
     """Chart with xatlas, pack with ``_pack``: (vmapping, faces, uv_xatlas, image or None, info).
 
     ``uv_xatlas`` is in xatlas's orientation: ``v * height`` is the row counted from the
@@ -644,7 +817,8 @@ def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False):
 
     1. Charting: xatlas on parts normalised on their own triangles (``_parts``, chart area
        capped at CHART_FACES triangles' worth: the bunny's 69k triangles chart in ~1.5 s on
-       2 cores instead of ~20 s uncapped).
+       2 cores instead of ~20 s uncapped; larger at a low resolution or a large padding,
+       ``chart_cap``).
     2. Each chart scaled to its surface area, so one scale gives one texel density.
     3. Packing (here, not xatlas's: its random placement left 37% of the bunny's image
        empty, like random sequential packing jams): every chart's texels are marked at a
@@ -654,12 +828,33 @@ def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False):
        for the largest one whose layout fits in R x R, R = min(width, height) (2-4 packs);
        the layout sits in the top-left corner of the image.
 
-    ``resolution`` : N or (width, height).
+    ``resolution`` : N or (width, height); ``texel_density`` (texels per scene unit) or
+    None: the charts at exactly that density in the smallest square that holds them
+    (``_layout_at_density``; ``resolution`` is then ignored and ``info["width"]``,
+    ``info["height"]`` say the size chosen).
     """
-    W, H = (int(resolution), int(resolution)) if np.ndim(resolution) == 0 else map(int, resolution)
-    R, P = min(W, H), int(padding)
-    vmapping, new_faces, uv_a, face_chart, unit = _xatlas_charts(positions, faces)
-    uv, scale, image, info = _layout(uv_a, new_faces, face_chart, R, P, chart_image)
+    P = int(padding)
+    if texel_density is None:
+        W, H = (int(resolution), int(resolution)) if np.ndim(resolution) == 0 \
+            else map(int, resolution)
+        R = min(W, H)
+        cap = chart_cap(R, P)
+    else:
+        # the charts' size follows the texels per triangle: the image side at about the
+        # first pack's efficiency (the surface area in texels over FIRST_EFFICIENCY)
+        p = np.asarray(positions, np.float64)[np.asarray(faces)]
+        area = 0.5 * float(np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]),
+                                          axis=1).sum())
+        cap = chart_cap(max(1, int(texel_density * math.sqrt(area / FIRST_EFFICIENCY))), P)
+    vmapping, new_faces, uv_a, face_chart, unit = _xatlas_charts(positions, faces, cap)
+    if texel_density is None:
+        uv, scale, image, info = _layout(uv_a, new_faces, face_chart, R, P, chart_image)
+    else:
+        uv, scale, image, info, R = _layout_at_density(uv_a, new_faces, face_chart,
+                                                       float(texel_density) * unit, P,
+                                                       chart_image)
+        W = H = R
+    info["width"], info["height"] = W, H
     if image is not None:
         full = np.zeros((H, W, 3), np.uint8)
         full[:R, :R] = image
@@ -670,21 +865,24 @@ def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False):
     return vmapping, new_faces, uv / [W, H], image, info
 
 
-def _unwrap_in_process(positions, faces, resolution, padding) -> tuple[Unwrapped, dict]:
-    vmapping, new_faces, uv, _, info = _xatlas_atlas(positions, faces, resolution, padding)
+def _unwrap_in_process(positions, faces, resolution, padding,
+                       texel_density=None) -> tuple[Unwrapped, dict]:
+    vmapping, new_faces, uv, _, info = _xatlas_atlas(positions, faces, resolution, padding,
+                                                     texel_density=texel_density)
     # The packed v runs down the image (row 0 first, as xatlas's); OBJ's v runs up.
     # Flipping keeps texel boundaries on texel boundaries because resolution is
     # integral, so the texel grid the charts were packed on (and its padding) is kept.
     uv[:, 1] = 1.0 - uv[:, 1]
-    return Unwrapped(vmapping, new_faces, uv), info
+    return Unwrapped(vmapping, new_faces, uv, size=(info["width"], info["height"])), info
 
 
 def _unwrap_worker(argv: list[str]) -> None:
     """Entry point of the isolated xatlas process: ``in.npz out.npz``."""
     with np.load(argv[0]) as data:
+        density = float(data["texel_density"]) if "texel_density" in data else 0.0
         result, info = _unwrap_in_process(
             data["positions"], data["faces"], tuple(int(x) for x in data["resolution"]),
-            int(data["padding"])
+            int(data["padding"]), density if density > 0 else None
         )
     np.savez(argv[1], vmapping=result.vmapping, faces=result.faces, uv=result.uv,
              **{key: info[key] for key in _INFO})
@@ -692,7 +890,7 @@ def _unwrap_worker(argv: list[str]) -> None:
 
 #: what the child reports besides the atlas (see ``_xatlas_atlas``)
 _INFO = {"charts": int, "coverage": float, "utilization": float, "texels_per_unit": float,
-         "packs": int}
+         "packs": int, "width": int, "height": int}
 
 
 #: time limit of one xatlas child process: base + per triangle (the bunny's 69k
@@ -706,7 +904,8 @@ XATLAS_TIMEOUT_PER_FACE_S = 2e-3
 _WORKER_CODE = "import sys; from aobake.targets.texels.unwrap import _unwrap_worker; _unwrap_worker(sys.argv[1:])"
 
 
-def _unwrap_isolated(positions, faces, resolution, padding) -> tuple[Unwrapped, dict]:
+def _unwrap_isolated(positions, faces, resolution, padding,
+                     texel_density=None) -> tuple[Unwrapped, dict]:
     # xatlas segfaults on some inputs (for example finely subdivided
     # icospheres, jpcy/xatlas#146); in a child process that becomes an error
     # message instead of killing the caller.
@@ -715,7 +914,8 @@ def _unwrap_isolated(positions, faces, resolution, padding) -> tuple[Unwrapped, 
     env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
     with tempfile.TemporaryDirectory(prefix="aobake-xatlas-") as tmp:
         src, dst = Path(tmp, "in.npz"), Path(tmp, "out.npz")
-        np.savez(src, positions=positions, faces=faces, resolution=resolution, padding=padding)
+        np.savez(src, positions=positions, faces=faces, resolution=resolution, padding=padding,
+                 texel_density=texel_density or 0.0)  # 0: none
         # xatlas's own thread pool has been seen to deadlock now and then (all
         # threads in futex waits, no CPU); a child that outlives a generous limit
         # is killed and the unwrap tried once more before giving up.
@@ -748,10 +948,12 @@ def _unwrap_isolated(positions, faces, resolution, padding) -> tuple[Unwrapped, 
             raise InputError(f"unwrapping a mesh of {len(faces)} triangles failed: {message}")
         with np.load(dst) as data:
             info = {key: kind(data[key]) for key, kind in _INFO.items()}
-            return Unwrapped(data["vmapping"], data["faces"], data["uv"]), info
+            return Unwrapped(data["vmapping"], data["faces"], data["uv"],
+                             size=(info["width"], info["height"])), info
 
 
-def unwrap(positions, faces, resolution, padding: int, *, isolate: bool = True) -> Unwrapped:
+def unwrap(positions, faces, resolution, padding: int, *, isolate: bool = True,
+           texel_density: float | None = None) -> Unwrapped:
     """Make a fresh, non-overlapping UV atlas with xatlas.
 
     positions : (n, 3) float; faces : (f, 3) int.
@@ -763,9 +965,12 @@ def unwrap(positions, faces, resolution, padding: int, *, isolate: bool = True) 
         rings (``aobake.post.dilate``) never mixes two charts.
     isolate : run xatlas in a child Python process so that an xatlas crash
         raises InputError instead of killing this process (costs ~0.3 s).
+    texel_density : None, or texels per scene unit along the surface: every chart at
+        exactly this density in the smallest square image that holds them (``resolution``
+        is then ignored; ``Unwrapped.size`` is the size chosen).
 
     Returns ``Unwrapped(vmapping (m,) int64, faces (f, 3) int64, uv (m, 2)
-    float64)``: new vertex ``i`` sits at ``positions[vmapping[i]]``; uv is in
+    float64, charts, size (width, height))``: new vertex ``i`` sits at ``positions[vmapping[i]]``; uv is in
     [0, 1] in the OBJ convention (v = 0 at the bottom), charts aligned to the
     ``resolution`` texel grid, every chart at the same texel density (its UV area
     over its surface area is the same in all charts).
@@ -786,9 +991,13 @@ def unwrap(positions, faces, resolution, padding: int, *, isolate: bool = True) 
     width, height = (int(x) for x in size)
     if int(padding) != padding or padding < 0:
         raise ValueError(f"padding must be a non-negative integer, got {padding}")
+    if texel_density is not None and not (math.isfinite(texel_density) and texel_density > 0):
+        raise ValueError(f"texel density must be a positive number, got {texel_density}")
     start = time.perf_counter()
     run = _unwrap_isolated if isolate else _unwrap_in_process
-    result, info = run(positions, faces.astype(np.int64), (width, height), int(padding))
+    result, info = run(positions, faces.astype(np.int64), (width, height), int(padding),
+                       texel_density)
+    width, height = info["width"], info["height"]
     log.info(
         "unwrapped %d triangles into %dx%d texels in %.1f s (%d packs): %d charts covering "
         "%.0f%% of the texels (%.0f%% with padding), %.4g texels per unit, %d -> %d vertices",
