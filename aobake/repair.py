@@ -39,6 +39,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from aobake import _native
+from aobake.rng import stable_sort
+
 #: --fix-normals choices: report and change nothing | repair | skip the detection
 MODES = ("warn", "fix", "off")
 
@@ -137,8 +140,10 @@ def manifold_pairs(faces: np.ndarray, n_vertices: int) -> EdgePairs:
     if n_vertices >= 3_037_000_499:  # lo * n + hi would overflow int64
         raise ValueError(f"too many vertices ({n_vertices}) for the edge keys")
     key = lo * np.int64(n_vertices) + hi
-    order = np.argsort(key, kind="stable")
-    key, owner, forward = key[order], owner[order], forward[order]
+    # The stable order (unique, so any stable sort gives it): a radix sort when the keys
+    # fit 32 bits and the kernel is built (meshes up to 65k vertices), else numpy's.
+    order, key = stable_sort(key, n_vertices * n_vertices, _native.kernels())
+    owner, forward = owner[order], forward[order]
     start, end = start[order], end[order]
     new = np.ones(len(key), dtype=bool)
     new[1:] = key[1:] != key[:-1]
@@ -208,7 +213,12 @@ def orient(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
     conflicting = int(np.count_nonzero((parity[a] ^ parity[b]) != same))
 
     proper = _proper(faces)
-    roots, label = np.unique(root[proper], return_inverse=True)  # roots ascend: first-face order
+    # np.unique(root[proper], return_inverse=True) without a sort: roots ascend, so ranks in
+    # a mask over the face indices are the labels (first-face order)
+    is_root = np.zeros(n_faces, dtype=bool)
+    is_root[root[proper]] = True
+    roots = np.flatnonzero(is_root)
+    label = (np.cumsum(is_root) - 1)[root[proper]]
     component = np.full(n_faces, -1, dtype=np.int64)
     component[proper] = label
     n_comp = len(roots)

@@ -91,7 +91,9 @@ class Scene:
     @cached_property
     def used(self) -> np.ndarray:
         """(u,) int64 sorted indices of the vertices that faces reference."""
-        return np.unique(self.faces)
+        referenced = np.zeros(len(self.vertices), dtype=bool)  # np.unique without a sort
+        referenced[self.faces.ravel()] = True
+        return np.flatnonzero(referenced)
 
     @cached_property
     def bounds(self) -> np.ndarray:
@@ -177,9 +179,12 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray, weighting: str = "an
         weights = unit[:, None, :] * angles[:, :, None]
     else:
         raise ValueError(f"unknown normal weighting {weighting!r}")
-    accum = np.zeros_like(vertices)
-    for corner in range(3):
-        np.add.at(accum, faces[:, corner], weights[:, corner])
+    # Sums in the order np.add.at over corner 0, 1, 2 would make (bincount adds its inputs
+    # in sequence), so the same bits, 5-10x faster.
+    index = np.ascontiguousarray(np.asarray(faces, dtype=np.intp).T).reshape(-1)
+    w = np.ascontiguousarray(weights.transpose(1, 0, 2)).reshape(-1, 3)
+    accum = np.stack([np.bincount(index, weights=w[:, d], minlength=len(vertices))
+                      for d in range(3)], axis=1)
     return _normalize(accum)
 
 
@@ -226,7 +231,9 @@ def make_scene(
     bad = ~np.isfinite(vertices).all(axis=1)  # unreferenced ones too: nothing unchecked
     if bad.any():
         raise InputError(f"{source}: {int(bad.sum())} vertices have NaN or infinite coordinates")
-    used = vertices[np.unique(faces)]
+    referenced = np.zeros(len(vertices), dtype=bool)  # a mask, not np.unique: no sort
+    referenced[faces.ravel()] = True
+    used = vertices[referenced]
     lo, hi = used.min(axis=0), used.max(axis=0)
     extent = float((hi - lo).max())
     largest = float(np.abs(used).max())
@@ -303,7 +310,7 @@ def make_scene(
             mode = "angle"
     if mode != "file":
         vnormals = vertex_normals(local, faces, mode)
-    elif not vnormals[np.unique(faces)].any(axis=1).all():
+    elif not vnormals[referenced].any(axis=1).all():
         # Fill the file's missing (zero) normals rather than leaving holes.
         computed = vertex_normals(local, faces, "angle")
         vnormals = np.where(vnormals.any(axis=1, keepdims=True), vnormals, computed)
