@@ -22,6 +22,7 @@ from aobake.config import (CHOICES, DEFAULTS, MAX_CONFIDENCE, MAX_RAYS, parse_di
 from aobake.errors import AobakeError
 from aobake.outputs.registry import MESH_OUTPUTS, suffixes
 from aobake.quantities import QUANTITIES
+from aobake.samplers.base import MAX_REPLICATES, MIN_REPLICATES
 from aobake.targets import CLI_TARGETS
 
 EPILOG = """\b
@@ -175,7 +176,7 @@ SUBCOMMANDS = {"compare": _compare_command, "refit": _refit_command}
                    "--replicates Owen-scrambled Sobol nets. Every point randomised on its own; "
                    "all unbiased.")
 @click.option("--replicates", default=DEFAULTS["replicates"], show_default=True,
-              type=click.IntRange(min=2, max=1024),
+              type=click.IntRange(min=MIN_REPLICATES, max=MAX_REPLICATES),
               help="stratified/sobol: independent replicates per point, whose spread is the "
                    "stderr (R - 1 degrees of freedom). Fewer: a more accurate value for the "
                    "rays, a less steady stderr and wider intervals (docs/accuracy.md).")

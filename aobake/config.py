@@ -17,7 +17,7 @@ from aobake.backends import BACKENDS
 from aobake.quantities import QUANTITIES, canonical
 from aobake.repair import MODES as FIX_NORMALS
 from aobake.samplers import SAMPLERS
-from aobake.samplers.base import MIN_REPLICATES, REPLICATES
+from aobake.samplers.base import MAX_REPLICATES, MIN_REPLICATES, REPLICATES
 from aobake.warp import WEIGHTINGS
 
 NORMALS = ("file", "angle", "area")
@@ -180,9 +180,12 @@ class BakeConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer, float)) \
                     or int(value) != value or value < low:
-                what = "a positive" if low else "a non-negative"
-                raise InputError(f"{name.replace('_', ' ')} must be {what} integer, got {value}")
+                what = {0: "a non-negative integer", 1: "a positive integer"}.get(
+                    low, f"an integer >= {low}")
+                raise InputError(f"{name.replace('_', ' ')} must be {what}, got {value}")
             object.__setattr__(self, name, int(value))
+        if self.replicates > MAX_REPLICATES:
+            raise InputError(f"replicates must be at most {MAX_REPLICATES}, got {self.replicates}")
         for name in ("rays", "max_rays"):
             if getattr(self, name) > MAX_RAYS:
                 raise InputError(f"{name.replace('_', ' ')} {getattr(self, name)} per point is "
@@ -243,6 +246,9 @@ class BakeConfig:
         object.__setattr__(self, "ground_plane", bool(self.ground_plane))
         object.__setattr__(self, "keep_distances", bool(self.keep_distances))
         object.__setattr__(self, "denoise", bool(self.denoise))
+        if self.denoise and not {"ao", "obscurance"} & set(self.quantities):
+            raise InputError("denoise filters ao and obscurance; bake at least one of them "
+                             f"(got {', '.join(self.quantities)})")
         if self.keep_distances and self.tolerance is not None:
             raise InputError("keep_distances needs one ray count for every point; it cannot "
                              "be combined with a tolerance")

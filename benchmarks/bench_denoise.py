@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -126,9 +125,9 @@ def main():
         spacing = 1.0 / ref.report["texture"]["texel_density"]
         creases = crease_mask(path, ref, spacing)
         for i, rays in enumerate(args.rays):
-            clock = time.perf_counter()
             res = bake_texels(path, rays=rays, seed=0, denoise=True, **common)
-            del clock
+            # the same texels as the reference's (xatlas charting does not use the seed)
+            assert np.array_equal(res.atlas.uv, ref.atlas.uv), "the atlases differ"
             mask = res.covered & ref.covered
             out = []
             for region in (mask, mask & creases):

@@ -57,6 +57,19 @@ def test_streamed_statistics_equal_the_whole_point(sampler, monkeypatch):
     assert 0 < whole["ao"].min() and whole["ao"].max() < 1  # a partly blocked hemisphere
 
 
+@pytest.mark.parametrize("replicates", [2, 3, 6, 8])
+def test_streamed_equals_whole_for_any_replicates(sampler, replicates, monkeypatch):
+    """--replicates R not a power of two: the pieces stay powers of two (a Sobol piece is the
+    first xor a digital shift only then), so streaming changes no AO bit."""
+    whole = _fields(_bake(1536, sampler, threads=1, replicates=replicates))
+    monkeypatch.setattr(samplers_base, "PIECE_RAYS", 256)
+    samples = aobake.samplers.sample_set(sampler, 1536, replicates)
+    assert samples.piece & (samples.piece - 1) == 0 and samples.piece < samples.m
+    streamed = _fields(_bake(1536, sampler, threads=1, replicates=replicates))
+    for name in ("ao", "ao_stderr", "ao_ci_low", "ao_ci_high"):
+        np.testing.assert_array_equal(streamed[name], whole[name], err_msg=name)
+
+
 def test_streamed_bits_do_not_depend_on_threads_or_chunks(sampler, small_pieces):
     a = _fields(_bake(2048, sampler, threads=1, chunk_rays=64))
     b = _fields(_bake(2048, sampler, threads=2))

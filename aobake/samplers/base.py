@@ -32,8 +32,8 @@ from aobake.rng import GOLDEN, dim_salt, hash_key, mix, to_unit
 #: fewer a more accurate mean for the rays (one net of R m points beats R nets of m:
 #: bunny, sobol, 128 rays: RMSE 0.0143 at R = 8, 0.0125 at 4, 0.0107 at 2)
 REPLICATES = 8
-#: the fewest replicates: a stderr needs at least two
-MIN_REPLICATES = 2
+#: the fewest replicates (a stderr needs at least two) and the most
+MIN_REPLICATES, MAX_REPLICATES = 2, 1024
 
 #: rays of one point traced at once: a point with more streams them in pieces of
 #: PIECE_RAYS // R samples per replicate (a power of two), so memory is bounded whatever
@@ -83,8 +83,12 @@ class SampleSet:
     @property
     def piece(self) -> int:
         """Samples per replicate traced at once for one point: all m when the point's rays fit
-        in PIECE_RAYS, else PIECE_RAYS // R (the point streams in ceil(m / piece) pieces)."""
-        return self.m if self.rays <= PIECE_RAYS else max(1, PIECE_RAYS // self.groups)
+        in PIECE_RAYS, else the largest power of two <= PIECE_RAYS // R (the point streams
+        in ceil(m / piece) pieces; a power of two, so that a Sobol piece is the first one
+        xor a digital shift whatever R is)."""
+        if self.rays <= PIECE_RAYS:
+            return self.m
+        return 1 << (max(1, PIECE_RAYS // self.groups).bit_length() - 1)
 
     def table_for(self, j0: int, count: int) -> np.ndarray:
         """(count, 2) uint32 kernel constants of samples j0 .. j0 + count - 1 (j0 a multiple

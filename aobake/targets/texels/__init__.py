@@ -97,10 +97,8 @@ class TexelTarget:
             state["atlas"].wrap)
         denoise = None
         if config.denoise:  # guided by the surface: points, normals, charts, texel spacing
-            area = float(scene.areas().sum())
-            texels = len(np.unique(samples.texel[rays > 0]))
-            spacing = math.sqrt(area / texels) if area > 0 and texels else 1.0
-            denoise = (plan.points, plan.normals, state["faces_uv"], spacing)
+            denoise = (plan.points, plan.normals, state["uv"], state["faces_uv"],
+                       scene.areas())
         images, covered, filled = gather_channels(quantities, samples, values, rays,
                                                   config.padding, to_tangent, dof,
                                                   config.confidence, seams, timings,

@@ -11,7 +11,8 @@ The filter is a joint bilateral filter on the surface, evaluated over each texel
                                                      noisy estimate, so it cannot bias)
          * [chart_i == chart_j]                     (never across charts, so never across
                                                      a seam or to a surface packed nearby)
-         * exp(-|x_i - x_j|^2 / (2 (sigma h)^2))    (world distance, h = texel spacing)
+         * exp(-|x_i - x_j|^2 / (2 (sigma h_i)^2))  (world distance, h_i = the texel
+                                                     spacing of i's chart)
          * max(0, (n_i.n_j - c) / (1 - c))^2        (c = cos CREASE_ANGLE: 0 across a crease)
          * exp(-max(0, d2 - 1) / (2 k^2))           (d2 = (a_i - a_j)^2 / (s_i^2 + s_j^2):
                                                      the value step in units of its noise; a
@@ -73,7 +74,8 @@ class Guide:
     position : (H, W, 3) float64 mean surface position of the texel's samples,
     normal : (H, W, 3) float64 unit mean shading normal, chart : (H, W) int64 UV island
     (-1 outside the charts), rays : (H, W) float64 rays of the texel, covered : (H, W) bool,
-    spacing : float, scene units between texel centres on the surface (1 / texel density).
+    spacing : (H, W) float64 (or a float for all), scene units between texel centres on the
+    surface in the texel's chart: sqrt(chart surface area / its covered texels).
     """
 
     position: np.ndarray
@@ -103,15 +105,17 @@ def denoise(value: np.ndarray, stderr: np.ndarray, guide: Guide, sigma: float = 
     s2 = np.where(covered, np.asarray(stderr, np.float64), 0.0) ** 2
     cos_crease = math.cos(math.radians(crease_angle))
     pre, pre_s2 = _filter(a, s2, guide, 1, math.inf, cos_crease, None)
-    out, out_s2 = _filter(a, s2, guide, int(math.ceil(2.0 * sigma)), sigma * guide.spacing,
-                          cos_crease, (pre, pre_s2, k))
+    spacing = np.broadcast_to(np.asarray(guide.spacing, np.float64), covered.shape)
+    out, out_s2 = _filter(a, s2, guide, int(math.ceil(2.0 * sigma)),
+                          np.where(covered, sigma * spacing, 1.0), cos_crease, (pre, pre_s2, k))
     return np.where(covered, out, 0.0), np.where(covered, np.sqrt(out_s2), 0.0)
 
 
 def _filter(a, s2, guide, reach, sigma_world, cos_crease, rank):
     """One weighted pass: the weighted mean of a (H, W) and its variance from s2 (H, W),
     (H, W) float64 each (meaningful at covered texels).  Weights: rays, same chart,
-    the crease term, the spatial kernel of sigma_world (inf: flat), and when
+    the crease term, the spatial kernel of sigma_world ((H, W) per centre texel, or inf:
+    flat), and when
     rank = (g (H, W), g_var (H, W), k) the range kernel on the prefilter g.  Neighbours are
     read as shifted views of edge-padded images: no gathers."""
     height, width = guide.covered.shape
@@ -127,6 +131,9 @@ def _filter(a, s2, guide, reach, sigma_world, cos_crease, rank):
     nor = [padded(x, 0.0) for x in nor_c]
     chart_p = padded(chart, -2)
     rays, a_p, s2_p = padded(guide.rays, 0.0), padded(a, 0.0), padded(s2, 0.0)
+    spatial = not np.isscalar(sigma_world) or math.isfinite(sigma_world)
+    if spatial:
+        inverse = -0.5 / np.square(sigma_world)
     if rank is not None:
         g, g_var, k = rank
         g_p, gv_p = padded(g, 0.0), padded(g_var, 0.0)
@@ -141,9 +148,9 @@ def _filter(a, s2, guide, reach, sigma_world, cos_crease, rank):
             cos = nor[0][at] * nor_c[0] + nor[1][at] * nor_c[1] + nor[2][at] * nor_c[2]
             w = np.clip((cos - cos_crease) / (1.0 - cos_crease), 0.0, None)
             w *= w
-            if math.isfinite(sigma_world):
+            if spatial:
                 d2 = sum((p[at] - q) ** 2 for p, q in zip(pos, pos_c))
-                w *= np.exp(d2 * (-0.5 / sigma_world ** 2))
+                w *= np.exp(d2 * inverse)
             if rank is not None:
                 d2 = (g_p[at] - g) ** 2 / (gv_p[at] + g_var + 1e-300)
                 w *= np.exp(np.maximum(d2 - 1.0, 0.0) * (-0.5 / (k * k)))
@@ -157,12 +164,18 @@ def _filter(a, s2, guide, reach, sigma_world, cos_crease, rank):
     return mean, np.divide(noise, total * total, out=np.zeros_like(total), where=where)
 
 
-def texel_charts(samples, faces_uv) -> np.ndarray:
-    """(H, W) int64 UV island of each covered texel (the smallest among its samples' faces;
-    -1 elsewhere).  samples : ``TexelSamples``, faces_uv : (f, 3) int the bake UVs' faces."""
+def face_charts(uv, faces_uv) -> np.ndarray:
+    """(f,) int64 UV island of each face: faces joined by UV vertices at the same place
+    (welded first, so a mesh with one ``vt`` per corner still has its islands)."""
     from aobake.targets.texels.unwrap import connected_labels
 
-    face_chart = connected_labels(int(faces_uv.max()) + 1 if len(faces_uv) else 0, faces_uv)
+    _, same = np.unique(np.asarray(uv, np.float64), axis=0, return_inverse=True)
+    return connected_labels(len(uv), same.ravel()[faces_uv])
+
+
+def texel_charts(samples, face_chart) -> np.ndarray:
+    """(H, W) int64 UV island of each covered texel (the smallest among its samples' faces;
+    -1 elsewhere).  samples : ``TexelSamples``, face_chart : (f,) int64 (``face_charts``)."""
     n = samples.width * samples.height
     chart = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
     np.minimum.at(chart, samples.texel, face_chart[samples.face])
@@ -170,14 +183,24 @@ def texel_charts(samples, faces_uv) -> np.ndarray:
     return chart.reshape(samples.height, samples.width)
 
 
-def make_guide(samples, points, normals, faces_uv, covered, rays, spacing) -> Guide:
+def make_guide(samples, points, normals, uv, faces_uv, face_area, covered, rays) -> Guide:
     """The guide of a bake: samples (``TexelSamples``, traced ones), points (s, 3) and
-    normals (s, 3) float64 their positions and unit shading normals, faces_uv (f, 3) int,
-    covered (H, W) bool, rays (H, W) float64, spacing float (scene units per texel)."""
+    normals (s, 3) float64 their positions and unit shading normals, uv (t, 2) and
+    faces_uv (f, 3) the bake UVs, face_area (f,) float64 surface areas, covered (H, W)
+    bool, rays (H, W) float64."""
     from aobake.targets.texels.gather import splat
     from aobake.vectors import normalize
 
     position = splat(samples, points)
     normal = normalize(splat(samples, normals))[0]
-    return Guide(position, normal, texel_charts(samples, faces_uv), rays, covered,
-                 float(spacing))
+    face_chart = face_charts(uv, faces_uv)
+    chart = texel_charts(samples, face_chart)
+    # Each chart's own texel spacing, so that sigma is SIGMA_TEXELS of its texels even
+    # where own UVs give charts different densities.
+    k = int(face_chart.max()) + 1 if len(face_chart) else 0
+    area = np.bincount(face_chart, weights=face_area, minlength=k)
+    texels = np.bincount(chart[covered], minlength=k)
+    per_chart = np.sqrt(np.divide(area, texels, out=np.ones(k), where=texels > 0))
+    spacing = np.where(covered, per_chart[np.maximum(chart, 0)], 1.0) if k else \
+        np.ones(covered.shape)
+    return Guide(position, normal, chart, rays, covered, spacing)

@@ -91,8 +91,8 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     and its counts to ``seam_info``; ``compiled`` as in ``seams.solve``).  An adjusted
     texel keeps its stderr (an upper bound on the adjusted value's: see ``seams``) and its
     interval becomes the hull of the baked one and the one around the adjusted value.
-    denoise : None, or (points (s, 3), normals (s, 3) float64 of all samples, faces_uv (f, 3)
-    int, spacing float scene units per texel): adds ``<q>_denoised`` and
+    denoise : None, or (points (s, 3), normals (s, 3) float64 of all samples, uv (t, 2),
+    faces_uv (f, 3) the bake UVs, face areas (f,) float64): adds ``<q>_denoised`` and
     ``<q>_denoised_stderr`` for each scalar quantity, filtered from the baked texels
     (``aobake.targets.texels.denoise``), then seam-erased and gutter-filled like the rest
     (time in ``timings["denoise_s"]``).
@@ -187,9 +187,9 @@ def _denoised(out, quantities, sub, traced, covered, rays_img, denoise) -> list:
     from aobake.targets.texels.denoise import denoise as filter_texels
     from aobake.targets.texels.denoise import make_guide
 
-    points, normals, faces_uv, spacing = denoise
-    guide = make_guide(sub, points[traced], normals[traced], faces_uv, covered, rays_img,
-                       spacing)
+    points, normals, uv, faces_uv, face_area = denoise
+    guide = make_guide(sub, points[traced], normals[traced], uv, faces_uv, face_area, covered,
+                       rays_img)
     names = []
     for q in quantities:
         if q.texel == "direction":
