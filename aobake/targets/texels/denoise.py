@@ -115,9 +115,8 @@ def _filter(a, s2, guide, reach, sigma_world, cos_crease, rank):
     """One weighted pass: the weighted mean of a (H, W) and its variance from s2 (H, W),
     (H, W) float64 each (meaningful at covered texels).  Weights: rays, same chart,
     the crease term, the spatial kernel of sigma_world ((H, W) per centre texel, or inf:
-    flat), and when
-    rank = (g (H, W), g_var (H, W), k) the range kernel on the prefilter g.  Neighbours are
-    read as shifted views of edge-padded images: no gathers."""
+    flat), and when rank = (g (H, W), g_var (H, W), k) the range kernel on the prefilter g.
+    Neighbours are read as shifted views of padded images: no gathers."""
     height, width = guide.covered.shape
     chart = np.where(guide.covered, guide.chart, -1)
 
