@@ -120,6 +120,8 @@ def test_raw_channels_are_untouched_and_denoised_ones_are_beside_them(torus):
             stats["stderr_mean"] / stats["denoised_stderr_mean"])
     assert raw.report["texture"]["denoise"] is None
     assert "denoise_s" in both.report["timings"]
+    # the seams' report is the baked channels' solves, the same with or without denoising
+    assert both.report["texture"]["seams"] == raw.report["texture"]["seams"]
 
 
 def test_denoised_channels_are_seam_erased(torus):
@@ -170,7 +172,7 @@ def test_cli_writes_the_channels_to_exr(torus, tmp_path):
 def test_uv_soup_still_has_its_charts():
     # One vt per corner (no shared UV indices): charts come from UVs at the same place, so
     # a plane of 2 x 8 x 8 triangles is one chart, not 128.
-    from aobake.targets.texels.denoise import face_charts
+    from aobake.targets.texels.unwrap import uv_islands
 
     n = 8
     g = np.linspace(0, 1, n + 1)
@@ -180,7 +182,7 @@ def test_uv_soup_still_has_its_charts():
             for tri in (((i, j), (i + 1, j), (i + 1, j + 1)), ((i, j), (i + 1, j + 1), (i, j + 1))):
                 faces.append([len(uv), len(uv) + 1, len(uv) + 2])
                 uv += [(g[a], g[b]) for a, b in tri]
-    labels = face_charts(np.array(uv), np.array(faces))
+    labels = uv_islands(np.array(uv), np.array(faces))
     assert len(np.unique(labels)) == 1
 
 

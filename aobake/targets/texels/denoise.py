@@ -47,27 +47,6 @@ RANGE_K = 4.0
 
 
 @dataclass(frozen=True)
-class _Names:
-    exr: tuple
-
-
-@dataclass(frozen=True)
-class DenoisedChannel:
-    """A denoised value/stderr pair shaped like a scalar Quantity's texel fields, so that the
-    seam erasure (``aobake.targets.texels.seams.erase_seams``) treats it like one."""
-
-    value: _Names
-    error: _Names
-    texel: str = "scalar"
-    interval: tuple = ()
-
-    @classmethod
-    def of(cls, quantity) -> "DenoisedChannel":
-        name = quantity.value.exr[0]
-        return cls(_Names((name + "_denoised",)), _Names((name + "_denoised_stderr",)))
-
-
-@dataclass(frozen=True)
 class Guide:
     """What the filter is guided by, per texel.
 
@@ -163,18 +142,9 @@ def _filter(a, s2, guide, reach, sigma_world, cos_crease, rank):
     return mean, np.divide(noise, total * total, out=np.zeros_like(total), where=where)
 
 
-def face_charts(uv, faces_uv) -> np.ndarray:
-    """(f,) int64 UV island of each face: faces joined by UV vertices at the same place
-    (welded first, so a mesh with one ``vt`` per corner still has its islands)."""
-    from aobake.targets.texels.unwrap import connected_labels
-
-    _, same = np.unique(np.asarray(uv, np.float64), axis=0, return_inverse=True)
-    return connected_labels(len(uv), same.ravel()[faces_uv])
-
-
 def texel_charts(samples, face_chart) -> np.ndarray:
     """(H, W) int64 UV island of each covered texel (the smallest among its samples' faces;
-    -1 elsewhere).  samples : ``TexelSamples``, face_chart : (f,) int64 (``face_charts``)."""
+    -1 elsewhere).  samples : ``TexelSamples``, face_chart : (f,) int64 (``unwrap.uv_islands``)."""
     n = samples.width * samples.height
     chart = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
     np.minimum.at(chart, samples.texel, face_chart[samples.face])
@@ -188,11 +158,12 @@ def make_guide(samples, points, normals, uv, faces_uv, face_area, covered, rays)
     faces_uv (f, 3) the bake UVs, face_area (f,) float64 surface areas, covered (H, W)
     bool, rays (H, W) float64."""
     from aobake.targets.texels.gather import splat
+    from aobake.targets.texels.unwrap import uv_islands
     from aobake.vectors import normalize
 
     position = splat(samples, points)
     normal = normalize(splat(samples, normals))[0]
-    face_chart = face_charts(uv, faces_uv)
+    face_chart = uv_islands(uv, faces_uv)
     chart = texel_charts(samples, face_chart)
     # Each chart's own texel spacing, so that sigma is SIGMA_TEXELS of its texels even
     # where own UVs give charts different densities.

@@ -19,7 +19,6 @@ import numpy as np
 
 from aobake import stats
 from aobake.post import dilate, push_pull
-from aobake.targets.texels.denoise import DenoisedChannel
 from aobake.targets.texels.raster import TexelSamples
 from aobake.vectors import normalize
 
@@ -135,12 +134,16 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
         if q.interval:
             order += [q.interval[0].exr[0], q.interval[1].exr[0]]
             pending.append((q, out[q.value.exr[0]].copy(), mean_variance, variance))
-    erase = list(quantities)
+    from aobake.targets.texels.seams import SeamChannel
+
+    erase = [SeamChannel.of(q) for q in quantities]
     if denoise is not None:
         clock = time.perf_counter()
         names = _denoised(out, quantities, sub, traced, covered, rays_img, denoise)
         order += names
-        erase += [DenoisedChannel.of(q) for q in quantities if q.texel != "direction"]
+        # derived channels: erased like the rest, but not counted in the seams' report
+        erase += [SeamChannel((value,), error, counted=False)
+                  for value, error in zip(names[0::2], names[1::2])]
         if timings is not None:
             timings["denoise_s"] = time.perf_counter() - clock
     erased = None
@@ -183,7 +186,8 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
 
 
 def _denoised(out, quantities, sub, traced, covered, rays_img, denoise) -> list:
-    """Add the denoised channels of the scalar quantities to ``out``; their names."""
+    """Add the denoised channels of the scalar quantities to ``out``; their names, value
+    then stderr for each quantity."""
     from aobake.targets.texels.denoise import denoise as filter_texels
     from aobake.targets.texels.denoise import make_guide
 
@@ -194,10 +198,10 @@ def _denoised(out, quantities, sub, traced, covered, rays_img, denoise) -> list:
     for q in quantities:
         if q.texel == "direction":
             continue
-        channel = DenoisedChannel.of(q)
-        value, error = filter_texels(out[q.value.exr[0]], out[q.error.exr[0]], guide)
-        out[channel.value.exr[0]], out[channel.error.exr[0]] = value, error
-        names += [channel.value.exr[0], channel.error.exr[0]]
+        name = q.value.exr[0]
+        value, error = filter_texels(out[name], out[q.error.exr[0]], guide)
+        out[name + "_denoised"], out[name + "_denoised_stderr"] = value, error
+        names += [name + "_denoised", name + "_denoised_stderr"]
     return names
 
 

@@ -582,15 +582,35 @@ class Erased:
     info: dict
 
 
-def erase_seams(images: dict, quantities, mesh: SeamMesh, covered, padding: int,
+@dataclass(frozen=True)
+class SeamChannel:
+    """One value the seams are erased in: values, the image channel names (one, or three
+    components of a direction), error, the channel of its stderr (the data term's weight),
+    direction (solved per component and renormalised), counted (its solve's iterations
+    and convergence go into ``Erased.info``: the baked channels, not derived ones)."""
+
+    values: tuple
+    error: str
+    direction: bool = False
+    counted: bool = True
+
+    @classmethod
+    def of(cls, quantity) -> "SeamChannel":
+        """The texel channels of a Quantity."""
+        direction = quantity.texel == "direction"
+        values = tuple(quantity.value.exr) if direction else (quantity.value.exr[0],)
+        return cls(values, quantity.error.exr[0], direction)
+
+
+def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
                 directions: bool = True, compiled: bool | None = None) -> Erased | None:
     """Erase the seams of the value channels of ``images`` (covered texels, in place).
 
     images : channel name -> (H, W) float64 texel values and stderrs (covered texels
-    hold the bake; others are ignored), quantities : the Quantity objects (their value and
-    error channel names; ``texel == "direction"`` ones are solved per component, with the
-    angle error as weight, and renormalised, only when ``directions``: a tangent-space bent
-    normal's frame turns across a seam, so its components do not meet there),
+    hold the bake; others are ignored), channels : the ``SeamChannel`` s to erase (a
+    direction is solved per component, with the angle error as weight, and renormalised,
+    only when ``directions``: a tangent-space bent normal's frame turns across a seam, so
+    its components do not meet there),
     covered : (H, W) bool, padding : the gutter rings the map gets (0: lookups at chart
     edges read the push-pull fill, and nothing is erased), compiled : as in ``solve``.
     Adjusted AO and obscurance are clipped to [0, 1].  Returns None when there is nothing to
@@ -610,15 +630,14 @@ def erase_seams(images: dict, quantities, mesh: SeamMesh, covered, padding: int,
             "gutter_texels": int(np.count_nonzero(system.gutter)), "iterations": 0,
             "converged": True}
     rows, cols = np.divmod(system.texels[~system.gutter], width)
-    for q in quantities:
-        direction = q.texel == "direction"
+    for channel in channels:
+        direction, names = channel.direction, channel.values
         if direction and not directions:
             continue
-        names = list(q.value.exr) if direction else [q.value.exr[0]]
         b = np.zeros((len(system.texels), len(names)))
         b[~system.gutter] = np.stack([images[name][rows, cols] for name in names], axis=1)
         se = np.zeros(len(system.texels))
-        se[~system.gutter] = images[q.error.exr[0]][rows, cols]
+        se[~system.gutter] = images[channel.error][rows, cols]
         x, solved = solve(b, se, system, compiled=compiled)
         x = x[~system.gutter]
         if direction:  # unit directions again (a zero mean stays zero)
@@ -628,6 +647,8 @@ def erase_seams(images: dict, quantities, mesh: SeamMesh, covered, padding: int,
             x = np.clip(x, 0.0, 1.0)
         for i, name in enumerate(names):
             images[name][rows, cols] = x[:, i]
+        if not channel.counted:
+            continue
         if "rms_before" not in info:
             info.update({key: solved[key] for key in ("rms_before", "rms_after", "max_before",
                                                       "max_after")})

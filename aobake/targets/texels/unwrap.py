@@ -148,6 +148,14 @@ def connected_labels(n: int, faces: np.ndarray) -> np.ndarray:
     return rank[inverse.ravel()]
 
 
+def uv_islands(uv, faces_uv) -> np.ndarray:
+    """(f,) int64 UV island of each face: faces joined by UV vertices at the same place
+    (welded first: an island may repeat its seam vertices, or a mesh have one ``vt`` per
+    corner)."""
+    _, same = np.unique(np.asarray(uv, np.float64), axis=0, return_inverse=True)
+    return connected_labels(len(uv), same.ravel()[faces_uv])
+
+
 def chart_texel_density(uv, faces_uv, positions, faces, width, height):
     """Texel density of each UV island: sqrt(its UV area in texels / its surface area).
 
@@ -155,8 +163,7 @@ def chart_texel_density(uv, faces_uv, positions, faces, width, height):
     Returns (k,) float64 over the islands with positive surface area (texels per scene unit).
     UV vertices at the same place count as one (an island may repeat its seam vertices).
     """
-    _, same = np.unique(np.asarray(uv, np.float64), axis=0, return_inverse=True)
-    labels = connected_labels(len(uv), same.ravel()[faces_uv])
+    labels = uv_islands(uv, faces_uv)
     texel_area = _uv_face_areas(np.asarray(uv, np.float64) * [width, height], faces_uv)
     p = np.asarray(positions, np.float64)[faces]
     area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
