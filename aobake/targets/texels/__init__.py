@@ -60,7 +60,8 @@ class TexelTarget:
         clock = time.perf_counter()
         points, normals, _ = surface_points(scene.vertices, scene.vertex_normals, scene.faces,
                                             samples, threads,
-                                            _native.kernels() if compiled else None)
+                                            _native.kernels() if compiled else None,
+                                            face_normals=False)
         # Rasterising the UVs baked into (a rejected own-UV pass is in uv_check_s) + surface points.
         timings["rasterize_s"] = phases["raster_s"] + time.perf_counter() - clock
         # Point ids: position in the (texel, sample, face)-sorted sample list, a pure
