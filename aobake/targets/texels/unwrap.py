@@ -929,6 +929,10 @@ def _unwrap_isolated(positions, faces, resolution, padding,
     package_root = str(Path(__file__).resolve().parents[2])
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
+    # glibc: reuse freed memory rather than fault fresh pages in (see aobake.cli's
+    # _keep_freed_memory): the child's own process, so its allocator is ours to tune
+    env.setdefault("MALLOC_MMAP_THRESHOLD_", str(32 << 20))
+    env.setdefault("MALLOC_TRIM_THRESHOLD_", str(2**31 - 1))
     with tempfile.TemporaryDirectory(prefix="aobake-xatlas-") as tmp:
         src, dst = Path(tmp, "in.npz"), Path(tmp, "out.npz")
         np.savez(src, positions=positions, faces=faces, resolution=resolution, padding=padding,
