@@ -1,7 +1,8 @@
 """Build the optional compiled kernel; everything else is in pyproject.toml.
 
 ``aobake._kernels`` (aobake/_kernels.c) moves the per-ray part of ray
-generation out of numpy.  It needs only a C compiler and Python's headers.  It
+generation out of numpy, and the other per-sample loops (aobake/_pack.c: the atlas
+packer's).  It needs only a C compiler and Python's headers.  It
 is optional: if it cannot be built, the install still succeeds and aobake uses
 the numpy formulation, which gives bit-identical rays, only slower (the report
 records which one ran).
@@ -17,6 +18,7 @@ FLAGS = [] if sys.platform == "win32" else ["-O3", "-ffp-contract=off", "-fno-fa
 
 setup(
     ext_modules=[
-        Extension("aobake._kernels", ["aobake/_kernels.c"], extra_compile_args=FLAGS, optional=True),
+        Extension("aobake._kernels", ["aobake/_kernels.c", "aobake/_pack.c"],
+                  extra_compile_args=FLAGS, optional=True),
     ],
 )

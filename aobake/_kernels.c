@@ -1002,6 +1002,10 @@ done:
     return result;
 }
 
+/* The atlas packer's kernels, in _pack.c. */
+PyObject *chart_marks(PyObject *self, PyObject *args);
+PyObject *pack_charts(PyObject *self, PyObject *args);
+
 static PyMethodDef methods[] = {
     {"fill_rays", fill_rays, METH_VARARGS,
      "fill_rays(origins, normals, keys, table, sampler, weighting, nx, ny, k, R, m, js, mp, "
@@ -1021,6 +1025,13 @@ static PyMethodDef methods[] = {
      "seam_cg(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w, diag, b, x, "
      "tolerance, "
      "max_iterations) -> (iterations, max |r / diag|): the seam erasure's Jacobi-preconditioned CG."},
+    {"chart_marks", chart_marks, METH_VARARGS,
+     "chart_marks(xy, faces, face_chart, mask_offset, size, padding, out_covered, out_padded): "
+     "the atlas packer's chart masks (unwrap._chart_masks)."},
+    {"pack_charts", pack_charts, METH_VARARGS,
+     "pack_charts(masks, offsets, shapes, order, width, height, upright, hole_cap, hole_run, "
+     "hole_rows, max_searches, out_place[, state]) -> (fits, placed, used): "
+     "unwrap._pack_in_order."},
     {NULL, NULL, 0, NULL},
 };
 

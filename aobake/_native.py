@@ -20,7 +20,7 @@ except ImportError:  # pragma: no cover - exercised only where no C compiler was
 
 #: stage -> the kernel function it uses
 KERNELS = {"ray_generation": "fill_rays", "escape_counts": "row_counts",
-           "rasterizer": "raster_rows", "seam_solve": "seam_cg"}
+           "rasterizer": "raster_rows", "atlas_packing": "pack_charts", "seam_solve": "seam_cg"}
 
 _state = threading.local()
 

@@ -70,7 +70,8 @@ class TexelTarget:
         sizes = np.sqrt(2.0 * scene.areas()[samples.face])
         state = dict(atlas=atlas, uv=bake_uv, faces_uv=bake_faces_uv, check=check,
                      samples=samples, compiled=compiled, size=atlas.size)
-        kernels = {"rasterizer": compiled, "seam_solve": None if config.seams == "off" else compiled}
+        kernels = {"rasterizer": compiled, "atlas_packing": atlas.packing_compiled,  # None: own UVs
+                   "seam_solve": None if config.seams == "off" else compiled}
         return SamplePoints(points, normals, ids, sizes=sizes, kernels=kernels, state=state)
 
     def finish(self, scene, config, plan, values, rays, timings, warnings) -> Finished:

@@ -38,7 +38,9 @@ class Atlas:
     wrap : str "clamp" | "repeat": how the map is sampled; "repeat" when own UVs
     outside [0, 1] were baked wrapped (``uvcheck.wrap_uvs``; ``uv`` keeps the mesh's
     values, the texels hold them modulo 1),
-    size : (width, height) of the image the map is baked into.
+    size : (width, height) of the image the map is baked into,
+    packing_compiled : bool | None whether a new atlas's charts were packed by the compiled
+    kernels (False: the numpy reference; None: no new atlas).
     """
 
     positions: np.ndarray
@@ -53,6 +55,7 @@ class Atlas:
     charts: int | None = None
     wrap: str = "clamp"
     size: tuple | None = None
+    packing_compiled: bool | None = None
 
 
 def check_texture_budget(width: int, height: int, texel_samples: int) -> int:
@@ -117,7 +120,9 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
     ``samples.face`` indexes ``scene.faces`` (with wrapped own UVs, a face may have
     samples at two tile positions; ``bake_uv`` are the mesh's own UVs, unwrapped).
     ``atlas.size`` is the image (width, height): ``width`` x ``height``, or with a
-    ``texel_density`` (texels per scene unit) the size chosen for it.
+    ``texel_density`` (texels per scene unit) the size chosen for it.  ``compiled``: the
+    rasteriser and a new atlas's packer in the compiled kernels (True), in numpy (False), or
+    when built (None); ``atlas.packing_compiled`` records which packed.
     Fills ``timings`` with uv_check_s, unwrap_s and raster_s.
     """
     if texel_density is not None:
@@ -177,7 +182,7 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
     clock = time.perf_counter()
     try:
         unwrapped = xatlas_unwrap(scene.vertices, scene.faces, (width, height), padding,
-                                  texel_density=texel_density)
+                                  texel_density=texel_density, compiled=compiled)
     except InputError as exc:  # name the mesh: the unwrapper knows only its triangles
         raise InputError(f"{scene.source}: {exc}") from None
     timings["unwrap_s"] = time.perf_counter() - clock
@@ -197,5 +202,6 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
                   unwrapped.uv[keys[:, 0]], base_uv, source, new=True,
                   materials=scene.materials if base_uv is not None else None,
                   face_material=scene.face_material if base_uv is not None else None,
-                  charts=unwrapped.charts, size=(width, height))
+                  charts=unwrapped.charts, size=(width, height),
+                  packing_compiled=unwrapped.packing_compiled)
     return atlas, unwrapped.uv, unwrapped.faces, check, raster(unwrapped.uv, unwrapped.faces)
