@@ -81,7 +81,9 @@ CHILD = textwrap.dedent("""
             lo, hi = (mid, hi) if pack(mid) else (lo, mid)
             if hi / lo < 1.003:
                 break
-        pack(lo)
+        if not pack(lo):  # even the smallest scale tried makes xatlas's atlas larger
+            sys.exit(f"xatlas: the charts cannot fit in {W}x{H} with {padding} texels of "
+                     f"padding (its atlas at the smallest scale: {atlas.width}x{atlas.height})")
         seconds = time.perf_counter() - clock
         vm, faces_uv, uv = atlas[0]
         uv = uv.astype(np.float64) * [atlas.width / W, atlas.height / H]

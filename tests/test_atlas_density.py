@@ -273,3 +273,21 @@ def test_bake_reports_coverage_and_density(tmp_path):
     assert density["islands"] == tex["charts"]
     assert density["spread"] == pytest.approx(1.0, abs=1e-6)
     assert density["p5"] <= density["p50"] <= density["p95"]
+
+
+def test_charts_that_fill_the_image_with_padding_alone_get_one_texel_each():
+    """480 separate triangles at 64^2 with P = 1: their padding alone ((2P + 1)^2 = 9
+    texels each, 4320 of the 66^2 strip) leaves no room for the first guess, so that guess
+    is scale 0, where every chart is a point and the points "fit": the layout must not
+    stop there (it once did, with NaN UVs and no texel sampled) but pack one-texel charts."""
+    n = 480
+    rng = np.random.default_rng(5)
+    centres = rng.uniform(-10, 10, (n, 3))
+    vertices = (centres[:, None, :] + rng.normal(0.0, 0.3, (n, 3, 3))).reshape(-1, 3)
+    faces = np.arange(3 * n).reshape(n, 3)
+    atlas = unwrap(vertices, faces, 64, 1)
+    assert np.isfinite(atlas.uv).all() and (atlas.uv >= 0).all() and (atlas.uv <= 1).all()
+    samples = rasterize(atlas.uv, atlas.faces, 64, 64, 1, 0)
+    charts = connected_labels(len(atlas.uv), atlas.faces)
+    assert charts.max() + 1 == n
+    assert len(np.unique(charts[samples.face])) == n  # every chart holds a sample

@@ -745,7 +745,17 @@ def _layout(uv, faces, face_chart, R: int, P: int, chart_image: bool, kernels=No
     if n_charts * (2 * P + 1) ** 2 > strip * strip:
         raise InputError(f"the {n_charts} charts cannot fit in one {R}x{R} atlas with {P} "
                          "texels of padding: raise --resolution or lower --padding")
-    scale = solve(FIRST_EFFICIENCY * strip * strip)
+    # A scale of 0 "fits" any number of charts by shrinking them to points (no texel, UVs
+    # NaN: the ogre's 826 charts at 256^2 with P = 4 did); the search stays at or above
+    # the scale at which the largest chart is one texel across.
+    vertex_chart = _vertex_charts(len(uv), faces, face_chart)
+    extent = np.zeros((n_charts, 2))
+    np.maximum.at(extent, vertex_chart, uv)
+    low = np.full((n_charts, 2), np.inf)
+    np.minimum.at(low, vertex_chart, uv)
+    widest = float(np.max(np.where(np.isfinite(low), extent - low, 0.0), initial=0.0))
+    floor = 1.0 / widest if widest > 0 else 1.0
+    scale = max(solve(FIRST_EFFICIENCY * strip * strip), floor)
     best, tried, fails = None, [], []
     few = n_charts <= FEW_CHARTS
     max_packs, tolerance = (FEW_PACKS, FEW_TOLERANCE) if few else (MAX_PACKS, SCALE_TOLERANCE)
@@ -777,7 +787,9 @@ def _layout(uv, faces, face_chart, R: int, P: int, chart_image: bool, kernels=No
         target = efficiency * strip * strip * (1 - tolerance)
         new = solve(target * model(scale) / texels)
         if place is None:
-            new = min(new, 0.97 * scale)
+            if scale <= floor:
+                break  # not even one-texel charts fit
+            new = max(min(new, 0.97 * scale), floor)
         if best is not None:
             above = [f for f in fails if f > best[0]]
             if above:  # bracketed by a fit and a failure: bisect
