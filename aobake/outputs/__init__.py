@@ -108,7 +108,7 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
     """
     from aobake.outputs.atomic import transaction
     from aobake.outputs.report import write_report
-    from aobake.outputs.texture import write_atlas_mesh
+    from aobake.outputs.texture import prepare_atlas_mesh
 
     target = "texels" if hasattr(result, "channels") else "vertices"
     where = plan(out, target, mesh=mesh, mesh_out=mesh_out, report=report)
@@ -119,12 +119,15 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
     import time
 
     clock = time.perf_counter()
+    mesh_out = None  # the atlas mesh's writer, its text formatted while `out` is written
+    if where.mesh_out is not None and (result.atlas.new or where.mesh_out_given):
+        mesh_out = prepare_atlas_mesh(where.mesh_out, result, meta)
     with transaction():
         with _naming(where.out):
             writer_for(where.out, target).write(where.out, result, meta, options)
-        if where.mesh_out is not None and (result.atlas.new or where.mesh_out_given):
+        if mesh_out is not None:
             with _naming(where.mesh_out):
-                write_atlas_mesh(where.mesh_out, result, meta)
+                mesh_out()
             written.append(where.mesh_out)
         if where.report is not None:
             full = dict(result.report, outputs=[str(p) for p in written])

@@ -27,6 +27,17 @@ def write_obj(path, positions, faces, uv, normals=None, header: str = "") -> Non
 
     Numbers as ``%.9g`` (positions, UVs: float32-exact) and ``%.7g`` (normals).
     """
+    _write_lines(path, obj_lines(positions, faces, uv, normals, header))
+
+
+def _write_lines(path, parts: list[str]) -> None:
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
+            f.writelines(parts or ["\n"])
+
+
+def obj_lines(positions, faces, uv, normals=None, header: str = "") -> list[str]:
+    """``write_obj``'s text, as a list of strings (no file touched)."""
     parts = [f"# {line}\n" for line in header.splitlines()]
     parts += _lines("v %.9g %.9g %.9g\n", np.asarray(positions, dtype=np.float64))
     parts += _lines("vt %.9g %.9g\n", np.asarray(uv, dtype=np.float64))
@@ -36,9 +47,7 @@ def write_obj(path, positions, faces, uv, normals=None, header: str = "") -> Non
         parts += _lines("f %d/%d/%d %d/%d/%d %d/%d/%d\n", np.repeat(corners, 3, axis=1))
     else:
         parts += _lines("f %d/%d %d/%d %d/%d\n", np.repeat(corners, 2, axis=1))
-    with atomic_path(path) as tmp:
-        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
-            f.writelines(parts or ["\n"])
+    return parts
 
 
 #: OBJ lines formatted by one %-operation at a time (a line at a time costs 4x more)
@@ -77,15 +86,30 @@ def write_texture(path, result, metadata: dict, *, half=False, bit_depth=8, r_on
 
 def write_atlas_mesh(path, result, metadata: dict) -> None:
     """Write the atlas mesh (OBJ with the atlas UVs, or GLB with the occlusion texture)."""
+    prepare_atlas_mesh(path, result, metadata)()
+
+
+def prepare_atlas_mesh(path, result, metadata: dict):
+    """``write_atlas_mesh`` in two steps: returns the function that writes the file.
+
+    An OBJ's text is formatted on a thread from now on, so it overlaps whatever is written
+    first (the EXR's compression releases the GIL: the bunny's 1024^2 map and 7.6 MB atlas
+    0.41-0.46 s one after the other, 0.36-0.38 s so); the file itself is written by the
+    returned function, on the caller's thread and in its output transaction.
+    """
     atlas = result.atlas
     suffix = Path(path).suffix.lower()
     if suffix == ".obj":
-        write_obj(path, atlas.positions, atlas.faces, atlas.uv, atlas.normals,
-                  header="aobake lightmap atlas: vt are the lightmap UVs (OBJ convention)")
-    elif suffix == ".glb":
-        _write_glb(path, result, _map(result)[0], metadata)
-    else:
-        raise OutputError(f"{path}: unsupported mesh format for --mesh-out; use .obj or .glb")
+        from concurrent.futures import ThreadPoolExecutor
+
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="aobake-obj")
+        text = pool.submit(obj_lines, atlas.positions, atlas.faces, atlas.uv, atlas.normals,
+                           "aobake lightmap atlas: vt are the lightmap UVs (OBJ convention)")
+        pool.shutdown(wait=False)  # its one thread ends with the task
+        return lambda: _write_lines(path, text.result())
+    if suffix == ".glb":
+        return lambda: _write_glb(path, result, _map(result)[0], metadata)
+    raise OutputError(f"{path}: unsupported mesh format for --mesh-out; use .obj or .glb")
 
 
 def _write_glb(path, result, value, metadata: dict) -> None:
