@@ -394,10 +394,17 @@ def _run(mesh, out, target, threads, quiet, config, files):
                                f"(got {where.out.name})")
     progress, finish = _progress_bar(quiet)
     bake = aobake.bake if where.target == "vertices" else aobake.bake_texels
+    unwrapping = None
+    if where.target == "texels" and config.unwrap != "never":
+        from aobake.targets.texels import unwrap as unwrapping
+
+        unwrapping.prestart()  # its start overlaps the loading; ended if own UVs are baked
     try:
         result = bake(mesh, config, threads=threads, progress=progress)
     finally:
         finish()
+        if unwrapping is not None:
+            unwrapping.discard_prestarted()
     written = aobake.write(result, out, mesh=mesh, **files)
     if not quiet:
         report = result.report

@@ -398,6 +398,33 @@ def test_unwrap_crash_becomes_input_error(monkeypatch):
         unwrap(mesh.vertices, mesh.faces, 32, 1)
 
 
+def test_prestarted_child_takes_the_unwrap():
+    """The CLI starts the xatlas child before reading the mesh; the unwrap hands it its job
+    (the same atlas as a child started then), and it is gone afterwards."""
+    mesh = trimesh.creation.box()
+    fresh = unwrap(mesh.vertices, mesh.faces, 64, 1)
+    unwrapping.prestart()
+    child = unwrapping._prestarted
+    assert child is not None and child.poll() is None
+    warm = unwrap(mesh.vertices, mesh.faces, 64, 1)
+    assert unwrapping._prestarted is None and child.poll() is not None
+    assert warm.uv.tobytes() == fresh.uv.tobytes() and (warm.faces == fresh.faces).all()
+
+
+def test_prestarted_child_discarded_and_its_crash_reported(monkeypatch):
+    unwrapping.prestart()
+    child = unwrapping._prestarted
+    unwrapping.discard_prestarted()
+    assert child.poll() is not None and unwrapping._prestarted is None
+    unwrapping.discard_prestarted()  # nothing to end: no error
+    monkeypatch.setattr(unwrapping, "_WARM_CODE", "import os, signal, sys; sys.stdin.readline(); "
+                        "os.kill(os.getpid(), signal.SIGSEGV)")  # crashes once given its job
+    unwrapping.prestart()
+    mesh = trimesh.creation.box()
+    with pytest.raises(InputError, match="SIGSEGV"):
+        unwrap(mesh.vertices, mesh.faces, 32, 1)
+
+
 # --- surface points and splatting -------------------------------------------------
 
 

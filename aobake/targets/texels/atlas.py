@@ -14,6 +14,7 @@ import numpy as np
 
 from aobake.errors import InputError
 from aobake.targets.texels.raster import rasterize
+from aobake.targets.texels.unwrap import discard_prestarted
 from aobake.targets.texels.unwrap import unwrap as xatlas_unwrap
 from aobake.targets.texels.uvcheck import check_uvs, wrap_uvs
 
@@ -147,7 +148,9 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
         wrap_s = time.perf_counter() - clock
         if unwrap == "never" or (unwrap == "auto" and not layout.oversized_faces):
             # Likely baked as they are: the bake's own rasterisation gives the overlap
-            # count too (texel-centre coverage), so the check costs no extra pass.
+            # count too (texel-centre coverage), so the check costs no extra pass.  A
+            # prestarted xatlas child (the CLI's) would only take a core from it.
+            discard_prestarted()
             samples = layout.to_faces(raster(layout.uv, layout.faces))
             clock = time.perf_counter()
             check = check_uvs(scene.uv, scene.faces_uv, width, height, shared=samples.shared,
@@ -163,6 +166,7 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
             warnings.append(f"{scene.source}: baking into the mesh's own UVs although {check.message}")
     use_own = scene.faces_uv is not None and unwrap != "always" and (check.valid or unwrap == "never")
     if use_own:
+        discard_prestarted()
         keys, faces = split_corners(scene.faces, scene.faces_uv)
         atlas = Atlas(scene.vertices[keys[:, 0]], scene.vertex_normals[keys[:, 0]], faces,
                       scene.uv[keys[:, 1]], None, keys[:, 0], new=False, materials=scene.materials,

@@ -20,6 +20,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -1029,6 +1030,74 @@ for name in ("aobake", "aobake.targets", "aobake.targets.texels"):
 from aobake.targets.texels.unwrap import _unwrap_worker
 _unwrap_worker(sys.argv[1:])
 """
+# A prestarted child (``prestart``): the same imports, then it waits for its two paths on
+# a line of standard input (none: the parent did not need it, or is gone).
+_WARM_CODE = _WORKER_CODE.replace("_unwrap_worker(sys.argv[1:])", """import xatlas
+line = sys.stdin.readline().split("\\t")
+if len(line) == 2:
+    _unwrap_worker([line[0], line[1].rstrip("\\n")])
+""")
+
+
+def _child_env() -> dict:
+    package_root = str(Path(__file__).resolve().parents[2])
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
+    # glibc: reuse freed memory rather than fault fresh pages in (see aobake.cli's
+    # _keep_freed_memory): the child's own process, so its allocator is ours to tune
+    env.setdefault("MALLOC_MMAP_THRESHOLD_", str(32 << 20))
+    env.setdefault("MALLOC_TRIM_THRESHOLD_", str(2**31 - 1))
+    return env
+
+
+_prestarted_lock = threading.Lock()
+_prestarted: subprocess.Popen | None = None
+
+
+def prestart() -> None:
+    """Start the xatlas child now, before the mesh is read, so that its interpreter start
+    and imports (~0.15 s) overlap the loading instead of delaying the unwrap; the next
+    ``unwrap`` in this process hands it its job.  At most one waits.  For a command that
+    will probably unwrap (aobake's CLI making a lightmap); ``discard_prestarted`` ends it
+    when the mesh's own UVs are baked."""
+    global _prestarted
+    with _prestarted_lock:
+        if _prestarted is not None and _prestarted.poll() is None:
+            return
+        _prestarted = subprocess.Popen([sys.executable, "-c", _WARM_CODE], env=_child_env(),
+                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                       stderr=subprocess.PIPE, text=True)
+
+
+def _take_prestarted() -> subprocess.Popen | None:
+    global _prestarted
+    with _prestarted_lock:
+        proc, _prestarted = _prestarted, None
+    return proc if proc is not None and proc.poll() is None else None
+
+
+def discard_prestarted() -> None:
+    """End a prestarted child that no unwrap will use."""
+    proc = _take_prestarted()
+    if proc is not None:
+        proc.kill()
+        proc.communicate()
+
+
+def _run_child(src: Path, dst: Path, limit: float) -> subprocess.CompletedProcess:
+    """The job in the prestarted child if there is one, else in a new one (both killed
+    after ``limit`` seconds: subprocess.TimeoutExpired)."""
+    proc = _take_prestarted()
+    if proc is None:
+        return subprocess.run([sys.executable, "-c", _WORKER_CODE, str(src), str(dst)],
+                              env=_child_env(), capture_output=True, text=True, timeout=limit)
+    try:
+        out, err = proc.communicate(f"{src}\t{dst}\n", timeout=limit)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        raise
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
 
 
 def _unwrap_isolated(positions, faces, resolution, padding, texel_density=None,
@@ -1039,13 +1108,6 @@ def _unwrap_isolated(positions, faces, resolution, padding, texel_density=None,
     # Which packer runs is decided here, on the caller's thread (``numpy_only`` is
     # thread-local), and handed to the child explicitly.
     compiled = _packing_kernels(compiled) is not None
-    package_root = str(Path(__file__).resolve().parents[2])
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
-    # glibc: reuse freed memory rather than fault fresh pages in (see aobake.cli's
-    # _keep_freed_memory): the child's own process, so its allocator is ours to tune
-    env.setdefault("MALLOC_MMAP_THRESHOLD_", str(32 << 20))
-    env.setdefault("MALLOC_TRIM_THRESHOLD_", str(2**31 - 1))
     with tempfile.TemporaryDirectory(prefix="aobake-xatlas-") as tmp:
         src, dst = Path(tmp, "in.npz"), Path(tmp, "out.npz")
         np.savez(src, positions=positions, faces=faces, resolution=resolution, padding=padding,
@@ -1057,10 +1119,7 @@ def _unwrap_isolated(positions, faces, resolution, padding, texel_density=None,
         limit = XATLAS_TIMEOUT_BASE_S + XATLAS_TIMEOUT_PER_FACE_S * len(faces)
         for attempt in (1, 2):
             try:
-                proc = subprocess.run(
-                    [sys.executable, "-c", _WORKER_CODE, str(src), str(dst)],
-                    env=env, capture_output=True, text=True, timeout=limit,
-                )
+                proc = _run_child(src, dst, limit)
                 break
             except subprocess.TimeoutExpired:
                 log.warning("xatlas did not finish in %.0f s (attempt %d of 2)", limit, attempt)
