@@ -48,6 +48,20 @@ def numpy_only() -> Iterator[None]:
         _state.numpy_only = before
 
 
+def carried(function):
+    """``function`` wrapped to run, on any thread, with the ``numpy_only`` state of the
+    thread calling ``carried`` (that state is thread-local)."""
+    forced = getattr(_state, "numpy_only", False)
+
+    def call(*args, **kwargs):
+        if not forced:
+            return function(*args, **kwargs)
+        with numpy_only():
+            return function(*args, **kwargs)
+
+    return call
+
+
 def label(compiled: bool) -> str:
     return "compiled" if compiled else "numpy"
 
