@@ -347,3 +347,24 @@ def test_compiled_solve_gives_the_numpy_bits(torus, case, kernel):
     slow, slow_info = solve(b, se, system, compiled=False)
     assert fast_info["iterations"] > 5 and fast_info == slow_info
     np.testing.assert_array_equal(fast, slow)
+
+
+@pytest.mark.parametrize("wrap", ["clamp", "repeat"])
+def test_group_key_orders_points_as_a_lexsort_of_their_stencils(wrap):
+    """seam_system sorts the points by one key instead of a lexsort of the 8 texels they
+    read: the same order, also where stencils are clamped or wrapped at the image's edges
+    and in images one texel wide or tall."""
+    from aobake.targets.texels.seams import _side_key
+
+    rng = np.random.default_rng(11)
+    for width, height in ((16, 12), (1, 7), (5, 1), (1, 1)):
+        uv_a = rng.uniform(-0.3, 1.3, (4000, 2))
+        uv_b = np.where(rng.random((4000, 1)) < 0.5, uv_a, rng.uniform(-0.3, 1.3, (4000, 2)))
+        uv_a[::3] = np.round(uv_a[::3] * 8) / 8  # on texel centres and edges
+        ta, _ = bilinear_stencil(uv_a, width, height, wrap)
+        tb, _ = bilinear_stencil(uv_b, width, height, wrap)
+        texel = np.concatenate([ta, tb], axis=1)
+        expected = np.lexsort(texel.T[::-1])
+        key = (_side_key(uv_a, width, height, wrap) << np.int64(30)
+               | _side_key(uv_b, width, height, wrap))
+        assert (np.argsort(key, kind="stable") == expected).all(), (width, height)

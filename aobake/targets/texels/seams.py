@@ -353,10 +353,18 @@ def seam_system(points: SeamPoints, covered, wrap: str = "clamp") -> SeamSystem:
     covered = np.asarray(covered, dtype=bool)
     height, width = covered.shape
     flat = covered.reshape(-1)
-    ta, wa = bilinear_stencil(points.uv_a, width, height, wrap)
-    tb, wb = bilinear_stencil(points.uv_b, width, height, wrap)
-    texel = np.concatenate([ta, tb], axis=1)  # (m, 8)
+    # Points reading the same 8 texels form a group, kept contiguous in the order a lexsort
+    # of the 8 texel indices gives; the points are put in that order before their weights
+    # are computed (so no (m, 8) array is gathered), by one stable sort of a key that
+    # orders like that lexsort: a side's 4 texels follow from its first texel and whether
+    # its second and third lie above it (clamped or wrapped at the image's edges).
+    order = np.argsort(_side_key(points.uv_a, width, height, wrap) << np.int64(30)
+                       | _side_key(points.uv_b, width, height, wrap), kind="stable")
+    ta, wa = bilinear_stencil(points.uv_a[order], width, height, wrap)
+    tb, wb = bilinear_stencil(points.uv_b[order], width, height, wrap)
+    texel = np.concatenate([ta, tb], axis=1)  # (m, 8), in group order
     coef = np.concatenate([wa, -wb], axis=1)
+    point_weight = points.weight[order]
     # Gutter texels read, and their covered 8-neighbours (the first dilation ring's mean).
     gutter_read = _distinct(texel[~flat[texel]], height * width)
     r, c = np.divmod(gutter_read, width)
@@ -375,25 +383,20 @@ def seam_system(points: SeamPoints, covered, wrap: str = "clamp") -> SeamSystem:
         return SeamSystem(i0, np.zeros(0, dtype=bool), np.zeros((0, 8), dtype=np.int64), i0,
                           np.zeros((0, 8)), f0, i0, i0, f0, int(np.count_nonzero(~keep)))
     if keep.all():  # the usual case: no copies
-        weight = points.weight
+        weight = point_weight
     else:
-        texel, coef, weight = texel[keep], coef[keep], points.weight[keep]
+        texel, coef, weight = texel[keep], coef[keep], point_weight[keep]
     gutter, nb, count = gutter_read[count > 0], nb[count > 0], count[count > 0]
     read = np.zeros(height * width, dtype=bool)
     read[texel.reshape(-1)] = True
     gutter_used = read[gutter]
     gutter, nb, count = gutter[gutter_used], nb[gutter_used], count[gutter_used]
     texels = _distinct(np.concatenate([texel.reshape(-1), nb[nb >= 0]]), height * width)
-    index = np.searchsorted
-    # Points reading the same 8 texels form a group (lexsort: faster than unique(axis=0)).
-    order = np.lexsort(texel.T[::-1])
-    sorted_texel = texel[order]
-    new_group = np.r_[True, np.any(sorted_texel[1:] != sorted_texel[:-1], axis=1)]
-    # Points are kept in group order: each group's points are contiguous.
+    index = _indexer(texels, height * width)
+    new_group = np.r_[True, np.any(texel[1:] != texel[:-1], axis=1)]
     group = np.cumsum(new_group) - 1
-    coef, weight = coef[order], weight[order]
     first_point = np.nonzero(new_group)[0]  # the first point of each group
-    slots = index(texels, sorted_texel[first_point])
+    slots = index(texels, texel[first_point])
     # The first dilation ring: gutter texel g = sum over its covered neighbours j of x_j / count.
     has = nb >= 0
     fill_to = np.repeat(index(texels, gutter), 8).reshape(-1, 8)[has]
@@ -401,6 +404,26 @@ def seam_system(points: SeamPoints, covered, wrap: str = "clamp") -> SeamSystem:
     fill_weight = (1.0 / count)[:, None].repeat(8, axis=1)[has]
     return SeamSystem(texels, ~flat[texels], slots, group, coef, weight, fill_to, fill_from,
                       fill_weight, int(np.count_nonzero(~keep)))
+
+
+def _side_key(uv, width: int, height: int, wrap: str) -> np.ndarray:
+    """(p,) int64 ordering points as a lexsort of their bilinear stencil's 4 texels:
+    first texel * 4 + (second > first) * 2 + (third > first).  For a given first texel the
+    second is one of two (the next column, or the same one clamped; with ``repeat``, the
+    next or the row's first), and so is the third (rows); the fourth follows from them."""
+    texel, _ = bilinear_stencil(uv, width, height, wrap)
+    return (texel[:, 0] * 4 + (texel[:, 1] > texel[:, 0]) * 2 + (texel[:, 2] > texel[:, 0]))
+
+
+def _indexer(texels: np.ndarray, size: int):
+    """index(texels, values) -> positions of values (any shape) in the sorted distinct
+    ``texels`` (k,): np.searchsorted, or (for images up to 2^24 texels) a lookup table,
+    which gives the same positions without a binary search per value."""
+    if size > 1 << 24:
+        return np.searchsorted
+    rank = np.zeros(size, dtype=np.int64)
+    rank[texels] = np.arange(len(texels))
+    return lambda _, values: rank[values]
 
 
 def _distinct(index: np.ndarray, size: int) -> np.ndarray:
