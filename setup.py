@@ -19,6 +19,6 @@ FLAGS = [] if sys.platform == "win32" else ["-O3", "-ffp-contract=off", "-fno-fa
 setup(
     ext_modules=[
         Extension("aobake._kernels", ["aobake/_kernels.c", "aobake/_pack.c"],
-                  extra_compile_args=FLAGS, optional=True),
+                  depends=["aobake/_buffers.h"], extra_compile_args=FLAGS, optional=True),
     ],
 )

@@ -18,25 +18,10 @@
  * No numpy C API: arrays arrive through the buffer protocol, so the build
  * needs only a C compiler and Python's headers.
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
+#include "_buffers.h"
 #include <math.h>
 #include <stdint.h>
 
-/* Check a buffer: C-contiguous, given item size, exactly `count` items. */
-static int check(Py_buffer *b, const char *name, Py_ssize_t itemsize, Py_ssize_t count)
-{
-    if (!PyBuffer_IsContiguous(b, 'C')) {
-        PyErr_Format(PyExc_ValueError, "%s must be C-contiguous", name);
-        return -1;
-    }
-    if (b->itemsize != itemsize || b->len != itemsize * count) {
-        PyErr_Format(PyExc_ValueError, "%s: expected %zd items of %zd bytes, got %zd bytes",
-                     name, count, itemsize, b->len);
-        return -1;
-    }
-    return 0;
-}
 
 /* splitmix64 finaliser, as aobake.rng.mix (wrapping uint64 arithmetic). */
 static inline uint64_t mix(uint64_t x)

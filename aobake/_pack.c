@@ -34,27 +34,12 @@
  * as arguments, so there is one place that sets them.  Like _kernels.c, no numpy C API:
  * arrays arrive through the buffer protocol.
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
+#include "_buffers.h"
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
-/* Check a buffer: C-contiguous, given item size, exactly `count` items (as _kernels.c). */
-static int pack_check(Py_buffer *b, const char *name, Py_ssize_t itemsize, Py_ssize_t count)
-{
-    if (!PyBuffer_IsContiguous(b, 'C')) {
-        PyErr_Format(PyExc_ValueError, "%s must be C-contiguous", name);
-        return -1;
-    }
-    if (b->itemsize != itemsize || b->len != itemsize * count) {
-        PyErr_Format(PyExc_ValueError, "%s: expected %zd items of %zd bytes, got %zd bytes",
-                     name, count, itemsize, b->len);
-        return -1;
-    }
-    return 0;
-}
 
 /* Check per-mask offsets against shapes: offsets[0] = 0, offsets[c + 1] - offsets[c] =
  * shape[2c] * shape[2c + 1] (the mask's rows and columns, either order), offsets[k] = total. */
@@ -173,10 +158,10 @@ PyObject *chart_marks(PyObject *self, PyObject *args)
     {
         const Py_ssize_t m = bxy.len / 16, f = bfc.len / 8, k = bsize.len / 16;
         const Py_ssize_t total = bcov.len;
-        if (pack_check(&bxy, "xy", 8, 2 * m) || pack_check(&bf, "faces", 8, 3 * f) ||
-            pack_check(&bfc, "face_chart", 8, f) || pack_check(&bsize, "size", 8, 2 * k) ||
-            pack_check(&boff, "mask_offset", 8, k + 1) ||
-            pack_check(&bcov, "out_covered", 1, total) || pack_check(&bpad, "out_padded", 1, total))
+        if (check(&bxy, "xy", 8, 2 * m) || check(&bf, "faces", 8, 3 * f) ||
+            check(&bfc, "face_chart", 8, f) || check(&bsize, "size", 8, 2 * k) ||
+            check(&boff, "mask_offset", 8, k + 1) ||
+            check(&bcov, "out_covered", 1, total) || check(&bpad, "out_padded", 1, total))
             goto done;
         if (padding < 0) {
             PyErr_SetString(PyExc_ValueError, "chart_marks: padding must be >= 0");
@@ -581,9 +566,9 @@ PyObject *pack_charts(PyObject *self, PyObject *args)
     Py_ssize_t *tally = NULL;
     {
         const Py_ssize_t k = bshape.len / 16, n = border.len / 8;
-        if (pack_check(&bm, "masks", 1, bm.len) || pack_check(&bshape, "shapes", 8, 2 * k) ||
-            pack_check(&boff, "offsets", 8, k + 1) || pack_check(&border, "order", 8, n) ||
-            pack_check(&bout, "out_place", 8, 3 * k))
+        if (check(&bm, "masks", 1, bm.len) || check(&bshape, "shapes", 8, 2 * k) ||
+            check(&boff, "offsets", 8, k + 1) || check(&border, "order", 8, n) ||
+            check(&bout, "out_place", 8, 3 * k))
             goto done;
         if (width < 1 || height < 1 || cap < 1 || run < 1 || rows < 0 || cap > INT16_MAX ||
             run > INT16_MAX || width > PY_SSIZE_T_MAX / 4 / (height + cap)) {
@@ -598,11 +583,11 @@ PyObject *pack_charts(PyObject *self, PyObject *args)
             if (!PyArg_ParseTuple(state, "w*w*w*w*w*", &bst[0], &bst[1], &bst[2], &bst[3], &bst[4]))
                 goto done;
             with_state = 1;
-            if (pack_check(&bst[0], "occupied", 1, height * width) ||
-                pack_check(&bst[1], "sky", 4, width) ||
-                pack_check(&bst[2], "free_run", 2, (height + cap) * width) ||
-                pack_check(&bst[3], "square", 2, height * width) ||
-                pack_check(&bst[4], "row_best", 2, height))
+            if (check(&bst[0], "occupied", 1, height * width) ||
+                check(&bst[1], "sky", 4, width) ||
+                check(&bst[2], "free_run", 2, (height + cap) * width) ||
+                check(&bst[3], "square", 2, height * width) ||
+                check(&bst[4], "row_best", 2, height))
                 goto done;
         }
         const uint8_t *masks = bm.buf;
