@@ -467,15 +467,16 @@ static PyObject *raster_rows(PyObject *self, PyObject *args)
         /* scratch: entries and their sorted copy; per column: counts, landed flags (K),
          * and the best fallback candidate */
         const size_t W = (size_t)width, K = (size_t)n_sub;
-        const size_t bytes = 2 * (size_t)most * sizeof(RasterEntry) + (W + 1) * 8 + W * K +
+        const size_t entries = write ? (size_t)most : 0; /* counting stores none */
+        const size_t bytes = 2 * entries * sizeof(RasterEntry) + (W + 1) * 8 + W * K +
                              W * (8 + 8 + 24 + 1) + 64;
         scratch = PyMem_RawCalloc(1, bytes);
         if (!scratch) {
             PyErr_NoMemory();
             goto done;
         }
-        RasterEntry *entry = (RasterEntry *)scratch, *sorted = entry + most;
-        int64_t *count = (int64_t *)(sorted + most);
+        RasterEntry *entry = (RasterEntry *)scratch, *sorted = entry + entries;
+        int64_t *count = (int64_t *)(sorted + entries);
         double *best_d2 = (double *)(count + W + 1);
         int64_t *best_face = (int64_t *)(best_d2 + W);
         double *best_bary = (double *)(best_face + W);
@@ -542,15 +543,16 @@ static PyObject *raster_rows(PyObject *self, PyObject *args)
                             continue;
                         hit = 1;
                         landed[col * K + k] = 1;
-                        RasterEntry *en = entry + m++;
-                        en->col = col, en->k = k, en->tri = tri;
-                        if (write) {
+                        if (write) { /* counting needs only m and the flags */
+                            RasterEntry *en = entry + m;
+                            en->col = col, en->k = k, en->tri = tri;
                             /* Edge j is opposite oriented vertex j + 2: weights (E1, E2, E0). */
                             const double w[3] = {e[1], e[2], e[0]};
                             const double sum = (w[0] + w[1]) + w[2];
                             for (int j = 0; j < 3; ++j)
                                 en->b[cor[j]] = w[j] / sum;
                         }
+                        ++m;
                     }
                     if (opened && !hit) { /* a fallback candidate */
                         if (!write) {
@@ -569,9 +571,19 @@ static PyObject *raster_rows(PyObject *self, PyObject *args)
                     }
                 }
             }
-            /* stable counting sort of the row's entries by column ... */
             Py_ssize_t total = 0;
-            if (hi >= lo) {
+            if (!write && hi >= lo) { /* the row's samples: landed ones + one per fallback */
+                total = m;
+                for (int64_t c = lo; c <= hi; ++c) {
+                    int any = 0;
+                    for (size_t k = 0; k < K; ++k) {
+                        any |= landed[c * K + k];
+                        landed[c * K + k] = 0;
+                    }
+                    total += has_cand[c] && !any;
+                    has_cand[c] = 0;
+                }
+            } else if (hi >= lo) { /* stable counting sort of the row's entries by column ... */
                 for (int64_t c = lo; c <= hi + 1; ++c)
                     count[c - lo] = 0;
                 for (Py_ssize_t i = 0; i < m; ++i)

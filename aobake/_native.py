@@ -21,6 +21,19 @@ except ImportError:  # pragma: no cover - exercised only where no C compiler was
 #: stage -> the kernel function it uses
 KERNELS = {"ray_generation": "fill_rays", "escape_counts": "row_counts",
            "rasterizer": "raster_rows", "atlas_packing": "pack_charts", "seam_solve": "seam_cg"}
+#: every function the stages call (a module built from an older checkout lacks some)
+FUNCTIONS = set(KERNELS.values()) | {"radix_argsort", "surface_interp", "chart_marks"}
+
+if _compiled is not None and not FUNCTIONS <= set(dir(_compiled)):
+    # An editable install not rebuilt since the kernels changed: numpy for everything
+    # (the same results, slower; the report says "numpy") rather than a failing stage.
+    import logging
+
+    logging.getLogger(__name__).warning(
+        "aobake._kernels is out of date (no %s): using numpy; rebuild it with "
+        "`pip install -e .` or `python setup.py build_ext --inplace`",
+        ", ".join(sorted(FUNCTIONS - set(dir(_compiled)))))
+    _compiled = None
 
 _state = threading.local()
 

@@ -73,11 +73,15 @@ def run(
     # The backend's acceleration structure is built on a thread while the target finds its
     # points (a lightmap's unwrap, in a child process, and rasterisation): neither needs
     # the other, and the build (the bunny: ~0.1 s) no longer waits for the loading's end.
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="aobake-tracer") as pool:
+    Tracer.check(scene)  # its errors first, not after the target's work
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="aobake-tracer")
+    try:
         building = pool.submit(_native.carried(_built_tracer), scene, config,
                                target.rays_per_point(config))
         plan = target.sample(scene, config, threads, timings, warnings, phase)
         tracer, timings["tracer_s"] = building.result()
+    finally:  # an error or interrupt in sample() does not wait for the build
+        pool.shutdown(wait=False, cancel_futures=True)
     if config.keep_distances:
         _check_kept(len(plan.points), tracer.samples.rays)
     phase("tracing")

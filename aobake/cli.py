@@ -159,8 +159,8 @@ def _keep_freed_memory() -> None:
     the next array of that size takes fresh pages, each zeroed by the kernel on its first
     touch; a lightmap bake allocates and frees arrays of tens of MB in every phase.  With
     the threshold fixed at its largest value and no trimming, freed blocks below it are
-    reused: the bunny's 1024^2 lightmap bake takes 83k page faults instead of 143k and
-    0.2-0.4 s less system time (2 ms per MB first touched on this machine's virtual
+    reused: the bunny's 1024^2 lightmap bake takes 80k page faults instead of 143k and
+    0.2-0.3 s less system time (2 ms per MB first touched on this machine's virtual
     memory).  The CLI process only: the library leaves its host's allocator alone.
     Elsewhere (not glibc) this does nothing.
     """

@@ -134,11 +134,16 @@ class Tracer:
     rays over the texel's samples).
     """
 
+    @staticmethod
+    def check(scene) -> None:
+        """ValueError for a scene no tracer can be built for (checked before any work)."""
+        if not math.isfinite(scene.diagonal) or scene.diagonal <= 0:
+            raise ValueError(f"{scene.source}: scene has zero extent")
+
     def __init__(self, scene, config: BakeConfig, rays: int | None = None):
         self.scene, self.config = scene, config
+        self.check(scene)
         diagonal = scene.diagonal
-        if not math.isfinite(diagonal) or diagonal <= 0:
-            raise ValueError(f"{scene.source}: scene has zero extent")
         self.diagonal = diagonal
         lo, hi = scene.bounds
         # The backend's frame: rebased on the per-axis median of the vertices (far-from-origin

@@ -134,7 +134,8 @@ def print_phases(args) -> None:
     for m in meshes:
         if m.is_file():
             m.read_bytes()
-    cli_phases(meshes[0], warm)
+    if meshes[0].is_file():
+        cli_phases(meshes[0], warm)
     rows = [(m.name, cli_phases(m, args)) for m in meshes if m.is_file()]
     names = [name for name, _ in PHASES] + ["splat", "write", "import/other", "total"]
     print(f"aobake CLI, resolution {args.resolution}^2, padding {args.padding}, {args.rays} rays "

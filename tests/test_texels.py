@@ -411,18 +411,35 @@ def test_prestarted_child_takes_the_unwrap():
     assert warm.uv.tobytes() == fresh.uv.tobytes() and (warm.faces == fresh.faces).all()
 
 
-def test_prestarted_child_discarded_and_its_crash_reported(monkeypatch):
+def test_prestarted_child_discarded_or_failing(monkeypatch):
+    """discard_prestarted ends the waiting child; a prestarted child that fails hands the
+    job to a new one (its failure says nothing about the mesh), and when that one crashes
+    too, the crash is reported; an exception while the child works ends it."""
     unwrapping.prestart()
     child = unwrapping._prestarted
     unwrapping.discard_prestarted()
     assert child.poll() is not None and unwrapping._prestarted is None
     unwrapping.discard_prestarted()  # nothing to end: no error
-    monkeypatch.setattr(unwrapping, "_WARM_CODE", "import os, signal, sys; sys.stdin.readline(); "
-                        "os.kill(os.getpid(), signal.SIGSEGV)")  # crashes once given its job
-    unwrapping.prestart()
     mesh = trimesh.creation.box()
+    crash = "import os, signal, sys; sys.stdin.readline(); os.kill(os.getpid(), signal.SIGSEGV)"
+    monkeypatch.setattr(unwrapping, "_WARM_CODE", crash)  # crashes once given its job
+    unwrapping.prestart()
+    assert unwrap(mesh.vertices, mesh.faces, 32, 1).charts > 0  # a new child did it
+    monkeypatch.setattr(unwrapping, "_WORKER_CODE", "import os, signal; os.kill(os.getpid(), signal.SIGSEGV)")
+    unwrapping.prestart()
     with pytest.raises(InputError, match="SIGSEGV"):
         unwrap(mesh.vertices, mesh.faces, 32, 1)
+    monkeypatch.setattr(unwrapping, "_WARM_CODE", "import sys, time; sys.stdin.readline(); time.sleep(60)")
+    unwrapping.prestart()
+    child = unwrapping._prestarted
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(child, "communicate", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        unwrap(mesh.vertices, mesh.faces, 32, 1)
+    assert child.wait(timeout=10) is not None  # killed, not left running
 
 
 # --- surface points and splatting -------------------------------------------------

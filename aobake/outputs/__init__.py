@@ -119,15 +119,15 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
     import time
 
     clock = time.perf_counter()
-    mesh_out = None  # the atlas mesh's writer, its text formatted while `out` is written
+    write_mesh = None  # the atlas mesh's writer, its text formatted while `out` is written
     if where.mesh_out is not None and (result.atlas.new or where.mesh_out_given):
-        mesh_out = prepare_atlas_mesh(where.mesh_out, result, meta)
+        write_mesh = prepare_atlas_mesh(where.mesh_out, result, meta)
     with transaction():
         with _naming(where.out):
             writer_for(where.out, target).write(where.out, result, meta, options)
-        if mesh_out is not None:
+        if write_mesh is not None:
             with _naming(where.mesh_out):
-                mesh_out()
+                write_mesh()
             written.append(where.mesh_out)
         if where.report is not None:
             full = dict(result.report, outputs=[str(p) for p in written])

@@ -149,7 +149,8 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
         if unwrap == "never" or (unwrap == "auto" and not layout.oversized_faces):
             # Likely baked as they are: the bake's own rasterisation gives the overlap
             # count too (texel-centre coverage), so the check costs no extra pass.  A
-            # prestarted xatlas child (the CLI's) would only take a core from it.
+            # prestarted xatlas child (the CLI's) is ended: most own UVs are baked as they
+            # are (if they are rejected after all, the unwrap starts its own child).
             discard_prestarted()
             samples = layout.to_faces(raster(layout.uv, layout.faces))
             clock = time.perf_counter()

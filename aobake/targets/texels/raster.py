@@ -45,10 +45,11 @@ log = logging.getLogger(__name__)
 #: smaller than the coverage of any texel where a sub-position landed.
 FALLBACK_COVERAGE_FRACTION = 0.5
 
-#: Default number of (triangle, texel) candidate pairs processed at once; it
-#: bounds the rasteriser's memory (roughly 500 bytes per pair) and does not
-#: change the result.  64k pairs keep a batch's temporaries in cache: 1.6x
-#: faster than 512k on one thread, and enough batches to share between threads.
+#: Default number of (triangle, texel) candidate pairs processed at once; it does not
+#: change the result.  The numpy path's memory (roughly 500 bytes per pair): 64k pairs keep
+#: a batch's temporaries in cache, 1.6x faster than 512k on one thread, and enough batches
+#: to share between threads.  The compiled path takes rows of about this many pairs at a
+#: time; its scratch is the densest row's pairs x K x 96 bytes.
 CHUNK_PAIRS = 1 << 16
 
 # --- results ---------------------------------------------------------------
@@ -500,11 +501,11 @@ def rasterize(
     texel_samples : K sub-positions per texel (see ``subsample_offsets``); each
         one that lands on a triangle (module coverage rule) becomes a sample.
     seed : jitter seed; offsets are a pure function of (seed, texel, k).
-    chunk_pairs : memory knob (candidate pairs per batch); does not change the
-        result.
+    chunk_pairs : candidate pairs per batch (numpy: bounds the memory) or per piece of
+        rows (compiled); does not change the result.
     threads : batches processed at once; does not change the result.
-    compiled : per-pair tests in the compiled kernel (default: when it was built and not
-        forced off, see ``aobake._native``) or in numpy (the reference); the samples are
+    compiled : the compiled row kernel (``_rasterize_rows``; default: when it was built and
+        not forced off, see ``aobake._native``) or numpy (the reference); the samples are
         identical.
 
     Texels that a triangle overlaps (open intersection with the texel square)

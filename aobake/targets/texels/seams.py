@@ -358,6 +358,8 @@ def seam_system(points: SeamPoints, covered, wrap: str = "clamp") -> SeamSystem:
     # are computed (so no (m, 8) array is gathered), by one stable sort of a key that
     # orders like that lexsort: a side's 4 texels follow from its first texel and whether
     # its second and third lie above it (clamped or wrapped at the image's edges).
+    if height * width > 1 << 28:  # a side's key must fit in 30 bits (MAX_RESOLUTION^2 does)
+        raise ValueError(f"seam erasure supports at most 2^28 texels, got {width}x{height}")
     order = np.argsort(_side_key(points.uv_a, width, height, wrap) << np.int64(30)
                        | _side_key(points.uv_b, width, height, wrap), kind="stable")
     ta, wa = bilinear_stencil(points.uv_a[order], width, height, wrap)
@@ -421,9 +423,9 @@ def _indexer(texels: np.ndarray, size: int):
     which gives the same positions without a binary search per value."""
     if size > 1 << 24:
         return np.searchsorted
-    rank = np.zeros(size, dtype=np.int64)
-    rank[texels] = np.arange(len(texels))
-    return lambda _, values: rank[values]
+    rank = np.zeros(size, dtype=np.int32)
+    rank[texels] = np.arange(len(texels), dtype=np.int32)
+    return lambda _, values: rank[values].astype(np.int64)
 
 
 def _distinct(index: np.ndarray, size: int) -> np.ndarray:

@@ -13,6 +13,7 @@ every chart).
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import os
@@ -749,12 +750,14 @@ def _layout(uv, faces, face_chart, R: int, P: int, chart_image: bool, kernels=No
     # A scale of 0 "fits" any number of charts by shrinking them to points (no texel, UVs
     # NaN: the ogre's 826 charts at 256^2 with P = 4 did); the search stays at or above
     # the scale at which the largest chart is one texel across.
-    vertex_chart = _vertex_charts(len(uv), faces, face_chart)
-    extent = np.zeros((n_charts, 2))
-    np.maximum.at(extent, vertex_chart, uv)
+    used = np.unique(faces)  # vertices of no face belong to no chart
+    vertex_chart = _vertex_charts(len(uv), faces, face_chart)[used]
+    high = np.full((n_charts, 2), -np.inf)
+    np.maximum.at(high, vertex_chart, uv[used])
     low = np.full((n_charts, 2), np.inf)
-    np.minimum.at(low, vertex_chart, uv)
-    widest = float(np.max(np.where(np.isfinite(low), extent - low, 0.0), initial=0.0))
+    np.minimum.at(low, vertex_chart, uv[used])
+    span = high - low
+    widest = float(np.max(span[np.isfinite(span)], initial=0.0))
     floor = 1.0 / widest if widest > 0 else 1.0
     scale = max(solve(FIRST_EFFICIENCY * strip * strip), floor)
     best, tried, fails = None, [], []
@@ -1032,10 +1035,10 @@ _unwrap_worker(sys.argv[1:])
 """
 # A prestarted child (``prestart``): the same imports, then it waits for its two paths on
 # a line of standard input (none: the parent did not need it, or is gone).
-_WARM_CODE = _WORKER_CODE.replace("_unwrap_worker(sys.argv[1:])", """import xatlas
-line = sys.stdin.readline().split("\\t")
-if len(line) == 2:
-    _unwrap_worker([line[0], line[1].rstrip("\\n")])
+_WARM_CODE = _WORKER_CODE.replace("_unwrap_worker(sys.argv[1:])", """import json, xatlas
+line = sys.stdin.readline()
+if line:
+    _unwrap_worker(json.loads(line))
 """)
 
 
@@ -1064,40 +1067,57 @@ def prestart() -> None:
     with _prestarted_lock:
         if _prestarted is not None and _prestarted.poll() is None:
             return
-        _prestarted = subprocess.Popen([sys.executable, "-c", _WARM_CODE], env=_child_env(),
-                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                       stderr=subprocess.PIPE, text=True)
+        _reap(_prestarted)
+        try:
+            _prestarted = subprocess.Popen([sys.executable, "-c", _WARM_CODE], env=_child_env(),
+                                           stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                           stderr=subprocess.PIPE, text=True)
+        except OSError as exc:  # only a head start: the unwrap starts its own child
+            _prestarted = None
+            log.debug("could not prestart the xatlas child: %s", exc)
+
+
+def _reap(proc: subprocess.Popen | None) -> None:
+    """End ``proc`` (if still running) and close its pipes."""
+    if proc is not None:
+        if proc.poll() is None:
+            proc.kill()
+        proc.communicate()
 
 
 def _take_prestarted() -> subprocess.Popen | None:
     global _prestarted
     with _prestarted_lock:
         proc, _prestarted = _prestarted, None
-    return proc if proc is not None and proc.poll() is None else None
+    if proc is not None and proc.poll() is not None:  # died while waiting: not usable
+        _reap(proc)
+        return None
+    return proc
 
 
 def discard_prestarted() -> None:
     """End a prestarted child that no unwrap will use."""
-    proc = _take_prestarted()
-    if proc is not None:
-        proc.kill()
-        proc.communicate()
+    _reap(_take_prestarted())
 
 
 def _run_child(src: Path, dst: Path, limit: float) -> subprocess.CompletedProcess:
-    """The job in the prestarted child if there is one, else in a new one (both killed
-    after ``limit`` seconds: subprocess.TimeoutExpired)."""
+    """The job in the prestarted child if there is one, else in a new one (either is killed
+    after ``limit`` seconds, subprocess.TimeoutExpired, or on any exception here, such as
+    the CLI's SIGTERM).  A prestarted child that fails (killed while it waited, say) hands
+    the job to a new one: its failure says nothing about the mesh."""
     proc = _take_prestarted()
-    if proc is None:
-        return subprocess.run([sys.executable, "-c", _WORKER_CODE, str(src), str(dst)],
-                              env=_child_env(), capture_output=True, text=True, timeout=limit)
-    try:
-        out, err = proc.communicate(f"{src}\t{dst}\n", timeout=limit)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.communicate()
-        raise
-    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+    if proc is not None:
+        try:
+            out, err = proc.communicate(json.dumps([str(src), str(dst)]) + "\n", timeout=limit)
+        except BaseException:
+            _reap(proc)
+            raise
+        if proc.returncode == 0 and dst.is_file():
+            return subprocess.CompletedProcess(proc.args, 0, out, err)
+        log.debug("the prestarted xatlas child failed (exit %s): a new one takes the job",
+                  proc.returncode)
+    return subprocess.run([sys.executable, "-c", _WORKER_CODE, str(src), str(dst)],
+                          env=_child_env(), capture_output=True, text=True, timeout=limit)
 
 
 def _unwrap_isolated(positions, faces, resolution, padding, texel_density=None,
