@@ -234,7 +234,11 @@ def _texel_interval(q, sub, value, stderr, mean_variance, variance, texel_rays, 
         welch = np.where(squares > 0, dof * total ** 2 / squares, dof)
     covered = count > 0
     n, dof = np.where(covered, texel_rays, 1.0), np.where(covered, welch, 0.0)
-    _, low, high = stats.error_bars(value, stderr, n, dof, confidence)
+    # Covered texels only (the rest, [0, 1]: nothing measured, and the gutter fill replaces
+    # them): spot's 1024^2 map is half empty, and the t quantiles cost 0.13 s over all of it.
+    low, high = np.zeros(value.shape), np.ones(value.shape)
+    _, low[covered], high[covered] = stats.error_bars(value[covered], stderr[covered],
+                                                      n[covered], dof[covered], confidence)
     if adjusted is not None:
         where, new = adjusted
         _, new_low, new_high = stats.error_bars(new[where], stderr[where], n[where], dof[where],
