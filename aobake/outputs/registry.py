@@ -81,8 +81,10 @@ def _glb_contents() -> str:
 
 def _exr_contents() -> str:
     channels = [c for f in FIELDS.values() for c in f.exr]
-    return (f"float32 (`--half`) channels {_names([*channels, 'coverage'])}; configuration "
-            "in the header")
+    denoised = [f"{name}{suffix}" for name in ("ao", "obscurance")
+                for suffix in ("_denoised", "_denoised_stderr")]
+    return (f"float32 (`--half`) channels {_names([*channels, 'coverage'])} (with `--denoise` "
+            f"also {_names(denoised)}); configuration in the header")
 
 
 #: every output format, in the README's order
