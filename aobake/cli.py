@@ -165,11 +165,10 @@ def _keep_freed_memory() -> None:
     Elsewhere (not glibc) this does nothing.
     """
     import ctypes
-    import ctypes.util
 
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        if not hasattr(libc, "gnu_get_libc_version"):
+        libc = ctypes.CDLL(None)  # this process's symbols (find_library would run ldconfig)
+        if not hasattr(libc, "gnu_get_libc_version") or not hasattr(libc, "mallopt"):
             return
         libc.mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX)
         libc.mallopt(_M_TRIM_THRESHOLD, ctypes.c_int(2**31 - 1))
