@@ -368,3 +368,46 @@ def test_group_key_orders_points_as_a_lexsort_of_their_stencils(wrap):
         key = (_side_key(uv_a, width, height, wrap) << np.int64(30)
                | _side_key(uv_b, width, height, wrap))
         assert (np.argsort(key, kind="stable") == expected).all(), (width, height)
+
+
+def test_system_made_while_tracing_is_the_one_used(torus, monkeypatch):
+    """The seam system is made once, on its thread before the values exist (the covered
+    texels predicted from the samples' normals), and the bake matches the cached one."""
+    calls = []
+    original = seams.prepare
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(seams, "prepare", counting)
+    import aobake.targets.texels as target_module
+
+    monkeypatch.setattr(target_module, "prepare_seams", counting)
+    result = bake_texels(str(torus), seams="erase", seed=0, **OPTIONS)
+    assert len(calls) == 1
+    assert result.report["timings"]["seam_system_s"] > 0
+    cached = _bake(str(torus), "erase", 0)
+    for name, image in cached.channels.items():
+        assert np.array_equal(image, result.channels[name]), name
+
+
+def test_a_system_for_other_covered_texels_is_made_again(torus):
+    """erase_seams with a prepared system for different covered texels makes its own."""
+    result = _bake(str(torus), "off", 0)
+    mesh = seam_mesh(result)
+    covered = result.covered
+    other = covered.copy()
+    other[np.argwhere(covered)[0][0], np.argwhere(covered)[0][1]] = False
+    wrong = seams.prepare(mesh, other, 2)
+
+    def erased(prepared):
+        images = {"ao": result.channels["ao"].astype(np.float64),
+                  "ao_stderr": result.channels["ao_stderr"].astype(np.float64)}
+        done = seams.erase_seams(images, [seams.SeamChannel(("ao",), "ao_stderr")], mesh,
+                                 covered, 2, prepared=prepared)
+        return images["ao"], done.info
+
+    (a, info_a), (b, info_b) = erased(None), erased(wrong)
+    assert np.array_equal(a, b) and info_a == info_b
+    assert not np.array_equal(a, result.channels["ao"])

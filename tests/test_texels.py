@@ -621,3 +621,20 @@ def test_compiled_surface_points_equal_numpy_bit_for_bit(kernel, monkeypatch):
             for a, b in zip(fast, reference):
                 np.testing.assert_array_equal(a, b)
         monkeypatch.undo()
+
+
+@pytest.mark.parametrize("spans", [(1,), (5,), (40000,), (7, 3), (35947, 40000), (3, 1, 9),
+                                   (2 ** 40, 2 ** 30)])
+def test_split_corners_is_numpy_unique_along_rows(spans):
+    """The packed 1-D unique gives np.unique(axis=0)'s keys and inverse, also where the
+    packing would overflow (the row-wise fallback) and for indices that are never used."""
+    from aobake.targets.texels.atlas import split_corners
+
+    rng = np.random.default_rng(len(spans) * 1000 + spans[0] % 997)
+    columns = [rng.integers(0, span, (500, 3)) for span in spans]
+    keys, faces = split_corners(*columns)
+    want_keys, inverse = np.unique(np.stack([c.reshape(-1) for c in columns], axis=1), axis=0,
+                                   return_inverse=True)
+    assert np.array_equal(keys, want_keys)
+    assert np.array_equal(faces, inverse.reshape(-1, 3))
+    assert keys.dtype == np.int64 and faces.dtype == np.int64

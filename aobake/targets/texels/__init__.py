@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -21,7 +22,9 @@ from aobake.samplers import sample_set
 from aobake.targets.base import Finished, SamplePoints
 from aobake.targets.texels.atlas import check_texture_budget, make_atlas, split_corners
 from aobake.targets.texels.gather import channels as gather_channels
+from aobake.targets.texels.gather import subset, texel_counts
 from aobake.targets.texels.seams import SeamMesh
+from aobake.targets.texels.seams import prepare as prepare_seams
 from aobake.targets.texels.surface import surface_points
 
 
@@ -69,7 +72,13 @@ class TexelTarget:
         ids = np.arange(len(points), dtype=np.int64)
         sizes = np.sqrt(2.0 * scene.areas()[samples.face])
         state = dict(atlas=atlas, uv=bake_uv, faces_uv=bake_faces_uv, check=check,
-                     samples=samples, compiled=compiled, size=atlas.size)
+                     samples=samples, compiled=compiled, size=atlas.size, seams=None,
+                     seam_system=None)
+        if config.seams != "off":  # UV seams erased in gather
+            state["seams"] = SeamMesh(scene.vertices, scene.vertex_normals, scene.faces,
+                                      bake_uv, bake_faces_uv, atlas.wrap)
+            state["seam_system"] = _prepare_seams(state["seams"], samples, normals,
+                                                  config.padding)
         kernels = {"rasterizer": compiled, "atlas_packing": atlas.packing_compiled,  # None: own UVs
                    "seam_solve": None if config.seams == "off" else compiled}
         return SamplePoints(points, normals, ids, sizes=sizes, kernels=kernels, state=state)
@@ -94,19 +103,19 @@ class TexelTarget:
 
             dof = min_final_dof(config)
         seam_info: dict = {}
-        seams = None if config.seams == "off" else SeamMesh(  # UV seams erased in gather
-            scene.vertices, scene.vertex_normals, scene.faces, state["uv"], state["faces_uv"],
-            state["atlas"].wrap)
         denoise = None
         if config.denoise:  # guided by the surface: points, normals, charts, texel spacing
             denoise = (plan.points, plan.normals, state["uv"], state["faces_uv"],
                        scene.areas())
         images, covered, filled = gather_channels(quantities, samples, values, rays,
                                                   config.padding, to_tangent, dof,
-                                                  config.confidence, seams, timings,
-                                                  seam_info, denoise,
-                                                  compiled=state["compiled"])
+                                                  config.confidence, state["seams"],
+                                                  timings, seam_info, denoise,
+                                                  compiled=state["compiled"],
+                                                  seam_system=state["seam_system"])
         timings["splat_dilate_s"] = time.perf_counter() - clock
+        if state["seam_system"] is not None:  # made on its thread while tracing
+            timings["seam_system_s"] = state["seam_system"].result().seconds
         shared = int(np.count_nonzero(samples.shared >= 2))
         if shared:
             warnings.append(f"{scene.source}: {shared} texels are shared by overlapping or "
@@ -140,6 +149,24 @@ class TexelTarget:
         return Finished(result, values, rays, len(plan.points),
                         report={"texture": texture, "timings": timings},
                         rays_key="rays_per_texel_sample")
+
+
+def _prepare_seams(mesh, samples, normals, padding: int):
+    """A future of the seam system (``seams.prepare``), made on its own thread while the
+    samples are traced: it needs the atlas and the covered texels, not the values.  The
+    texels counted covered are those of the samples that will be traced, by the rule of
+    ``aobake.trace.Tracer.estimate`` (a sample without a unit normal casts no ray); the
+    erasure makes the system again if the bake's covered texels differ after all."""
+    normals = np.asarray(normals, dtype=np.float64)
+    length = np.sqrt((normals[:, 0] * normals[:, 0] + normals[:, 1] * normals[:, 1])
+                     + normals[:, 2] * normals[:, 2])
+    traced = length > 0.5
+    covered = texel_counts(samples if traced.all() else subset(samples, traced)) > 0
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="aobake-seams")
+    try:
+        return pool.submit(_native.carried(prepare_seams), mesh, covered, padding)
+    finally:
+        pool.shutdown(wait=False)
 
 
 def _denoise_stats(images, covered, quantities) -> dict:

@@ -79,9 +79,24 @@ def check_texture_budget(width: int, height: int, texel_samples: int) -> int:
 def split_corners(*corner_indices):
     """Unique combinations of per-corner indices.
 
-    corner_indices : k arrays (f, 3) int64.  Returns (keys (m, k) int64, faces (f, 3) int64).
+    corner_indices : k arrays (f, 3) int64, each >= 0.  Returns (keys (m, k) int64 in
+    lexicographic order, faces (f, 3) int64 into them): ``np.unique(axis=0)``'s result.
+    The combinations are packed into one int64 (first index most significant) when they
+    fit, so one 1-D sort does it: ``np.unique`` along an axis sorts the rows as a
+    structured type, 0.32 s for the bunny's new atlas against 0.02 s.
     """
-    stacked = np.stack([c.reshape(-1) for c in corner_indices], axis=1)
+    columns = [np.asarray(c, dtype=np.int64).reshape(-1) for c in corner_indices]
+    spans = [int(c.max()) + 1 if len(c) else 1 for c in columns]
+    if all(c.min(initial=0) >= 0 for c in columns) and math.prod(spans) < 2 ** 62:
+        packed = np.zeros(len(columns[0]), dtype=np.int64)
+        for c, span in zip(columns, spans):
+            packed = packed * span + c
+        unique, inverse = np.unique(packed, return_inverse=True)
+        keys = np.empty((len(unique), len(columns)), dtype=np.int64)
+        for i in range(len(columns) - 1, -1, -1):
+            unique, keys[:, i] = np.divmod(unique, spans[i])
+        return keys, inverse.reshape(-1, 3)
+    stacked = np.stack(columns, axis=1)
     keys, inverse = np.unique(stacked, axis=0, return_inverse=True)
     return keys, inverse.reshape(-1, 3)
 

@@ -68,10 +68,17 @@ def subset(samples: TexelSamples, keep: np.ndarray) -> TexelSamples:
                    is_fallback=samples.is_fallback[keep])
 
 
+def texel_counts(samples: TexelSamples) -> np.ndarray:
+    """(H, W) int64 the samples in each texel."""
+    return np.bincount(samples.texel, minlength=samples.width * samples.height).reshape(
+        samples.height, samples.width)
+
+
 def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, padding: int,
              to_tangent=None, dof: int = 0, confidence: float = 0.95, seams=None,
              timings: dict | None = None, seam_info: dict | None = None, denoise=None,
-             compiled: bool | None = None) -> tuple[dict, np.ndarray, np.ndarray]:
+             compiled: bool | None = None, seam_system=None
+             ) -> tuple[dict, np.ndarray, np.ndarray]:
     """Texel channels of a bake.
 
     quantities : the Quantity objects baked, samples : s sample points,
@@ -90,6 +97,8 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     and its counts to ``seam_info``; ``compiled`` as in ``seams.solve``).  An adjusted
     texel keeps its stderr (an upper bound on the adjusted value's: see ``seams``) and its
     interval becomes the hull of the baked one and the one around the adjusted value.
+    seam_system : None, or a future (``.result()``) of ``seams.prepare`` for ``seams``,
+    made while the samples were traced (its wait counts in ``timings["seams_s"]``).
     denoise : None, or (points (s, 3), normals (s, 3) float64 of all samples, uv (t, 2),
     faces_uv (f, 3) the bake UVs, face areas (f,) float64): adds ``<q>_denoised`` and
     ``<q>_denoised_stderr`` for each scalar quantity, filtered from the baked texels
@@ -99,7 +108,7 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     width, height = samples.width, samples.height
     traced = rays > 0  # samples on zero-area faces have no normal: left out of the texel means
     sub = samples if traced.all() else subset(samples, traced)
-    count = np.bincount(sub.texel, minlength=width * height).reshape(height, width)
+    count = texel_counts(sub)
     covered = count > 0
     rays_img = np.bincount(sub.texel, weights=rays[traced].astype(np.float64),
                            minlength=width * height).reshape(height, width)
@@ -151,8 +160,10 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
         from aobake.targets.texels.seams import erase_seams
 
         clock = time.perf_counter()
+        prepared = None if seam_system is None else seam_system.result()
         erased = erase_seams(out, erase, seams, covered, padding,
-                             directions=to_tangent is None, compiled=compiled)
+                             directions=to_tangent is None, compiled=compiled,
+                             prepared=prepared)
         if timings is not None:
             timings["seams_s"] = time.perf_counter() - clock
         if seam_info is not None and erased is not None:

@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -627,8 +628,41 @@ class SeamChannel:
         return cls(values, quantity.error.exr[0], direction)
 
 
+@dataclass(frozen=True)
+class Prepared:
+    """The seam system of a map, made before its values are known (``prepare``).
+
+    covered : (H, W) bool the covered texels it was made for, padding : int, points :
+    SeamPoints or None, system : SeamSystem or None (None: nothing to erase), seconds :
+    float how long making it took (on whichever thread made it).
+    """
+
+    covered: np.ndarray
+    padding: int
+    points: SeamPoints | None
+    system: SeamSystem | None
+    seconds: float
+
+
+def prepare(mesh: SeamMesh, covered, padding: int) -> Prepared:
+    """The seam points and system of ``mesh`` for the covered texels (H, W) bool: all of
+    the erasure that does not depend on the baked values, so it can be made while they are
+    traced (``aobake.targets.texels.TexelTarget.sample``)."""
+    clock = time.perf_counter()
+    covered = np.asarray(covered, dtype=bool)
+    height, width = covered.shape
+    points = system = None
+    if padding >= 1 and covered.any():
+        points = seam_points(mesh, width, height)
+        system = seam_system(points, covered, mesh.wrap)
+        if system.n_rows == 0:
+            points = system = None
+    return Prepared(covered, int(padding), points, system, time.perf_counter() - clock)
+
+
 def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
-                directions: bool = True, compiled: bool | None = None) -> Erased | None:
+                directions: bool = True, compiled: bool | None = None,
+                prepared: Prepared | None = None) -> Erased | None:
     """Erase the seams of the value channels of ``images`` (covered texels, in place).
 
     images : channel name -> (H, W) float64 texel values and stderrs (covered texels
@@ -637,17 +671,19 @@ def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
     only when ``directions``: a tangent-space bent normal's frame turns across a seam, so
     its components do not meet there),
     covered : (H, W) bool, padding : the gutter rings the map gets (0: lookups at chart
-    edges read the push-pull fill, and nothing is erased), compiled : as in ``solve``.
+    edges read the push-pull fill, and nothing is erased), compiled : as in ``solve``,
+    prepared : ``prepare``'s result for this mesh, used when made for the same covered
+    texels and padding (else the system is made here).
     Adjusted AO and obscurance are clipped to [0, 1].  Returns None when there is nothing to
     erase.
     """
     covered = np.asarray(covered, dtype=bool)
     height, width = covered.shape
-    if padding < 1 or not covered.any():
-        return None
-    points = seam_points(mesh, width, height)
-    system = seam_system(points, covered, mesh.wrap)
-    if system.n_rows == 0:
+    if prepared is None or prepared.padding != padding \
+            or not np.array_equal(prepared.covered, covered):
+        prepared = prepare(mesh, covered, padding)
+    points, system = prepared.points, prepared.system
+    if system is None:
         return None
     info = {"seam_edges": points.n_edges, "seam_points": len(points.uv_a),
             "points_dropped": system.dropped,
