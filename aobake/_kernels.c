@@ -666,30 +666,107 @@ done:
 /* The seam system's operator (W + P^T S P) x of aobake.targets.texels.seams._apply, in its
  * order of operations: u = P x (fill); per group of seam points, its eight texels' sums
  * over the group's points p, in order, of (lam_p d_p) g_p with d_p = g_p . u (a fixed
- * pairwise tree of the eight products), scattered in group order; out = w x + P^T v.  The points'
- * weights (m, 8) are read, not 8 x 8 group matrices: half the bytes per iteration, and
- * the solve is bound by memory. */
+ * pairwise tree of the eight products); v = their sum per texel in group order;
+ * out = w x + P^T v.  The points' weights (m, 8) are read, not 8 x 8 matrices per group:
+ * half the bytes per iteration, and the solve is bound by memory.
+ *
+ * Every scatter of the reference (numpy's bincount: entries added to their target in
+ * index order, from 0.0) is done here as a gather: each target sums its own entries in
+ * the same order (a CSR list of them, made once per solve), so a target's sum is the same
+ * bits whichever thread computes it, and the texels and groups can be split over threads
+ * with nothing written twice.  The dot products stay sequential sums from the first
+ * product; every thread computes them itself (a 150k-term dot is ~0.1 ms), so all threads
+ * take the same steps without waiting for one to broadcast them. */
 typedef struct {
     Py_ssize_t n, groups, fills;
     const double *coef, *lam, *w, *fill_weight;
     const int64_t *starts, *slots, *fill_to, *fill_from;
     const uint8_t *gutter;
+    /* the gathers: per texel i, its fill entries e by target (to_ptr[i] .. to_ptr[i + 1] - 1
+     * of to_list, ascending e), by source (from_ptr / from_list), and the group slots
+     * j = 8 g + k that name it (slot_ptr / slot_list, ascending j) */
+    const int64_t *to_ptr, *to_list, *from_ptr, *from_list, *slot_ptr, *slot_list;
 } SeamOp;
 
-static void seam_apply(const SeamOp *op, const double *x, double *u, double *v, double *out)
+/* A barrier for the solve's threads (pthread_barrier_t is not on every platform). */
+#ifndef _WIN32
+#include <pthread.h>
+typedef struct {
+    pthread_mutex_t lock;
+    pthread_cond_t turn;
+    int count, waiting, generation;
+    int gate;  /* 0: the started threads wait; 1: go; -1: give up (a thread failed to start) */
+} Barrier;
+
+/* A started thread's first step: wait until all are started; 0 if they could not be. */
+static int barrier_gate(Barrier *b)
 {
-    const Py_ssize_t n = op->n;
-    for (Py_ssize_t i = 0; i < n; ++i)
-        v[i] = 0.0;
-    for (Py_ssize_t e = 0; e < op->fills; ++e)
-        v[op->fill_to[e]] += op->fill_weight[e] * x[op->fill_from[e]];
-    for (Py_ssize_t i = 0; i < n; ++i)
-        u[i] = (op->gutter[i] ? 0.0 : x[i]) + v[i];
-    for (Py_ssize_t i = 0; i < n; ++i)
-        v[i] = 0.0;
-    for (Py_ssize_t g = 0; g < op->groups; ++g) {
+    pthread_mutex_lock(&b->lock);
+    while (b->gate == 0)
+        pthread_cond_wait(&b->turn, &b->lock);
+    const int go = b->gate > 0;
+    pthread_mutex_unlock(&b->lock);
+    return go;
+}
+
+static void barrier_open(Barrier *b, int gate)
+{
+    pthread_mutex_lock(&b->lock);
+    b->gate = gate;
+    pthread_cond_broadcast(&b->turn);
+    pthread_mutex_unlock(&b->lock);
+}
+
+static void barrier_wait(Barrier *b)
+{
+    if (b->count <= 1)
+        return;
+    pthread_mutex_lock(&b->lock);
+    const int generation = b->generation;
+    if (++b->waiting == b->count) {
+        b->waiting = 0;
+        ++b->generation;
+        pthread_cond_broadcast(&b->turn);
+    } else {
+        while (generation == b->generation)
+            pthread_cond_wait(&b->turn, &b->lock);
+    }
+    pthread_mutex_unlock(&b->lock);
+}
+#else
+typedef struct { int count; } Barrier;
+static void barrier_wait(Barrier *b) { (void)b; }
+#endif
+
+typedef struct {
+    const SeamOp *op;
+    Barrier *barrier;
+    const double *diag, *b;
+    double *x, *r, *z, *p, *q, *u, *v, *acc;
+    double tolerance;
+    Py_ssize_t max_iterations;
+    Py_ssize_t i0, i1, g0, g1;  /* this thread's texels and groups */
+    Py_ssize_t iterations;      /* out (the same in every thread) */
+    double left;
+} SeamWork;
+
+/* out = (W + P^T S P) x on this thread's share; returns after every thread's share is done. */
+static void seam_apply(const SeamWork *t, const double *x, double *out)
+{
+    const SeamOp *op = t->op;
+    double *u = t->u, *v = t->v, *acc = t->acc;
+    for (Py_ssize_t i = t->i0; i < t->i1; ++i) {
+        double s = 0.0;
+        for (int64_t j = op->to_ptr[i]; j < op->to_ptr[i + 1]; ++j) {
+            const int64_t e = op->to_list[j];
+            s += op->fill_weight[e] * x[op->fill_from[e]];
+        }
+        u[i] = (op->gutter[i] ? 0.0 : x[i]) + s;
+    }
+    barrier_wait(t->barrier);
+    for (Py_ssize_t g = t->g0; g < t->g1; ++g) {
         const int64_t *s = op->slots + 8 * g;
-        double ug[8], acc[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+        double ug[8], a[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
         for (int l = 0; l < 8; ++l)
             ug[l] = u[s[l]];
         for (int64_t p = op->starts[g]; p < op->starts[g + 1]; ++p) {
@@ -697,20 +774,31 @@ static void seam_apply(const SeamOp *op, const double *x, double *u, double *v, 
             /* a fixed pairwise tree: three additions deep, not seven */
             const double d = ((c[0] * ug[0] + c[1] * ug[1]) + (c[2] * ug[2] + c[3] * ug[3]))
                              + ((c[4] * ug[4] + c[5] * ug[5]) + (c[6] * ug[6] + c[7] * ug[7]));
-            const double t = op->lam[p] * d;
+            const double tp = op->lam[p] * d;
             for (int k = 0; k < 8; ++k)
-                acc[k] += t * c[k];
+                a[k] += tp * c[k];
         }
         for (int k = 0; k < 8; ++k)
-            v[s[k]] += acc[k];
+            acc[8 * g + k] = a[k];
     }
-    /* P^T v: u is free again and holds the fill's share of each covered texel */
-    for (Py_ssize_t i = 0; i < n; ++i)
-        u[i] = 0.0;
-    for (Py_ssize_t e = 0; e < op->fills; ++e)
-        u[op->fill_from[e]] += op->fill_weight[e] * v[op->fill_to[e]];
-    for (Py_ssize_t i = 0; i < n; ++i)
-        out[i] = op->w[i] * x[i] + ((op->gutter[i] ? 0.0 : v[i]) + u[i]);
+    barrier_wait(t->barrier);
+    for (Py_ssize_t i = t->i0; i < t->i1; ++i) {
+        double s = 0.0;
+        for (int64_t j = op->slot_ptr[i]; j < op->slot_ptr[i + 1]; ++j)
+            s += acc[op->slot_list[j]];
+        v[i] = s;
+    }
+    barrier_wait(t->barrier);
+    /* P^T v: a gutter texel's share goes back to its covered neighbours */
+    for (Py_ssize_t i = t->i0; i < t->i1; ++i) {
+        double s = 0.0;
+        for (int64_t j = op->from_ptr[i]; j < op->from_ptr[i + 1]; ++j) {
+            const int64_t e = op->from_list[j];
+            s += op->fill_weight[e] * v[op->fill_to[e]];
+        }
+        out[i] = op->w[i] * x[i] + ((op->gutter[i] ? 0.0 : v[i]) + s);
+    }
+    barrier_wait(t->barrier);
 }
 
 /* a . b summed in index order from the first product (numpy's cumsum of the reference) */
@@ -733,15 +821,110 @@ static double max_abs(const double *a, Py_ssize_t n)
     return m;
 }
 
+/* The whole conjugate-gradient loop, as every thread runs it on its share. */
+static void seam_cg_share(SeamWork *t)
+{
+    const Py_ssize_t n = t->op->n, i0 = t->i0, i1 = t->i1;
+    const double *w = t->op->w, *diag = t->diag, *b = t->b;
+    double *x = t->x, *r = t->r, *z = t->z, *p = t->p, *q = t->q;
+    for (Py_ssize_t i = i0; i < i1; ++i)
+        x[i] = b[i];
+    barrier_wait(t->barrier);
+    seam_apply(t, x, q);
+    for (Py_ssize_t i = i0; i < i1; ++i) {
+        r[i] = w[i] * b[i] - q[i];
+        z[i] = r[i] / diag[i];
+        p[i] = z[i];
+    }
+    barrier_wait(t->barrier);
+    double rz = seq_dot(r, z, n);
+    Py_ssize_t it = 0;
+    while (max_abs(z, n) > t->tolerance && it < t->max_iterations) {
+        seam_apply(t, p, q);
+        const double alpha = rz / seq_dot(p, q, n);
+        for (Py_ssize_t i = i0; i < i1; ++i) {
+            x[i] += alpha * p[i];
+            r[i] -= alpha * q[i];
+            z[i] = r[i] / diag[i];
+        }
+        barrier_wait(t->barrier);
+        const double rz_old = rz;
+        rz = seq_dot(r, z, n);
+        const double beta = rz / rz_old;
+        /* every thread has read z (max_abs) and r, z (the dot) before p changes: p is read
+         * only by the next seam_apply, behind its first barrier */
+        for (Py_ssize_t i = i0; i < i1; ++i)
+            p[i] = z[i] + beta * p[i];
+        barrier_wait(t->barrier);
+        ++it;
+    }
+    t->iterations = it;
+    t->left = max_abs(z, n);
+}
+
+#ifndef _WIN32
+static void *seam_cg_thread(void *arg)
+{
+    SeamWork *t = arg;
+    if (barrier_gate(t->barrier))
+        seam_cg_share(t);
+    return NULL;
+}
+#endif
+
+/* Each thread's texels (split evenly) and groups (split by their points: the group pass's
+ * work), for `threads` threads. */
+static void seam_shares(SeamWork *work, Py_ssize_t threads, Py_ssize_t n, Py_ssize_t groups,
+                        const int64_t *starts, Py_ssize_t m)
+{
+    for (Py_ssize_t k = 0; k < threads; ++k) {
+        work[k].i0 = n * k / threads;
+        work[k].i1 = n * (k + 1) / threads;
+        work[k].g0 = 0;
+        work[k].g1 = groups;
+    }
+    for (Py_ssize_t k = 1; k < threads; ++k) {
+        const int64_t point = m * k / threads;
+        Py_ssize_t lo = work[k - 1].g0, hi = groups;  /* first group starting at >= point */
+        while (lo < hi) {
+            const Py_ssize_t mid = lo + (hi - lo) / 2;
+            if (starts[mid] < point)
+                lo = mid + 1;
+            else
+                hi = mid;
+        }
+        work[k - 1].g1 = work[k].g0 = lo;
+    }
+}
+
+/* ptr (n + 1,) and list (len,): for each target i, the entries e with target[e] == i in
+ * ascending e (a counting sort; ptr must be zeroed).  target[e] in 0..n-1. */
+static void gather_lists(const int64_t *target, Py_ssize_t len, Py_ssize_t n, int64_t *ptr,
+                         int64_t *list)
+{
+    for (Py_ssize_t e = 0; e < len; ++e)
+        ++ptr[target[e] + 1];
+    for (Py_ssize_t i = 0; i < n; ++i)
+        ptr[i + 1] += ptr[i];
+    for (Py_ssize_t e = 0; e < len; ++e)
+        list[ptr[target[e]]++] = e;
+    for (Py_ssize_t i = n; i > 0; --i)  /* ptr[i] ran to the end of list i: shift back */
+        ptr[i] = ptr[i - 1];
+    ptr[0] = 0;
+}
+
+#define SEAM_MAX_THREADS 16
+
 /* seam_cg(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w, diag, b, x,
- *         tolerance, max_iterations) -> (iterations, the last max |r / diag|)
+ *         tolerance, max_iterations, threads=1) -> (iterations, the last max |r / diag|)
  *
  * Jacobi-preconditioned conjugate gradients on (W + P^T S P) x = W b from x = b, stopping
  * when max |r / diag| <= tolerance or after max_iterations: aobake.targets.texels.seams.
- * _cg_numpy operation for operation (tested bit for bit).  coef (m, 8), lam (m,) float64
- * the seam points' weights, starts (G + 1,) int64 (group g is points starts[g] ..
- * starts[g + 1] - 1), slots (G, 8) int64 in 0..n-1, gutter (n,) bool, fill_* (e,)
- * (fill_to, fill_from int64 in 0..n-1), w, diag, b (n,) float64; x (n,) float64 written.
+ * _cg_numpy operation for operation (tested bit for bit), on `threads` threads (the same
+ * bits for any number).  coef (m, 8), lam (m,) float64 the seam points' weights, starts
+ * (G + 1,) int64 (group g is points starts[g] .. starts[g + 1] - 1), slots (G, 8) int64 in
+ * 0..n-1, gutter (n,) bool, fill_* (e,) (fill_to, fill_from int64 in 0..n-1), w, diag, b
+ * (n,) float64; x (n,) float64 written.
  */
 static PyObject *seam_cg(PyObject *self, PyObject *args)
 {
@@ -749,14 +932,15 @@ static PyObject *seam_cg(PyObject *self, PyObject *args)
     Py_buffer bslots = {0}, bgut = {0}, bto = {0}, bfrom = {0}, bfw = {0};
     Py_buffer bw = {0}, bdiag = {0}, bb = {0}, bx = {0};
     double tolerance;
-    Py_ssize_t max_iterations, it = 0;
+    Py_ssize_t max_iterations, threads = 1, it = 0;
     double left = 0.0;
     double *scratch = NULL;
+    int64_t *lists = NULL;
     PyObject *result = NULL;
     (void)self;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*w*dn", &bcoef, &blam, &bstarts, &bslots,
-                          &bgut, &bto, &bfrom, &bfw, &bw, &bdiag, &bb, &bx, &tolerance,
-                          &max_iterations))
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*w*dn|n", &bcoef, &blam, &bstarts,
+                          &bslots, &bgut, &bto, &bfrom, &bfw, &bw, &bdiag, &bb, &bx, &tolerance,
+                          &max_iterations, &threads))
         return NULL;
     {
         const Py_ssize_t n = bgut.len, groups = bslots.len / 64, fills = bto.len / 8;
@@ -768,6 +952,10 @@ static PyObject *seam_cg(PyObject *self, PyObject *args)
             check(&bw, "w", 8, n) || check(&bdiag, "diag", 8, n) || check(&bb, "b", 8, n) ||
             check(&bx, "x", 8, n))
             goto done;
+        if (threads < 1) {
+            PyErr_SetString(PyExc_ValueError, "threads must be at least 1");
+            goto done;
+        }
         const int64_t *starts = bstarts.buf;
         if (starts[0] != 0 || starts[groups] != m) {
             PyErr_SetString(PyExc_ValueError, "starts must run from 0 to m");
@@ -789,48 +977,73 @@ static PyObject *seam_cg(PyObject *self, PyObject *args)
                 PyErr_SetString(PyExc_IndexError, "fill index out of range");
                 goto done;
             }
-        scratch = PyMem_RawMalloc(sizeof(double) * (size_t)(6 * n + 1));
-        if (!scratch) {
+        scratch = PyMem_RawMalloc(sizeof(double) * (size_t)(6 * n + 8 * groups + 1));
+        lists = PyMem_RawCalloc((size_t)(3 * (n + 1) + 2 * fills + 8 * groups + 1),
+                                sizeof(int64_t));
+        if (!scratch || !lists) {
             PyErr_NoMemory();
             goto done;
         }
-        const SeamOp op = {n, groups, fills, bcoef.buf, blam.buf, bw.buf, bfw.buf, starts, slots, to,
-                           from, bgut.buf};
-        const double *w = bw.buf, *diag = bdiag.buf, *b = bb.buf;
-        double *x = bx.buf;
+        int64_t *to_ptr = lists, *from_ptr = to_ptr + (n + 1), *slot_ptr = from_ptr + (n + 1);
+        int64_t *to_list = slot_ptr + (n + 1), *from_list = to_list + fills;
+        int64_t *slot_list = from_list + fills;
+        const SeamOp op = {n, groups, fills, bcoef.buf, blam.buf, bw.buf, bfw.buf, starts, slots,
+                           to, from, bgut.buf, to_ptr, to_list, from_ptr, from_list, slot_ptr,
+                           slot_list};
         double *r = scratch, *z = r + n, *p = z + n, *q = p + n, *u = q + n, *v = u + n;
+        double *acc = v + n;
+#ifdef _WIN32
+        threads = 1;
+#endif
+        if (threads > SEAM_MAX_THREADS)
+            threads = SEAM_MAX_THREADS;
+        SeamWork work[SEAM_MAX_THREADS];
+        Barrier barrier;
+        barrier.count = (int)threads;
         Py_BEGIN_ALLOW_THREADS
-        for (Py_ssize_t i = 0; i < n; ++i)
-            x[i] = b[i];
-        seam_apply(&op, x, u, v, q);
-        for (Py_ssize_t i = 0; i < n; ++i) {
-            r[i] = w[i] * b[i] - q[i];
-            z[i] = r[i] / diag[i];
-            p[i] = z[i];
+        gather_lists(to, fills, n, to_ptr, to_list);
+        gather_lists(from, fills, n, from_ptr, from_list);
+        gather_lists(slots, 8 * groups, n, slot_ptr, slot_list);
+        for (Py_ssize_t k = 0; k < threads; ++k) {
+            SeamWork t = {&op, &barrier, bdiag.buf, bb.buf, bx.buf, r, z, p, q, u, v, acc,
+                          tolerance, max_iterations, 0, 0, 0, 0, 0, 0.0};
+            work[k] = t;
         }
-        double rz = seq_dot(r, z, n);
-        while (max_abs(z, n) > tolerance && it < max_iterations) {
-            seam_apply(&op, p, u, v, q);
-            const double alpha = rz / seq_dot(p, q, n);
-            for (Py_ssize_t i = 0; i < n; ++i) {
-                x[i] += alpha * p[i];
-                r[i] -= alpha * q[i];
-                z[i] = r[i] / diag[i];
-            }
-            const double rz_old = rz;
-            rz = seq_dot(r, z, n);
-            const double beta = rz / rz_old;
-            for (Py_ssize_t i = 0; i < n; ++i)
-                p[i] = z[i] + beta * p[i];
-            ++it;
+#ifndef _WIN32
+        if (threads > 1) {
+            pthread_t handles[SEAM_MAX_THREADS];
+            Py_ssize_t started = 1;
+            pthread_mutex_init(&barrier.lock, NULL);
+            pthread_cond_init(&barrier.turn, NULL);
+            barrier.waiting = barrier.generation = barrier.gate = 0;
+            seam_shares(work, threads, n, groups, starts, m);
+            for (; started < threads; ++started)
+                if (pthread_create(&handles[started], NULL, seam_cg_thread, &work[started]))
+                    break;
+            barrier_open(&barrier, started == threads ? 1 : -1);
+            if (started == threads)
+                seam_cg_share(&work[0]);
+            for (Py_ssize_t k = 1; k < started; ++k)
+                pthread_join(handles[k], NULL);
+            pthread_mutex_destroy(&barrier.lock);
+            pthread_cond_destroy(&barrier.turn);
+            if (started < threads)  /* no threads to be had: all of it on this one */
+                threads = barrier.count = 1;
         }
-        left = max_abs(z, n);
+#endif
+        if (threads == 1) {
+            seam_shares(work, 1, n, groups, starts, m);
+            seam_cg_share(&work[0]);
+        }
+        it = work[0].iterations;
+        left = work[0].left;
         Py_END_ALLOW_THREADS
     }
     result = Py_BuildValue("nd", it, left);
 
 done:
     PyMem_RawFree(scratch);
+    PyMem_RawFree(lists);
     PyBuffer_Release(&bcoef); PyBuffer_Release(&blam); PyBuffer_Release(&bstarts);
     PyBuffer_Release(&bslots); PyBuffer_Release(&bgut);
     PyBuffer_Release(&bto); PyBuffer_Release(&bfrom); PyBuffer_Release(&bfw);

@@ -335,18 +335,19 @@ def test_config_field():
 
 @pytest.mark.parametrize("case", ["torus-own-uvs", "sphere-xatlas"])
 def test_compiled_solve_gives_the_numpy_bits(torus, case, kernel):
-    """The seam solve's kernel (group matrices and conjugate gradients) repeats the numpy
+    """The seam solve's kernel (group sums and conjugate gradients) repeats the numpy
     formulation operation for operation: the same iterations and the same bits, for
-    several channels at once and with gutter unknowns."""
+    several channels at once, with gutter unknowns and on any number of threads."""
     result, system, rows, cols = _unerased_case(torus, case, torus_resolution=OPTIONS["resolution"],
                                                 atlas_resolution=48)
     b = np.stack([result.channels[name][rows, cols] for name in ("ao", "ao_ci_low")], axis=1)
     se = result.channels["ao_stderr"][rows, cols].astype(np.float64)
     assert system.gutter.any() == (case == "sphere-xatlas")
-    fast, fast_info = solve(b, se, system, compiled=True)
     slow, slow_info = solve(b, se, system, compiled=False)
-    assert fast_info["iterations"] > 5 and fast_info == slow_info
-    np.testing.assert_array_equal(fast, slow)
+    for threads in (1, 2, 3, 7):  # the kernel's threads split texels and groups
+        fast, fast_info = solve(b, se, system, compiled=True, threads=threads)
+        assert fast_info["iterations"] > 5 and fast_info == slow_info
+        np.testing.assert_array_equal(fast, slow)
 
 
 @pytest.mark.parametrize("wrap", ["clamp", "repeat"])

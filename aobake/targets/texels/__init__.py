@@ -73,7 +73,7 @@ class TexelTarget:
         sizes = np.sqrt(2.0 * scene.areas()[samples.face])
         state = dict(atlas=atlas, uv=bake_uv, faces_uv=bake_faces_uv, check=check,
                      samples=samples, compiled=compiled, size=atlas.size, seams=None,
-                     seam_system=None)
+                     seam_system=None, threads=threads)
         if config.seams != "off":  # UV seams erased in gather
             state["seams"] = SeamMesh(scene.vertices, scene.vertex_normals, scene.faces,
                                       bake_uv, bake_faces_uv, atlas.wrap)
@@ -112,7 +112,8 @@ class TexelTarget:
                                                   config.confidence, state["seams"],
                                                   timings, seam_info, denoise,
                                                   compiled=state["compiled"],
-                                                  seam_system=state["seam_system"])
+                                                  seam_system=state["seam_system"],
+                                                  threads=state["threads"])
         timings["splat_dilate_s"] = time.perf_counter() - clock
         if state["seam_system"] is not None:  # made on its thread while tracing
             timings["seam_system_s"] = state["seam_system"].result().seconds

@@ -77,7 +77,7 @@ def texel_counts(samples: TexelSamples) -> np.ndarray:
 def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, padding: int,
              to_tangent=None, dof: int = 0, confidence: float = 0.95, seams=None,
              timings: dict | None = None, seam_info: dict | None = None, denoise=None,
-             compiled: bool | None = None, seam_system=None
+             compiled: bool | None = None, seam_system=None, threads: int = 1
              ) -> tuple[dict, np.ndarray, np.ndarray]:
     """Texel channels of a bake.
 
@@ -98,7 +98,8 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     texel keeps its stderr (an upper bound on the adjusted value's: see ``seams``) and its
     interval becomes the hull of the baked one and the one around the adjusted value.
     seam_system : None, or a future (``.result()``) of ``seams.prepare`` for ``seams``,
-    made while the samples were traced (its wait counts in ``timings["seams_s"]``).
+    made while the samples were traced (its wait counts in ``timings["seams_s"]``),
+    threads : the seam solve's.
     denoise : None, or (points (s, 3), normals (s, 3) float64 of all samples, uv (t, 2),
     faces_uv (f, 3) the bake UVs, face areas (f,) float64): adds ``<q>_denoised`` and
     ``<q>_denoised_stderr`` for each scalar quantity, filtered from the baked texels
@@ -163,7 +164,7 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
         prepared = None if seam_system is None else seam_system.result()
         erased = erase_seams(out, erase, seams, covered, padding,
                              directions=to_tangent is None, compiled=compiled,
-                             prepared=prepared)
+                             prepared=prepared, threads=threads)
         if timings is not None:
             timings["seams_s"] = time.perf_counter() - clock
         if seam_info is not None and erased is not None:

@@ -88,6 +88,9 @@ KAPPA = 100.0
 #: unknown (value units); the solution is then within about 3e-5 of the exact one (bunny,
 #: spot), far below the seam differences left (~1e-3 rms) and the texels' noise (~0.02)
 TOLERANCE = 1e-6
+#: the solve's threads have at least this many unknowns each (a barrier per pass costs
+#: microseconds; an iteration over 10k unknowns takes about half a millisecond)
+THREAD_UNKNOWNS = 10000
 #: conjugate-gradient iterations at most (a warning is logged when the tolerance is not met)
 MAX_ITERATIONS = 2000
 #: stderr floor in the weights (value units): a texel exact by construction (stderr 0)
@@ -439,15 +442,16 @@ def _distinct(index: np.ndarray, size: int) -> np.ndarray:
 
 def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
           kappa: float | None = None, tolerance: float | None = None,
-          max_iterations: int | None = None, compiled: bool | None = None
-          ) -> tuple[np.ndarray, dict]:
+          max_iterations: int | None = None, compiled: bool | None = None,
+          threads: int = 1) -> tuple[np.ndarray, dict]:
     """Minimise the erasure energy (module docstring) over the covered ``system.texels``.
 
     values : (n, c) float64 baked values of ``system.texels`` (c channels sharing the
     weights, e.g. a bent normal's components; gutter rows ignored), stderr : (n,) float64
     their stderr (gutter rows ignored).  compiled : the conjugate gradients in the compiled
     kernel (default: when it was built and not forced off, see ``aobake._native``) or in
-    numpy; the bits are the same.
+    numpy; the bits are the same.  threads : the kernel's threads (the same bits for any
+    number; numpy's runs on one).
     Returns (x (n, c) float64: the adjusted covered values, gutter rows the dilation of
     them; info: iterations, converged, and rms_before / rms_after, max_before / max_after of
     the lookup difference over the seam points (rms weighted by seam length)).
@@ -492,7 +496,7 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
         if kernels is not None:
             x = np.empty_like(b)
             it, left = kernels.seam_cg(*operator, diag, b, x, float(tolerance),
-                                       int(max_iterations))
+                                       int(max_iterations), int(threads))
         else:
             x, it, left = _cg_numpy(operator, diag, b, tolerance, max_iterations)
         info["iterations"] = max(info["iterations"], it)
@@ -662,7 +666,7 @@ def prepare(mesh: SeamMesh, covered, padding: int) -> Prepared:
 
 def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
                 directions: bool = True, compiled: bool | None = None,
-                prepared: Prepared | None = None) -> Erased | None:
+                prepared: Prepared | None = None, threads: int = 1) -> Erased | None:
     """Erase the seams of the value channels of ``images`` (covered texels, in place).
 
     images : channel name -> (H, W) float64 texel values and stderrs (covered texels
@@ -673,7 +677,8 @@ def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
     covered : (H, W) bool, padding : the gutter rings the map gets (0: lookups at chart
     edges read the push-pull fill, and nothing is erased), compiled : as in ``solve``,
     prepared : ``prepare``'s result for this mesh, used when made for the same covered
-    texels and padding (else the system is made here).
+    texels and padding (else the system is made here), threads : the solve's (at most one
+    per THREAD_UNKNOWNS unknowns; the same bits for any number).
     Adjusted AO and obscurance are clipped to [0, 1].  Returns None when there is nothing to
     erase.
     """
@@ -699,7 +704,8 @@ def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
         b[~system.gutter] = np.stack([images[name][rows, cols] for name in names], axis=1)
         se = np.zeros(len(system.texels))
         se[~system.gutter] = images[channel.error][rows, cols]
-        x, solved = solve(b, se, system, compiled=compiled)
+        x, solved = solve(b, se, system, compiled=compiled,
+                          threads=max(1, min(threads, len(system.texels) // THREAD_UNKNOWNS)))
         x = x[~system.gutter]
         if direction:  # unit directions again (a zero mean stays zero)
             length = np.linalg.norm(x, axis=1, keepdims=True)
