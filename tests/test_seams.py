@@ -382,9 +382,6 @@ def test_system_made_while_tracing_is_the_one_used(torus, monkeypatch):
         return original(*args, **kwargs)
 
     monkeypatch.setattr(seams, "prepare", counting)
-    import aobake.targets.texels as target_module
-
-    monkeypatch.setattr(target_module, "prepare_seams", counting)
     result = bake_texels(str(torus), seams="erase", seed=0, **OPTIONS)
     assert len(calls) == 1
     assert result.report["timings"]["seam_system_s"] > 0

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -23,8 +22,7 @@ from aobake.targets.base import Finished, SamplePoints
 from aobake.targets.texels.atlas import check_texture_budget, make_atlas, split_corners
 from aobake.targets.texels.gather import channels as gather_channels
 from aobake.targets.texels.gather import subset, texel_counts
-from aobake.targets.texels.seams import SeamMesh
-from aobake.targets.texels.seams import prepare as prepare_seams
+from aobake.targets.texels.seams import Pending, SeamMesh
 from aobake.targets.texels.surface import surface_points
 
 
@@ -112,11 +110,9 @@ class TexelTarget:
                                                   config.confidence, state["seams"],
                                                   timings, seam_info, denoise,
                                                   compiled=state["compiled"],
-                                                  seam_system=state["seam_system"],
+                                                  seam_system=state.pop("seam_system"),
                                                   threads=state["threads"])
         timings["splat_dilate_s"] = time.perf_counter() - clock
-        if state["seam_system"] is not None:  # made on its thread while tracing
-            timings["seam_system_s"] = state["seam_system"].result().seconds
         shared = int(np.count_nonzero(samples.shared >= 2))
         if shared:
             warnings.append(f"{scene.source}: {shared} texels are shared by overlapping or "
@@ -153,9 +149,9 @@ class TexelTarget:
 
 
 def _prepare_seams(mesh, samples, normals, padding: int):
-    """A future of the seam system (``seams.prepare``), made on its own thread while the
-    samples are traced: it needs the atlas and the covered texels, not the values.  The
-    texels counted covered are those of the samples that will be traced, by the rule of
+    """The seam system (``seams.Pending``), made on its own thread while the samples are
+    traced: it needs the atlas and the covered texels, not the values.  The texels counted
+    covered are those of the samples that will be traced, by the rule of
     ``aobake.trace.Tracer.estimate`` (a sample without a unit normal casts no ray); the
     erasure makes the system again if the bake's covered texels differ after all."""
     normals = np.asarray(normals, dtype=np.float64)
@@ -163,11 +159,7 @@ def _prepare_seams(mesh, samples, normals, padding: int):
                      + normals[:, 2] * normals[:, 2])
     traced = length > 0.5
     covered = texel_counts(samples if traced.all() else subset(samples, traced)) > 0
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="aobake-seams")
-    try:
-        return pool.submit(_native.carried(prepare_seams), mesh, covered, padding)
-    finally:
-        pool.shutdown(wait=False)
+    return Pending(mesh, covered, padding)
 
 
 def _denoise_stats(images, covered, quantities) -> dict:

@@ -97,8 +97,9 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     and its counts to ``seam_info``; ``compiled`` as in ``seams.solve``).  An adjusted
     texel keeps its stderr (an upper bound on the adjusted value's: see ``seams``) and its
     interval becomes the hull of the baked one and the one around the adjusted value.
-    seam_system : None, or a future (``.result()``) of ``seams.prepare`` for ``seams``,
-    made while the samples were traced (its wait counts in ``timings["seams_s"]``),
+    seam_system : None, or the ``seams.Pending`` system of ``seams``, made while the
+    samples were traced (its wait counts in ``timings["seams_s"]``, its making in
+    ``timings["seam_system_s"]``),
     threads : the seam solve's.
     denoise : None, or (points (s, 3), normals (s, 3) float64 of all samples, uv (t, 2),
     faces_uv (f, 3) the bake UVs, face areas (f,) float64): adds ``<q>_denoised`` and
@@ -161,12 +162,15 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
         from aobake.targets.texels.seams import erase_seams
 
         clock = time.perf_counter()
-        prepared = None if seam_system is None else seam_system.result()
+        prepared = None if seam_system is None else seam_system.take()
         erased = erase_seams(out, erase, seams, covered, padding,
                              directions=to_tangent is None, compiled=compiled,
                              prepared=prepared, threads=threads)
         if timings is not None:
             timings["seams_s"] = time.perf_counter() - clock
+            if prepared is not None:  # made on its thread while tracing
+                timings["seam_system_s"] = prepared.seconds
+        del prepared  # its memory is the gutters' next
         if seam_info is not None and erased is not None:
             seam_info.update(erased.info)
     adjusted = None if erased is None else erased.adjusted

@@ -62,6 +62,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -662,6 +663,27 @@ def prepare(mesh: SeamMesh, covered, padding: int) -> Prepared:
         if system.n_rows == 0:
             points = system = None
     return Prepared(covered, int(padding), points, system, time.perf_counter() - clock)
+
+
+class Pending:
+    """A seam system being made on its own thread (``prepare`` of the arguments), while the
+    samples are traced.  ``take()`` waits for it and hands it over, once: nothing else keeps
+    it, so its memory is free again for the gutters once the erasure is done."""
+
+    def __init__(self, mesh: SeamMesh, covered, padding: int):
+        self._made: list = []
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="aobake-seams")
+        try:
+            self._future = pool.submit(_native.carried(self._make), mesh, covered, padding)
+        finally:
+            pool.shutdown(wait=False)
+
+    def _make(self, mesh, covered, padding) -> None:
+        self._made.append(prepare(mesh, covered, padding))
+
+    def take(self) -> Prepared:
+        self._future.result()
+        return self._made.pop()
 
 
 def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
