@@ -1,6 +1,6 @@
 """``python -m aobake``: same as the ``aobake`` command."""
 
-from aobake.cli import main
+from aobake.cli import entry
 
 if __name__ == "__main__":
-    main()
+    entry()

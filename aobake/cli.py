@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -328,6 +329,35 @@ def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, report_p
         sys.exit(128 + exc.signum)
     finally:
         _restore_signals(previous)
+
+
+def entry() -> None:
+    """The process entry of the ``aobake`` command, ``python -m aobake`` and ``cli.py``:
+    ``main`` and its exit status, then the process ends without the interpreter's teardown.
+
+    Once the outputs are closed and renamed, the teardown only frees what the bake held
+    (every array one by one, the modules' objects) for memory the system takes back anyway:
+    0.18 s after a 1024^2 lightmap of the bunny.  The streams and logging are flushed first;
+    the library, and ``main`` run inside another program (click's test runner), end as
+    usual.
+    """
+    code = 0
+    try:
+        main()  # click's standalone mode ends with SystemExit, 0 included
+    except SystemExit as exc:
+        code = exc.code
+    if code is None:
+        code = 0
+    elif not isinstance(code, int):  # sys.exit("message"): the message, status 1
+        click.echo(str(code), err=True)
+        code = 1
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed or broken pipe: nothing more to say
+            pass
+    os._exit(code)
 
 
 def _route_python_warnings(quiet: bool) -> None:

@@ -138,6 +138,26 @@ def test_python_m_and_shim(mesh_path, tmp_path, entry):
     assert out.exists()
 
 
+@pytest.mark.parametrize("entry", [["-m", "aobake"], [str(ROOT / "cli.py")]], ids=["python-m", "shim"])
+def test_process_entry_flushes_and_keeps_the_exit_status(mesh_path, tmp_path, entry):
+    """The entry ends the process without the interpreter's teardown: what was printed to
+    pipes still arrives, the report is complete, and the status is main's."""
+    out, report = tmp_path / "m.ply", tmp_path / "m.json"
+    proc = subprocess.run([sys.executable, *entry, str(mesh_path), "--out", str(out), "--rays", "4",
+                           "--report", str(report)], capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.rstrip().splitlines()[-1].startswith("aobake: ") and " rays in " in proc.stderr
+    assert json.loads(report.read_text())["points"] > 0
+    bad = subprocess.run([sys.executable, *entry, str(tmp_path / "none.obj"), "--out", str(out)],
+                         capture_output=True, text=True, cwd=ROOT)
+    assert bad.returncode == 1 and bad.stderr.startswith("aobake: error: ")
+    usage = subprocess.run([sys.executable, *entry], capture_output=True, text=True, cwd=ROOT)
+    assert usage.returncode == 2 and "Missing argument" in usage.stderr
+    shown = subprocess.run([sys.executable, *entry, "--help"], capture_output=True, text=True,
+                           cwd=ROOT)
+    assert shown.returncode == 0 and shown.stdout.startswith("Usage: ")
+
+
 @pytest.mark.parametrize("report_name, out_name", [("x.npz", "x.npz"), ("ao.obj", "ao.exr")])
 def test_outputs_must_be_distinct_files(mesh_path, tmp_path, report_name, out_name):
     """--report over --out (or over the default --mesh-out) is refused before any work."""
