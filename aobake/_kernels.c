@@ -694,7 +694,8 @@ typedef struct {
 typedef struct {
     pthread_mutex_t lock;
     pthread_cond_t turn;
-    int count, waiting, generation;
+    int count, waiting;
+    unsigned generation;  /* wraps harmlessly: only equality is tested */
     int gate;  /* 0: the started threads wait; 1: go; -1: give up (a thread failed to start) */
 } Barrier;
 
@@ -722,7 +723,7 @@ static void barrier_wait(Barrier *b)
     if (b->count <= 1)
         return;
     pthread_mutex_lock(&b->lock);
-    const int generation = b->generation;
+    const unsigned generation = b->generation;
     if (++b->waiting == b->count) {
         b->waiting = 0;
         ++b->generation;

@@ -354,9 +354,11 @@ def entry() -> None:
     logging.shutdown()
     for stream in (sys.stdout, sys.stderr):
         try:
-            stream.flush()
-        except (OSError, ValueError):  # a closed or broken pipe: nothing more to say
+            if stream is not None:  # None: no console (pythonw, a detached process)
+                stream.flush()
+        except Exception:  # noqa: BLE001 - a closed or broken pipe: nothing more to say
             pass
+    # atexit hooks do not run (the CLI registers none; a coverage tool's would be skipped).
     os._exit(code)
 
 

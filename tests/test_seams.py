@@ -409,3 +409,23 @@ def test_a_system_for_other_covered_texels_is_made_again(torus):
     (a, info_a), (b, info_b) = erased(None), erased(wrong)
     assert np.array_equal(a, b) and info_a == info_b
     assert not np.array_equal(a, result.channels["ao"])
+
+
+def test_a_system_that_failed_on_its_thread_is_made_again(torus, monkeypatch):
+    """A failure while the system is made beside the tracing (memory, say) is not the
+    bake's: the erasure makes it again, and the bake is the same."""
+    import threading
+
+    original = seams.prepare
+
+    def failing_off_the_main_thread(*args, **kwargs):
+        if threading.current_thread() is not threading.main_thread():
+            raise MemoryError("no memory beside the tracing")
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(seams, "prepare", failing_off_the_main_thread)
+    result = bake_texels(str(torus), seams="erase", seed=0, **OPTIONS)
+    cached = _bake(str(torus), "erase", 0)
+    for name, image in cached.channels.items():
+        assert np.array_equal(image, result.channels[name]), name
+    assert "seam_system_s" not in result.report["timings"]

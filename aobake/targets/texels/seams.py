@@ -681,8 +681,15 @@ class Pending:
     def _make(self, mesh, covered, padding) -> None:
         self._made.append(prepare(mesh, covered, padding))
 
-    def take(self) -> Prepared:
-        self._future.result()
+    def take(self) -> Prepared | None:
+        """The system, or None if making it failed on its thread (a MemoryError while the
+        tracing held memory, say): ``erase_seams`` then makes it on the caller's thread,
+        where a real failure is raised."""
+        try:
+            self._future.result()
+        except Exception as exc:  # noqa: BLE001 - made again by the caller
+            log.debug("seam system made on its thread failed (%s): made again", exc)
+            return None
         return self._made.pop()
 
 
@@ -727,7 +734,8 @@ def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
         se = np.zeros(len(system.texels))
         se[~system.gutter] = images[channel.error][rows, cols]
         x, solved = solve(b, se, system, compiled=compiled,
-                          threads=max(1, min(threads, len(system.texels) // THREAD_UNKNOWNS)))
+                          threads=max(1, min(int(threads or 1),
+                                             len(system.texels) // THREAD_UNKNOWNS)))
         x = x[~system.gutter]
         if direction:  # unit directions again (a zero mean stays zero)
             length = np.linalg.norm(x, axis=1, keepdims=True)
