@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from aobake import _native
+
 # The 8 neighbours of a texel as (row, col) offsets.
 _NEIGHBOURS = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0)]
 
@@ -28,7 +30,8 @@ def _checked(image, mask) -> tuple[np.ndarray, np.ndarray]:
     return image, mask
 
 
-def dilate(image, mask, padding: int) -> tuple[np.ndarray, np.ndarray]:
+def dilate(image, mask, padding: int, compiled: bool | None = None
+           ) -> tuple[np.ndarray, np.ndarray]:
     """Fill the gutter around covered texels, ring by ring.
 
     image : (H, W, C) float; mask : (H, W) bool, True where the texel holds a
@@ -43,6 +46,8 @@ def dilate(image, mask, padding: int) -> tuple[np.ndarray, np.ndarray]:
 
     Returns (image (H, W, C) float64, mask (H, W) bool): the new image and the
     mask of texels that now hold a value (input mask plus filled rings).
+    compiled : the rings in the compiled kernel (``dilate_rings``; default: when it was
+    built and not forced off, see ``aobake._native``) or in numpy; the same bits.
     """
     image, mask = _checked(image, mask)
     if int(padding) != padding or padding < 0:
@@ -55,7 +60,13 @@ def dilate(image, mask, padding: int) -> tuple[np.ndarray, np.ndarray]:
     np.copyto(out, image, where=mask[..., None])
     filled = mask.copy()
     h, w = filled.shape
-    for _ in range(int(padding)):
+    kernels = _native.kernels() if compiled in (None, True) else None
+    if compiled and kernels is None:
+        raise RuntimeError("aobake._kernels was not built")
+    if kernels is not None:  # the loop below, ring for ring, in one pass per ring
+        kernels.dilate_rings(out.reshape(-1), filled.reshape(-1), h, w, out.shape[2],
+                             int(padding))
+    for _ in range(0 if kernels is not None else int(padding)):
         # The ring: unfilled texels with a filled 8-neighbour (a 3x3 dilation of the
         # bool mask).  Only its texels are averaged, so a ring costs its perimeter,
         # not the whole image.

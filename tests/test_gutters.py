@@ -53,9 +53,9 @@ def _bake(resolution, padding, fill=True):
     (dilated rings, then whatever the splat left: 0 for the values)."""
     seen = {}
 
-    def spy(stack, covered, pad):
+    def spy(stack, covered, pad, compiled=None):
         seen["stack"] = np.array(stack, dtype=np.float64)
-        return post.dilate(stack, covered, pad)
+        return post.dilate(stack, covered, pad, compiled=compiled)
 
     with contextlib.ExitStack() as patches:
         patches.enter_context(mock.patch.object(gather, "dilate", spy))
@@ -283,3 +283,25 @@ def test_push_pull_edge_cases():
         post.push_pull(image, np.ones((3, 2), bool))
     with pytest.raises(ValueError, match="float"):
         post.push_pull(image, np.ones((2, 3), bool), np.int32)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_compiled_rings_give_the_numpy_bits(seed, kernel):
+    """dilate's rings in the kernel (dilate_rings) and in numpy: the same bits and the same
+    filled mask, for any shape, channel count, padding and value (-0.0, inf, NaN too)."""
+    rng = np.random.default_rng(seed)
+    h, w, c = (int(x) for x in rng.integers(1, 30, 3))
+    c = 1 + c % 5
+    mask = rng.random((h, w)) < rng.random()
+    image = rng.normal(size=(h, w, c))
+    special = rng.random((h, w, c))
+    image[special < 0.05] = -0.0
+    image[(special >= 0.05) & (special < 0.07)] = np.nan
+    image[(special >= 0.07) & (special < 0.08)] = -np.inf
+    image = image.astype(np.float32 if seed % 2 else np.float64)
+    padding = int(rng.integers(0, 6))
+    fast, fast_filled = post.dilate(image, mask, padding, compiled=True)
+    slow, slow_filled = post.dilate(image, mask, padding, compiled=False)
+    assert np.array_equal(fast_filled, slow_filled)
+    assert fast.dtype == slow.dtype and fast.tobytes() == slow.tobytes()
+    assert padding == 0 or fast.dtype == np.float64  # padding 0: the input, unchanged

@@ -95,14 +95,16 @@ def test_bakes_do_not_depend_on_the_compiled_kernel(kernel):
     with _native.numpy_only():
         reference = run()
     everything = {"ray_generation": "compiled", "escape_counts": "compiled",
-                  "rasterizer": "not used", "atlas_packing": "not used", "seam_solve": "not used"}
+                  "rasterizer": "not used", "atlas_packing": "not used", "seam_solve": "not used",
+                  "gutters": "not used"}
     assert compiled[0].report["parameters"]["kernels"] == everything
     assert compiled[1].report["parameters"]["kernels"] == dict(  # the torus has no UVs: unwrapped
-        everything, rasterizer="compiled", atlas_packing="compiled", seam_solve="compiled")
+        everything, rasterizer="compiled", atlas_packing="compiled", seam_solve="compiled",
+        gutters="compiled")
     assert compiled[1].report["texture"]["seams"]["iterations"] > 0  # the solve ran
     assert reference[0].report["parameters"]["kernels"] == {
         "ray_generation": "numpy", "escape_counts": "numpy", "rasterizer": "not used",
-        "atlas_packing": "not used", "seam_solve": "not used"}
+        "atlas_packing": "not used", "seam_solve": "not used", "gutters": "not used"}
     assert set(reference[1].report["parameters"]["kernels"].values()) == {"numpy"}
     for name, array in compiled[0].fields().items():
         np.testing.assert_array_equal(array, getattr(reference[0], name), err_msg=name)

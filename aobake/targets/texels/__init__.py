@@ -78,7 +78,8 @@ class TexelTarget:
             state["seam_system"] = _prepare_seams(state["seams"], samples, normals,
                                                   config.padding)
         kernels = {"rasterizer": compiled, "atlas_packing": atlas.packing_compiled,  # None: own UVs
-                   "seam_solve": None if config.seams == "off" else compiled}
+                   "seam_solve": None if config.seams == "off" else compiled,
+                   "gutters": compiled if config.padding > 0 else None}
         return SamplePoints(points, normals, ids, sizes=sizes, kernels=kernels, state=state)
 
     def finish(self, scene, config, plan, values, rays, timings, warnings) -> Finished:

@@ -187,7 +187,7 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     # Gutters: `padding` rings of exact nearest-texel dilation, then push-pull fills every
     # texel beyond them, so no box-filtered mip level mixes an empty texel into a chart.
     # In float32, what is written: the covered and dilated texels round exactly as before.
-    stack, filled = dilate(stack, covered, padding)
+    stack, filled = dilate(stack, covered, padding, compiled=compiled)
     stack = push_pull(stack, filled, np.float32)
     for i, name in enumerate(names):
         out[name] = stack[..., i]
