@@ -365,12 +365,14 @@ def seam_system(points: SeamPoints, covered, wrap: str = "clamp") -> SeamSystem:
     # its second and third lie above it (clamped or wrapped at the image's edges).
     if height * width > 1 << 28:  # a side's key must fit in 30 bits (MAX_RESOLUTION^2 does)
         raise ValueError(f"seam erasure supports at most 2^28 texels, got {width}x{height}")
-    order = np.argsort(_side_key(points.uv_a, width, height, wrap) << np.int64(30)
-                       | _side_key(points.uv_b, width, height, wrap), kind="stable")
-    ta, wa = bilinear_stencil(points.uv_a[order], width, height, wrap)
-    tb, wb = bilinear_stencil(points.uv_b[order], width, height, wrap)
-    texel = np.concatenate([ta, tb], axis=1)  # (m, 8), in group order
-    coef = np.concatenate([wa, -wb], axis=1)
+    # (The stencils are made once and put in order: a row's stencil depends on its own
+    # UV only, so this is the stencil of the ordered UVs, bit for bit.)
+    ta, wa = bilinear_stencil(points.uv_a, width, height, wrap)
+    tb, wb = bilinear_stencil(points.uv_b, width, height, wrap)
+    order = np.argsort(_stencil_key(ta) << np.int64(30) | _stencil_key(tb), kind="stable")
+    texel = np.concatenate([ta[order], tb[order]], axis=1)  # (m, 8), in group order
+    coef = np.concatenate([wa[order], -wb[order]], axis=1)
+    del ta, wa, tb, wb
     point_weight = points.weight[order]
     # Gutter texels read, and their covered 8-neighbours (the first dilation ring's mean).
     gutter_read = _distinct(texel[~flat[texel]], height * width)
@@ -418,7 +420,11 @@ def _side_key(uv, width: int, height: int, wrap: str) -> np.ndarray:
     first texel * 4 + (second > first) * 2 + (third > first).  For a given first texel the
     second is one of two (the next column, or the same one clamped; with ``repeat``, the
     next or the row's first), and so is the third (rows); the fourth follows from them."""
-    texel, _ = bilinear_stencil(uv, width, height, wrap)
+    return _stencil_key(bilinear_stencil(uv, width, height, wrap)[0])
+
+
+def _stencil_key(texel: np.ndarray) -> np.ndarray:
+    """``_side_key`` of the stencils' texels (p, 4) int64."""
     return (texel[:, 0] * 4 + (texel[:, 1] > texel[:, 0]) * 2 + (texel[:, 2] > texel[:, 0]))
 
 
