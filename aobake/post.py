@@ -63,10 +63,21 @@ def dilate(image, mask, padding: int, compiled: bool | None = None
     kernels = _native.kernels() if compiled in (None, True) else None
     if compiled and kernels is None:
         raise RuntimeError("aobake._kernels was not built")
-    if kernels is not None:  # the loop below, ring for ring, in one pass per ring
+    if kernels is not None:  # _rings, ring for ring, in one pass per ring
         kernels.dilate_rings(out.reshape(-1), filled.reshape(-1), h, w, out.shape[2],
                              int(padding))
-    for _ in range(0 if kernels is not None else int(padding)):
+    else:
+        _rings(out, filled, int(padding))
+    # Texels beyond the last ring keep their input values.
+    np.copyto(out, image, where=~filled[..., None])
+    return out, filled
+
+
+def _rings(out: np.ndarray, filled: np.ndarray, padding: int) -> None:
+    """``dilate``'s rings in numpy, in place (the reference of the compiled
+    ``dilate_rings``): out (H, W, C) float64 with the background zeroed, filled (H, W) bool."""
+    h, w = filled.shape
+    for _ in range(padding):
         # The ring: unfilled texels with a filled 8-neighbour (a 3x3 dilation of the
         # bool mask).  Only its texels are averaged, so a ring costs its perimeter,
         # not the whole image.
@@ -87,9 +98,6 @@ def dilate(image, mask, padding: int, compiled: bool | None = None
             count += ok
         out[rows, cols] = total / count[:, None]
         filled[rows, cols] = True
-    # Texels beyond the last ring keep their input values.
-    np.copyto(out, image, where=~filled[..., None])
-    return out, filled
 
 
 def push_pull(image, mask, dtype=np.float64) -> np.ndarray:

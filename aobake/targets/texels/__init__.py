@@ -24,6 +24,7 @@ from aobake.targets.texels.gather import channels as gather_channels
 from aobake.targets.texels.gather import subset, texel_counts
 from aobake.targets.texels.seams import Pending, SeamMesh
 from aobake.targets.texels.surface import surface_points
+from aobake.vectors import defined
 
 
 #: fewer covered texels per chart (new atlas) or per face (own UVs) than this draws a warning
@@ -152,13 +153,10 @@ class TexelTarget:
 def _prepare_seams(mesh, samples, normals, padding: int):
     """The seam system (``seams.Pending``), made on its own thread while the samples are
     traced: it needs the atlas and the covered texels, not the values.  The texels counted
-    covered are those of the samples that will be traced, by the rule of
-    ``aobake.trace.Tracer.estimate`` (a sample without a unit normal casts no ray); the
+    covered are those of the samples that will be traced, by the tracer's rule
+    (``aobake.vectors.defined``: a sample without a normal casts no ray); the
     erasure makes the system again if the bake's covered texels differ after all."""
-    normals = np.asarray(normals, dtype=np.float64)
-    length = np.sqrt((normals[:, 0] * normals[:, 0] + normals[:, 1] * normals[:, 1])
-                     + normals[:, 2] * normals[:, 2])
-    traced = length > 0.5
+    traced = defined(normals)
     covered = texel_counts(samples if traced.all() else subset(samples, traced)) > 0
     return Pending(mesh, covered, padding)
 

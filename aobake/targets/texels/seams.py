@@ -69,6 +69,7 @@ from typing import NamedTuple
 import numpy as np
 
 from aobake import _native
+from aobake.vectors import distinct
 
 log = logging.getLogger(__name__)
 
@@ -375,7 +376,7 @@ def seam_system(points: SeamPoints, covered, wrap: str = "clamp") -> SeamSystem:
     del ta, wa, tb, wb
     point_weight = points.weight[order]
     # Gutter texels read, and their covered 8-neighbours (the first dilation ring's mean).
-    gutter_read = _distinct(texel[~flat[texel]], height * width)
+    gutter_read = distinct(texel[~flat[texel]], height * width)
     r, c = np.divmod(gutter_read, width)
     nb = np.full((len(gutter_read), 8), -1, dtype=np.int64)
     for i, (dr, dc) in enumerate(_NEIGHBOURS):
@@ -400,7 +401,7 @@ def seam_system(points: SeamPoints, covered, wrap: str = "clamp") -> SeamSystem:
     read[texel.reshape(-1)] = True
     gutter_used = read[gutter]
     gutter, nb, count = gutter[gutter_used], nb[gutter_used], count[gutter_used]
-    texels = _distinct(np.concatenate([texel.reshape(-1), nb[nb >= 0]]), height * width)
+    texels = distinct(np.concatenate([texel.reshape(-1), nb[nb >= 0]]), height * width)
     index = _indexer(texels, height * width)
     new_group = np.r_[True, np.any(texel[1:] != texel[:-1], axis=1)]
     group = np.cumsum(new_group) - 1
@@ -437,14 +438,6 @@ def _indexer(texels: np.ndarray, size: int):
     rank = np.zeros(size, dtype=np.int32)
     rank[texels] = np.arange(len(texels), dtype=np.int32)
     return lambda _, values: rank[values].astype(np.int64)
-
-
-def _distinct(index: np.ndarray, size: int) -> np.ndarray:
-    """The distinct values of ``index`` (any shape, int in 0..size-1), increasing: (k,) int64,
-    as ``np.unique`` gives them, by marking a (size,) mask (no sort of millions of reads)."""
-    seen = np.zeros(size, dtype=bool)
-    seen[index.reshape(-1)] = True
-    return np.flatnonzero(seen)
 
 
 def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
@@ -677,26 +670,22 @@ class Pending:
     it, so its memory is free again for the gutters once the erasure is done."""
 
     def __init__(self, mesh: SeamMesh, covered, padding: int):
-        self._made: list = []
         pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="aobake-seams")
         try:
-            self._future = pool.submit(_native.carried(self._make), mesh, covered, padding)
+            self._future = pool.submit(_native.carried(prepare), mesh, covered, padding)
         finally:
             pool.shutdown(wait=False)
-
-    def _make(self, mesh, covered, padding) -> None:
-        self._made.append(prepare(mesh, covered, padding))
 
     def take(self) -> Prepared | None:
         """The system, or None if making it failed on its thread (a MemoryError while the
         tracing held memory, say): ``erase_seams`` then makes it on the caller's thread,
         where a real failure is raised."""
+        future, self._future = self._future, None
         try:
-            self._future.result()
+            return future.result()
         except Exception as exc:  # noqa: BLE001 - made again by the caller
             log.debug("seam system made on its thread failed (%s): made again", exc)
             return None
-        return self._made.pop()
 
 
 def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
