@@ -220,6 +220,8 @@ def _texture_stats(channels, covered, filled, shared, width, height, padding, k,
         "texels_padded": int(np.count_nonzero(filled & ~covered)),
         "texels_shared": shared,
         "atlas": "xatlas" if atlas.new else "mesh UVs",
+        # which build of xatlas charted it (the same charts): "aobake._xatlas" or "xatlas"
+        "charting": atlas.charting,
         # how the map is sampled: "repeat" when own UVs outside [0, 1] were baked wrapped
         "wrap": atlas.wrap,
         "charts": atlas.charts,

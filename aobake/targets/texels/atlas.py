@@ -41,7 +41,9 @@ class Atlas:
     values, the texels hold them modulo 1),
     size : (width, height) of the image the map is baked into,
     packing_compiled : bool | None whether a new atlas's charts were packed by the compiled
-    kernels (False: the numpy reference; None: no new atlas).
+    kernels (False: the numpy reference; None: no new atlas),
+    charting : str | None which xatlas charted a new atlas ("aobake._xatlas", built from
+    third_party/xatlas, or "xatlas", the package: the same charts; None: no new atlas).
     """
 
     positions: np.ndarray
@@ -57,6 +59,7 @@ class Atlas:
     wrap: str = "clamp"
     size: tuple | None = None
     packing_compiled: bool | None = None
+    charting: str | None = None
 
 
 def check_texture_budget(width: int, height: int, texel_samples: int) -> int:
@@ -223,5 +226,5 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
                   materials=scene.materials if base_uv is not None else None,
                   face_material=scene.face_material if base_uv is not None else None,
                   charts=unwrapped.charts, size=(width, height),
-                  packing_compiled=unwrapped.packing_compiled)
+                  packing_compiled=unwrapped.packing_compiled, charting=unwrapped.charting)
     return atlas, unwrapped.uv, unwrapped.faces, check, raster(unwrapped.uv, unwrapped.faces)

@@ -47,6 +47,8 @@ class Unwrapped(NamedTuple):
     packing_compiled : bool | None  True when the charts were marked and packed by the
                             compiled kernels (aobake/_pack.c), False by the numpy reference
                             (the same atlas either way); None when not known
+    charting : str | None   which xatlas charted: "aobake._xatlas" (built from
+                            third_party/xatlas) or "xatlas" (the package), the same charts
     """
 
     vmapping: np.ndarray
@@ -55,6 +57,7 @@ class Unwrapped(NamedTuple):
     charts: int = 0
     size: tuple | None = None
     packing_compiled: bool | None = None
+    charting: str | None = None
 
 
 #: A chart grows to at most this many triangles' worth of area, counted in the triangles of
@@ -253,34 +256,68 @@ def _chart_parts(V, F, parts, sizes, max_chart_faces):
     chart area cap in those units or None.  Returns per part (vmapping (m,) int64 into V,
     faces (p, 3) int64 over the part's new vertices in the part's face order, uv (m, 2)
     float64, any scale: charts are rescaled to their surface area afterwards).
-    """
-    import xatlas
 
+    The charting runs in ``aobake._xatlas`` (xatlas built from third_party/xatlas, 1.5x
+    faster) when it was built, else in the xatlas package: the same charts either way
+    (tests/test_xatlas_build.py).
+    """
     if not parts:
         return []
-    chart_options = xatlas.ChartOptions()
-    if max_chart_faces is not None:
-        chart_options.max_chart_area = float(max_chart_faces)
-    atlas = xatlas.Atlas()
-    part_vertices = []
+    meshes, part_vertices = [], []
     for part, size in zip(parts, sizes):
         used, local = np.unique(F[part], return_inverse=True)
         part_vertices.append(used)
-        atlas.add_mesh(np.ascontiguousarray(V[used] / size, dtype=np.float32),
-                       np.ascontiguousarray(local.reshape(-1, 3), dtype=np.uint32))
+        meshes.append((np.ascontiguousarray(V[used] / size, dtype=np.float32),
+                       np.ascontiguousarray(local.reshape(-1, 3), dtype=np.uint32)))
     # xatlas's own pack only hands back each chart's parameterisation; it rounds every chart
     # up to whole texels (stretching it to fill them), so it runs at FIRST_PACK_TEXELS per
     # unit area, where that rounding barely changes a chart's shape.
-    cheap = xatlas.PackOptions()
-    cheap.padding, cheap.bilinear = 0, False
-    cheap.texels_per_unit = math.sqrt(FIRST_PACK_TEXELS)
-    atlas.generate(chart_options=chart_options, pack_options=cheap)
-    out = []
-    for i, used in enumerate(part_vertices):
-        vm, fi, uv = atlas[i]
-        out.append((used[vm.astype(np.int64)], fi.astype(np.int64),
-                    uv.astype(np.float64) * [atlas.width, atlas.height]))
-    return out
+    width, height, charted = xatlas_charts(meshes, float(max_chart_faces or 0.0),
+                                           math.sqrt(FIRST_PACK_TEXELS))
+    return [(used[vm.astype(np.int64)], fi.astype(np.int64),
+             uv.astype(np.float64) * [width, height])
+            for used, (vm, fi, uv) in zip(part_vertices, charted)]
+
+
+def charting_library() -> str:
+    """Which xatlas charts: "aobake._xatlas" (built from third_party/xatlas) or "xatlas"
+    (the package)."""
+    return "aobake._xatlas" if _built_xatlas() is not None else "xatlas"
+
+
+def _built_xatlas():
+    try:
+        from aobake import _xatlas
+    except ImportError:  # no C++ compiler at install: the package charts, the same charts
+        return None
+    return _xatlas
+
+
+def xatlas_charts(meshes, max_chart_area: float, texels_per_unit: float, library=None):
+    """Chart and pack ``meshes`` (list of (positions (n, 3) float32, faces (m, 3) uint32))
+    with xatlas: ChartOptions' defaults but ``max_chart_area`` (0: none), PackOptions'
+    padding 0, no bilinear margin, ``texels_per_unit``.  ``library``: "aobake._xatlas",
+    "xatlas" or None (``charting_library``).  Returns (width, height, per mesh (vmapping
+    (k,) uint32, faces (m, 3) uint32, uv (k, 2) float32 over width and height))."""
+    library = library or charting_library()
+    if library == "aobake._xatlas":
+        width, height, out = _built_xatlas().chart(
+            [(p, len(p), f, len(f)) for p, f in meshes], max_chart_area, texels_per_unit)
+        return width, height, [(np.frombuffer(vm, np.uint32), np.frombuffer(fi, np.uint32)
+                                .reshape(-1, 3), np.frombuffer(uv, np.float32).reshape(-1, 2))
+                               for vm, fi, uv in out]
+    import xatlas
+
+    chart_options = xatlas.ChartOptions()
+    if max_chart_area:
+        chart_options.max_chart_area = max_chart_area
+    atlas = xatlas.Atlas()
+    for positions, faces in meshes:
+        atlas.add_mesh(positions, faces)
+    pack = xatlas.PackOptions()
+    pack.padding, pack.bilinear, pack.texels_per_unit = 0, False, texels_per_unit
+    atlas.generate(chart_options=chart_options, pack_options=pack)
+    return atlas.width, atlas.height, [atlas[i] for i in range(len(meshes))]
 
 
 #: A part is charted again with a larger cap when at least this share of its area is in
@@ -971,6 +1008,7 @@ def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False,
                                                        chart_image, kernels)
         W = H = R
     info["packing_compiled"] = kernels is not None
+    info["charting"] = charting_library()
     info["width"], info["height"] = W, H
     if image is not None:
         full = np.zeros((H, W, 3), np.uint8)
@@ -992,7 +1030,7 @@ def _unwrap_in_process(positions, faces, resolution, padding, texel_density=None
     # integral, so the texel grid the charts were packed on (and its padding) is kept.
     uv[:, 1] = 1.0 - uv[:, 1]
     return Unwrapped(vmapping, new_faces, uv, size=(info["width"], info["height"]),
-                     packing_compiled=info["packing_compiled"]), info
+                     packing_compiled=info["packing_compiled"], charting=info["charting"]), info
 
 
 def _unwrap_worker(argv: list[str]) -> None:
@@ -1012,7 +1050,7 @@ def _unwrap_worker(argv: list[str]) -> None:
 
 #: what the child reports besides the atlas (see ``_xatlas_atlas``)
 _INFO = {"charts": int, "coverage": float, "utilization": float, "texels_per_unit": float,
-         "packs": int, "width": int, "height": int, "packing_compiled": bool}
+         "packs": int, "width": int, "height": int, "packing_compiled": bool, "charting": str}
 
 
 #: time limit of one xatlas child process: base + per triangle (the bunny's 69k
@@ -1036,7 +1074,10 @@ _unwrap_worker(sys.argv[1:])
 """
 # A prestarted child (``prestart``): the same imports, then it waits for its two paths on
 # a line of standard input (none: the parent did not need it, or is gone).
-_WARM_CODE = _WORKER_CODE.replace("_unwrap_worker(sys.argv[1:])", """import json, xatlas
+_WARM_CODE = _WORKER_CODE.replace("_unwrap_worker(sys.argv[1:])", """import json
+from aobake.targets.texels.unwrap import charting_library
+if charting_library() == "xatlas":
+    import xatlas
 line = sys.stdin.readline()
 if line:
     _unwrap_worker(json.loads(line))
@@ -1165,7 +1206,8 @@ def _unwrap_isolated(positions, faces, resolution, padding, texel_density=None,
             info = {key: kind(data[key]) for key, kind in _INFO.items()}
             return Unwrapped(data["vmapping"], data["faces"], data["uv"],
                              size=(info["width"], info["height"]),
-                             packing_compiled=info["packing_compiled"]), info
+                             packing_compiled=info["packing_compiled"],
+                             charting=info["charting"]), info
 
 
 def unwrap(positions, faces, resolution, padding: int, *, isolate: bool = True,
