@@ -663,30 +663,20 @@ done:
     return result;
 }
 
-/* The seam system's operator (W + P^T S P) x of aobake.targets.texels.seams._apply, in its
- * order of operations: u = P x (fill); per group of seam points, its eight texels' sums
- * over the group's points p, in order, of (lam_p d_p) g_p with d_p = g_p . u (a fixed
- * pairwise tree of the eight products); v = their sum per texel in group order;
- * out = w x + P^T v.  The points' weights (m, 8) are read, not 8 x 8 matrices per group:
- * half the bytes per iteration, and the solve is bound by memory.
+/* The seam erasure's normal matrix A = W + P^T S P over the covered unknowns, assembled
+ * once (seam_assemble), and the conjugate gradients on it (seam_csr_cg): each iteration is
+ * then one pass over a CSR matrix, where the operator applied as the points (the fill,
+ * the group sums, their scatter, the fill's transpose: four passes of random reads) took
+ * three times as long (the bunny's 114k unknowns: ~10 -> ~3 ms an iteration).
  *
- * Every scatter of the reference (numpy's bincount: entries added to their target in
- * index order, from 0.0) is done here as a gather: each target sums its own entries in
- * the same order (a CSR list of them, made once per solve), so a target's sum is the same
- * bits whichever thread computes it, and the texels and groups can be split over threads
- * with nothing written twice.  The dot products stay sequential sums from the first
- * product; every thread computes them itself (a 150k-term dot is ~0.1 ms), so all threads
- * take the same steps without waiting for one to broadcast them. */
-typedef struct {
-    Py_ssize_t n, groups, fills;
-    const double *coef, *lam, *w, *fill_weight;
-    const int64_t *starts, *slots, *fill_to, *fill_from;
-    const uint8_t *gutter;
-    /* the gathers: per texel i, its fill entries e by target (to_ptr[i] .. to_ptr[i + 1] - 1
-     * of to_list, ascending e), by source (from_ptr / from_list), and the group slots
-     * j = 8 g + k that name it (slot_ptr / slot_list, ascending j) */
-    const int64_t *to_ptr, *to_list, *from_ptr, *from_list, *slot_ptr, *slot_list;
-} SeamOp;
+ * aobake.targets.texels.seams._assemble_numpy and _cg_numpy are the reference, operation
+ * for operation (tested bit for bit):
+ *   block[g][k][l] = sum over the group's points p, in order, of (lam_p c_pk) c_pl;
+ *   a slot's texel t maps to the unknowns map(t): itself (weight 1) when covered, else
+ *   its fill entries (fill_from, fill_weight, in entry order);
+ *   A_ab = the sum, from 0.0 in the order of generation (g, k, a's entry, l, b's entry),
+ *   of (block[g][k][l] w_a) w_b, then + 0.0 (every diagonal is stored), then the
+ *   diagonal's + w_a. */
 
 /* A barrier for the solve's threads (pthread_barrier_t is not on every platform). */
 #ifndef _WIN32
@@ -739,65 +729,425 @@ typedef struct { int count; } Barrier;
 static void barrier_wait(Barrier *b) { (void)b; }
 #endif
 
+/* ptr (n + 1,) and list (len,): for each target i, the entries e with target[e] == i in
+ * ascending e (a counting sort; ptr must be zeroed).  target[e] in 0..n-1. */
+static void gather_lists(const int64_t *target, Py_ssize_t len, Py_ssize_t n, int64_t *ptr,
+                         int64_t *list)
+{
+    for (Py_ssize_t e = 0; e < len; ++e)
+        ++ptr[target[e] + 1];
+    for (Py_ssize_t i = 0; i < n; ++i)
+        ptr[i + 1] += ptr[i];
+    for (Py_ssize_t e = 0; e < len; ++e)
+        list[ptr[target[e]]++] = e;
+    for (Py_ssize_t i = n; i > 0; --i)  /* ptr[i] ran to the end of list i: shift back */
+        ptr[i] = ptr[i - 1];
+    ptr[0] = 0;
+}
+
+/* The unknowns' maps of seam_assemble (see there): slot j's texel t maps to its unknown
+ * (weight 1) when covered, else to its fill entries to_list[to_ptr[t] ..] (fill_from's
+ * unknowns, fill_weight). */
 typedef struct {
-    const SeamOp *op;
+    const int64_t *slots, *from, *cidx, *to_ptr, *to_list;
+    const uint8_t *gutter;
+    const double *fw;
+} Maps;
+
+/* Row a's columns, in order of first touch, into cols (mark[b] == a once touched); the
+ * diagonal always among them.  Returns their count. */
+static Py_ssize_t row_columns(const Maps *M, const int64_t *in_ptr, const int64_t *in_j,
+                              Py_ssize_t a, int32_t *mark, int32_t *cols)
+{
+    Py_ssize_t count = 0;
+    for (int64_t q = in_ptr[a]; q < in_ptr[a + 1]; ++q) {
+        const int64_t *s = M->slots + 8 * (in_j[q] / 8);
+        for (int l = 0; l < 8; ++l) {
+            const int64_t t = s[l];
+            if (!M->gutter[t]) {
+                const int64_t b = M->cidx[t];
+                if (mark[b] != (int32_t)a) {
+                    mark[b] = (int32_t)a;
+                    cols[count++] = (int32_t)b;
+                }
+                continue;
+            }
+            for (int64_t qq = M->to_ptr[t]; qq < M->to_ptr[t + 1]; ++qq) {
+                const int64_t b = M->cidx[M->from[M->to_list[qq]]];
+                if (mark[b] != (int32_t)a) {
+                    mark[b] = (int32_t)a;
+                    cols[count++] = (int32_t)b;
+                }
+            }
+        }
+    }
+    if (mark[a] != (int32_t)a) {
+        mark[a] = (int32_t)a;
+        cols[count++] = (int32_t)a;
+    }
+    return count;
+}
+
+/* data[position of (a, b)] += term: (a, b) is in the pattern; a branch-free binary search
+ * in row a's ascending columns (a branching one mispredicted at every step). */
+static inline void add_at(const int64_t *indptr, const int32_t *indices, double *data,
+                          int64_t a, int32_t b, double term)
+{
+    const int32_t *base = indices + indptr[a];
+    int64_t len = indptr[a + 1] - indptr[a];
+    while (len > 1) {
+        const int64_t half = len / 2;
+        base = base[half] <= b ? base + half : base;
+        len -= half;
+    }
+    data[base - indices] += term;
+}
+
+#define SEAM_MAX_THREADS 16
+
+/* One thread's rows r0 .. r1 - 1 of seam_assemble: their pattern (pass 0: cols, ascending
+ * per row, counts[a] each row's count) or their values (pass 1: every group read in order,
+ * only its terms of these rows added). */
+typedef struct {
+    const Maps *M;
+    const int64_t *in_ptr, *in_j, *starts, *indptr;
+    const int32_t *indices;
+    const double *coef, *lam;
+    double *data;
+    Py_ssize_t groups, r0, r1, nnz, capacity;
+    int32_t *mark, *cols, *row_cols;
+    int64_t *counts;
+    int pass, failed;
+} AssembleWork;
+
+static void assemble_pattern(AssembleWork *t)
+{
+    for (Py_ssize_t a = t->r0; a < t->r1; ++a) {
+        const Py_ssize_t count = row_columns(t->M, t->in_ptr, t->in_j, a, t->mark, t->row_cols);
+        int32_t *cols = t->row_cols;
+        for (Py_ssize_t u = 1; u < count; ++u) {  /* a row holds a few dozen */
+            const int32_t c = cols[u];
+            Py_ssize_t v = u;
+            for (; v > 0 && cols[v - 1] > c; --v)
+                cols[v] = cols[v - 1];
+            cols[v] = c;
+        }
+        if (t->nnz + count > t->capacity) {
+            const Py_ssize_t grown = 2 * (t->nnz + count) + 1024;
+            int32_t *more = PyMem_RawRealloc(t->cols, sizeof(int32_t) * (size_t)grown);
+            if (!more) {
+                t->failed = 1;
+                return;
+            }
+            t->cols = more;
+            t->capacity = grown;
+        }
+        memcpy(t->cols + t->nnz, cols, sizeof(int32_t) * (size_t)count);
+        t->nnz += count;
+        t->counts[a] = count;
+    }
+}
+
+static void assemble_values(AssembleWork *t)
+{
+    const Maps *M = t->M;
+    const int64_t *slots = M->slots, *to_ptr = M->to_ptr, *to_list = M->to_list;
+    const int64_t *cidx = M->cidx, *from = M->from;
+    const uint8_t *gutter = M->gutter;
+    const double *fw = M->fw;
+    for (Py_ssize_t g = 0; g < t->groups; ++g) {
+        double block[64];
+        for (int q = 0; q < 64; ++q)
+            block[q] = 0.0;
+        for (int64_t p = t->starts[g]; p < t->starts[g + 1]; ++p) {
+            const double *c = t->coef + 8 * p;
+            for (int k = 0; k < 8; ++k) {
+                const double lk = t->lam[p] * c[k];
+                for (int l = 0; l < 8; ++l)
+                    block[8 * k + l] += lk * c[l];
+            }
+        }
+        const int64_t *s = slots + 8 * g;
+        for (int k = 0; k < 8; ++k) {
+            const int64_t ta = s[k];
+            const int64_t qa0 = gutter[ta] ? to_ptr[ta] : -1;
+            const int64_t qa1 = gutter[ta] ? to_ptr[ta + 1] : 0;
+            for (int64_t qa = qa0; qa < qa1; ++qa) {
+                const int64_t ea = qa < 0 ? -1 : to_list[qa];
+                const int64_t a = ea < 0 ? cidx[ta] : cidx[from[ea]];
+                if (a < t->r0 || a >= t->r1)
+                    continue;  /* another thread's row */
+                const double wa = ea < 0 ? 1.0 : fw[ea];
+                for (int l = 0; l < 8; ++l) {
+                    const int64_t tb = s[l];
+                    const double bk = block[8 * k + l] * wa;
+                    if (!gutter[tb]) {
+                        add_at(t->indptr, t->indices, t->data, a, (int32_t)cidx[tb], bk * 1.0);
+                        continue;
+                    }
+                    for (int64_t qb = to_ptr[tb]; qb < to_ptr[tb + 1]; ++qb) {
+                        const int64_t eb = to_list[qb];
+                        add_at(t->indptr, t->indices, t->data, a, (int32_t)cidx[from[eb]],
+                               bk * fw[eb]);
+                    }
+                }
+            }
+        }
+    }
+}
+
+static void *assemble_thread(void *arg)
+{
+    AssembleWork *t = arg;
+    if (t->pass == 0)
+        assemble_pattern(t);
+    else
+        assemble_values(t);
+    return NULL;
+}
+
+/* Run `threads` AssembleWork shares (on threads where they can be had: one that cannot
+ * start runs on this one, after the others; the shares, not the threads, make the bits). */
+static void assemble_run(AssembleWork *work, Py_ssize_t threads)
+{
+#ifndef _WIN32
+    pthread_t handles[SEAM_MAX_THREADS];
+    int started[SEAM_MAX_THREADS] = {0};
+    for (Py_ssize_t k = 1; k < threads; ++k)
+        started[k] = pthread_create(&handles[k], NULL, assemble_thread, &work[k]) == 0;
+    assemble_thread(&work[0]);
+    for (Py_ssize_t k = 1; k < threads; ++k) {
+        if (started[k])
+            pthread_join(handles[k], NULL);
+        else
+            assemble_thread(&work[k]);
+    }
+#else
+    for (Py_ssize_t k = 0; k < threads; ++k)
+        assemble_thread(&work[k]);
+#endif
+}
+
+/* seam_assemble(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w)
+ *     -> (indptr, indices, data) bytes: A over the covered unknowns (numbered in texel
+ * order, skipping the gutter ones) as CSR, indptr (nc + 1,) int64, indices (nnz,) int32
+ * ascending in each row, data (nnz,) float64.  coef (m, 8), lam (m,) float64, starts
+ * (G + 1,) int64, slots (G, 8) int64 in 0..n-1, gutter (n,) bool, fill_* (e,) (fill_to a
+ * gutter texel, fill_from a covered one), w (n,) float64.
+ *
+ * The pattern is found row by row (each unknown's slots, ascending); the values are then
+ * added group by group, in the order of generation, so every entry's sum is the
+ * reference's, and each group's block is made just before its terms (read in order, not
+ * looked up per row in 42 MB of blocks: the bunny's assembly 0.5 -> ~0.1 s). */
+static PyObject *seam_assemble(PyObject *self, PyObject *args)
+{
+    Py_buffer bcoef = {0}, blam = {0}, bstarts = {0}, bslots = {0}, bgut = {0};
+    Py_buffer bto = {0}, bfrom = {0}, bfw = {0}, bw = {0};
+    int64_t *ints = NULL, *in_j = NULL, *in_ptr = NULL, *indptr = NULL;
+    Py_ssize_t threads = 1;
+    PyObject *result = NULL, *pi = NULL, *px = NULL, *pd = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*|n", &bcoef, &blam, &bstarts, &bslots, &bgut,
+                          &bto, &bfrom, &bfw, &bw, &threads))
+        return NULL;
+    {
+        const Py_ssize_t n = bgut.len, groups = bslots.len / 64, fills = bto.len / 8;
+        const Py_ssize_t m = blam.len / 8;
+        if (check(&bcoef, "coef", 8, 8 * m) || check(&blam, "lam", 8, m) ||
+            check(&bstarts, "starts", 8, groups + 1) || check(&bslots, "slots", 8, 8 * groups) ||
+            check(&bgut, "gutter", 1, n) || check(&bto, "fill_to", 8, fills) ||
+            check(&bfrom, "fill_from", 8, fills) || check(&bfw, "fill_weight", 8, fills) ||
+            check(&bw, "w", 8, n))
+            goto done;
+        const int64_t *starts = bstarts.buf, *slots = bslots.buf, *to = bto.buf, *from = bfrom.buf;
+        const uint8_t *gutter = bgut.buf;
+        const double *coef = bcoef.buf, *lam = blam.buf, *fw = bfw.buf, *w = bw.buf;
+        if (starts[0] != 0 || starts[groups] != m) {
+            PyErr_SetString(PyExc_ValueError, "starts must run from 0 to m");
+            goto done;
+        }
+        for (Py_ssize_t g = 0; g < groups; ++g)
+            if (starts[g] > starts[g + 1]) {
+                PyErr_SetString(PyExc_ValueError, "starts must be non-decreasing");
+                goto done;
+            }
+        for (Py_ssize_t i = 0; i < 8 * groups; ++i)
+            if (slots[i] < 0 || slots[i] >= n) {
+                PyErr_SetString(PyExc_IndexError, "slot out of range");
+                goto done;
+            }
+        for (Py_ssize_t e = 0; e < fills; ++e)
+            if (to[e] < 0 || to[e] >= n || from[e] < 0 || from[e] >= n || !gutter[to[e]] ||
+                gutter[from[e]]) {
+                PyErr_SetString(PyExc_IndexError,
+                                "a fill entry must take a covered texel into a gutter one");
+                goto done;
+            }
+        if (n >= INT32_MAX) {
+            PyErr_SetString(PyExc_ValueError, "too many unknowns");
+            goto done;
+        }
+        if (threads < 1) {
+            PyErr_SetString(PyExc_ValueError, "threads must be at least 1");
+            goto done;
+        }
+        /* ints: cidx (n), texel (n), to_ptr (n + 1), to_list (fills) */
+        ints = PyMem_RawCalloc((size_t)(3 * n + 1 + fills + 1), sizeof(int64_t));
+        if (!ints) {
+            PyErr_NoMemory();
+            goto done;
+        }
+        int64_t *cidx = ints, *texel = cidx + n, *to_ptr = texel + n, *to_list = to_ptr + (n + 1);
+        Py_ssize_t nc = 0;
+        for (Py_ssize_t i = 0; i < n; ++i) {
+            cidx[i] = gutter[i] ? -1 : nc;
+            if (!gutter[i])
+                texel[nc++] = i;
+        }
+        gather_lists(to, fills, n, to_ptr, to_list);
+        Py_ssize_t incoming = 0;  /* (slot, unknown) pairs over all slots' maps */
+        for (Py_ssize_t j = 0; j < 8 * groups; ++j) {
+            const int64_t t = slots[j];
+            incoming += gutter[t] ? to_ptr[t + 1] - to_ptr[t] : 1;
+        }
+        in_ptr = PyMem_RawCalloc((size_t)(nc + 2), sizeof(int64_t));
+        in_j = PyMem_RawMalloc(sizeof(int64_t) * (size_t)(incoming + 1));
+        indptr = PyMem_RawCalloc((size_t)(nc + 1), sizeof(int64_t));
+        if (!in_ptr || !in_j || !indptr) {
+            PyErr_NoMemory();
+            goto done;
+        }
+        const Maps M = {slots, from, cidx, to_ptr, to_list, gutter, fw};
+        Py_BEGIN_ALLOW_THREADS
+        /* per unknown a, the slots j whose map holds it, ascending j (a counting sort of
+         * the (j, a) pairs, made in ascending j) */
+        for (int pass = 0; pass < 2; ++pass) {
+            for (Py_ssize_t j = 0; j < 8 * groups; ++j) {
+                const int64_t t = slots[j];
+                if (!gutter[t]) {
+                    const int64_t a = cidx[t];
+                    if (pass == 0) ++in_ptr[a + 1]; else in_j[in_ptr[a]++] = j;
+                    continue;
+                }
+                for (int64_t q = to_ptr[t]; q < to_ptr[t + 1]; ++q) {
+                    const int64_t a = cidx[from[to_list[q]]];
+                    if (pass == 0) ++in_ptr[a + 1]; else in_j[in_ptr[a]++] = j;
+                }
+            }
+            if (pass == 0)
+                for (Py_ssize_t a = 0; a < nc; ++a)
+                    in_ptr[a + 1] += in_ptr[a];
+        }
+        for (Py_ssize_t a = nc; a > 0; --a)  /* in_ptr[a] ran to the end of list a */
+            in_ptr[a] = in_ptr[a - 1];
+        in_ptr[0] = 0;
+        Py_END_ALLOW_THREADS
+        /* the pattern, each share's rows on a thread (rows split by their incoming slots) */
+        if (threads > SEAM_MAX_THREADS)
+            threads = SEAM_MAX_THREADS;
+        if (threads > nc)
+            threads = nc > 0 ? nc : 1;
+        AssembleWork work[SEAM_MAX_THREADS];
+        for (Py_ssize_t k = 0, a = 0; k < threads; ++k) {
+            AssembleWork t = {&M, in_ptr, in_j, starts, indptr, NULL, coef, lam, NULL, groups,
+                              a, a, 0, 0, NULL, NULL, NULL, NULL, 0, 0};
+            const int64_t target = in_ptr[nc] * (k + 1) / threads;
+            while (a < nc && (k == threads - 1 || in_ptr[a] < target))
+                ++a;
+            t.r1 = a;
+            work[k] = t;
+        }
+        int failed = 0;
+        for (Py_ssize_t k = 0; k < threads; ++k) {
+            work[k].mark = PyMem_RawMalloc(sizeof(int32_t) * (size_t)(nc + 1));
+            work[k].row_cols = PyMem_RawMalloc(sizeof(int32_t) * (size_t)(nc + 1));
+            failed |= !work[k].mark || !work[k].row_cols;
+        }
+        if (!failed) {
+            Py_BEGIN_ALLOW_THREADS
+            for (Py_ssize_t k = 0; k < threads; ++k) {
+                for (Py_ssize_t b = 0; b < nc; ++b)
+                    work[k].mark[b] = -1;
+                work[k].counts = indptr + 1;  /* each row's count, then summed in place */
+            }
+            assemble_run(work, threads);
+            Py_END_ALLOW_THREADS
+            for (Py_ssize_t k = 0; k < threads; ++k)
+                failed |= work[k].failed;
+        }
+        if (failed) {
+            PyErr_NoMemory();
+            goto free_work;
+        }
+        for (Py_ssize_t a = 0; a < nc; ++a)
+            indptr[a + 1] += indptr[a];
+        const Py_ssize_t nnz = indptr[nc];
+        px = PyBytes_FromStringAndSize(NULL, 4 * nnz);
+        pd = PyBytes_FromStringAndSize(NULL, 8 * nnz);
+        pi = PyBytes_FromStringAndSize((const char *)indptr, 8 * (nc + 1));
+        if (!px || !pd || !pi)
+            goto free_work;
+        int32_t *indices = (int32_t *)PyBytes_AS_STRING(px);
+        double *data = (double *)PyBytes_AS_STRING(pd);
+        for (Py_ssize_t k = 0; k < threads; ++k)
+            if (work[k].nnz)
+                memcpy(indices + indptr[work[k].r0], work[k].cols,
+                       sizeof(int32_t) * (size_t)work[k].nnz);
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t u = 0; u < nnz; ++u)
+            data[u] = 0.0;
+        /* the values: every share reads the groups in order, adding its rows' terms */
+        for (Py_ssize_t k = 0; k < threads; ++k) {
+            work[k].pass = 1;
+            work[k].indices = indices;
+            work[k].data = data;
+        }
+        assemble_run(work, threads);
+        /* the diagonal: + 0.0 (the reference's entry that makes sure it is stored), + w */
+        for (Py_ssize_t a = 0; a < nc; ++a)
+            for (int64_t u = indptr[a]; u < indptr[a + 1]; ++u)
+                if (indices[u] == a)
+                    data[u] = (data[u] + 0.0) + w[texel[a]];
+        Py_END_ALLOW_THREADS
+        result = Py_BuildValue("(OOO)", pi, px, pd);
+    free_work:
+        for (Py_ssize_t k = 0; k < threads; ++k) {
+            PyMem_RawFree(work[k].mark);
+            PyMem_RawFree(work[k].row_cols);
+            PyMem_RawFree(work[k].cols);
+        }
+    }
+done:
+    Py_XDECREF(pi); Py_XDECREF(px); Py_XDECREF(pd);
+    PyMem_RawFree(ints); PyMem_RawFree(in_ptr); PyMem_RawFree(in_j); PyMem_RawFree(indptr);
+    PyBuffer_Release(&bcoef); PyBuffer_Release(&blam); PyBuffer_Release(&bstarts);
+    PyBuffer_Release(&bslots); PyBuffer_Release(&bgut); PyBuffer_Release(&bto);
+    PyBuffer_Release(&bfrom); PyBuffer_Release(&bfw); PyBuffer_Release(&bw);
+    return result;
+}
+
+/* The CG's threads: each its share of rows (split by entries), all running the same loop. */
+typedef struct {
+    const int64_t *indptr;
+    const int32_t *indices;
+    const double *data, *diag, *b, *rhs;
     Barrier *barrier;
-    const double *diag, *b;
-    double *x, *r, *z, *p, *q, *u, *v, *acc;
+    double *x, *r, *z, *p, *q;
+    Py_ssize_t n, i0, i1;
     double tolerance;
     Py_ssize_t max_iterations;
-    Py_ssize_t i0, i1, g0, g1;  /* this thread's texels and groups */
-    Py_ssize_t iterations;      /* out (the same in every thread) */
+    Py_ssize_t iterations;  /* out (the same in every thread) */
     double left;
-} SeamWork;
+} CsrWork;
 
-/* out = (W + P^T S P) x on this thread's share; returns after every thread's share is done. */
-static void seam_apply(const SeamWork *t, const double *x, double *out)
+/* out = A x on this thread's rows; returns after every thread's rows are done. */
+static void csr_apply(const CsrWork *t, const double *x, double *out)
 {
-    const SeamOp *op = t->op;
-    double *u = t->u, *v = t->v, *acc = t->acc;
     for (Py_ssize_t i = t->i0; i < t->i1; ++i) {
         double s = 0.0;
-        for (int64_t j = op->to_ptr[i]; j < op->to_ptr[i + 1]; ++j) {
-            const int64_t e = op->to_list[j];
-            s += op->fill_weight[e] * x[op->fill_from[e]];
-        }
-        u[i] = (op->gutter[i] ? 0.0 : x[i]) + s;
-    }
-    barrier_wait(t->barrier);
-    for (Py_ssize_t g = t->g0; g < t->g1; ++g) {
-        const int64_t *s = op->slots + 8 * g;
-        double ug[8], a[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
-        for (int l = 0; l < 8; ++l)
-            ug[l] = u[s[l]];
-        for (int64_t p = op->starts[g]; p < op->starts[g + 1]; ++p) {
-            const double *c = op->coef + 8 * p;
-            /* a fixed pairwise tree: three additions deep, not seven */
-            const double d = ((c[0] * ug[0] + c[1] * ug[1]) + (c[2] * ug[2] + c[3] * ug[3]))
-                             + ((c[4] * ug[4] + c[5] * ug[5]) + (c[6] * ug[6] + c[7] * ug[7]));
-            const double tp = op->lam[p] * d;
-            for (int k = 0; k < 8; ++k)
-                a[k] += tp * c[k];
-        }
-        for (int k = 0; k < 8; ++k)
-            acc[8 * g + k] = a[k];
-    }
-    barrier_wait(t->barrier);
-    for (Py_ssize_t i = t->i0; i < t->i1; ++i) {
-        double s = 0.0;
-        for (int64_t j = op->slot_ptr[i]; j < op->slot_ptr[i + 1]; ++j)
-            s += acc[op->slot_list[j]];
-        v[i] = s;
-    }
-    barrier_wait(t->barrier);
-    /* P^T v: a gutter texel's share goes back to its covered neighbours */
-    for (Py_ssize_t i = t->i0; i < t->i1; ++i) {
-        double s = 0.0;
-        for (int64_t j = op->from_ptr[i]; j < op->from_ptr[i + 1]; ++j) {
-            const int64_t e = op->from_list[j];
-            s += op->fill_weight[e] * v[op->fill_to[e]];
-        }
-        out[i] = op->w[i] * x[i] + ((op->gutter[i] ? 0.0 : v[i]) + s);
+        for (int64_t j = t->indptr[i]; j < t->indptr[i + 1]; ++j)
+            s += t->data[j] * x[t->indices[j]];
+        out[i] = s;
     }
     barrier_wait(t->barrier);
 }
@@ -822,18 +1172,20 @@ static double max_abs(const double *a, Py_ssize_t n)
     return m;
 }
 
-/* The whole conjugate-gradient loop, as every thread runs it on its share. */
-static void seam_cg_share(SeamWork *t)
+/* The whole conjugate-gradient loop, as every thread runs it on its rows.  The dot
+ * products and the stopping test run over all rows in every thread (each ~0.1 ms), so the
+ * threads take the same steps without one broadcasting them. */
+static void csr_cg_share(CsrWork *t)
 {
-    const Py_ssize_t n = t->op->n, i0 = t->i0, i1 = t->i1;
-    const double *w = t->op->w, *diag = t->diag, *b = t->b;
+    const Py_ssize_t n = t->n, i0 = t->i0, i1 = t->i1;
+    const double *diag = t->diag, *b = t->b, *rhs = t->rhs;
     double *x = t->x, *r = t->r, *z = t->z, *p = t->p, *q = t->q;
     for (Py_ssize_t i = i0; i < i1; ++i)
         x[i] = b[i];
     barrier_wait(t->barrier);
-    seam_apply(t, x, q);
+    csr_apply(t, x, q);
     for (Py_ssize_t i = i0; i < i1; ++i) {
-        r[i] = w[i] * b[i] - q[i];
+        r[i] = rhs[i] - q[i];
         z[i] = r[i] / diag[i];
         p[i] = z[i];
     }
@@ -841,7 +1193,7 @@ static void seam_cg_share(SeamWork *t)
     double rz = seq_dot(r, z, n);
     Py_ssize_t it = 0;
     while (max_abs(z, n) > t->tolerance && it < t->max_iterations) {
-        seam_apply(t, p, q);
+        csr_apply(t, p, q);
         const double alpha = rz / seq_dot(p, q, n);
         for (Py_ssize_t i = i0; i < i1; ++i) {
             x[i] += alpha * p[i];
@@ -853,7 +1205,7 @@ static void seam_cg_share(SeamWork *t)
         rz = seq_dot(r, z, n);
         const double beta = rz / rz_old;
         /* every thread has read z (max_abs) and r, z (the dot) before p changes: p is read
-         * only by the next seam_apply, behind its first barrier */
+         * only by the next csr_apply, after this barrier */
         for (Py_ssize_t i = i0; i < i1; ++i)
             p[i] = z[i] + beta * p[i];
         barrier_wait(t->barrier);
@@ -864,151 +1216,89 @@ static void seam_cg_share(SeamWork *t)
 }
 
 #ifndef _WIN32
-static void *seam_cg_thread(void *arg)
+static void *csr_cg_thread(void *arg)
 {
-    SeamWork *t = arg;
-    if (barrier_gate(t->barrier))
-        seam_cg_share(t);
+    CsrWork *t = arg;
+    Barrier *b = t->barrier;
+    if (barrier_gate(b))
+        csr_cg_share(t);
     return NULL;
 }
 #endif
 
-/* Each thread's texels (split evenly) and groups (split by their points: the group pass's
- * work), for `threads` threads. */
-static void seam_shares(SeamWork *work, Py_ssize_t threads, Py_ssize_t n, Py_ssize_t groups,
-                        const int64_t *starts, Py_ssize_t m)
-{
-    for (Py_ssize_t k = 0; k < threads; ++k) {
-        work[k].i0 = n * k / threads;
-        work[k].i1 = n * (k + 1) / threads;
-        work[k].g0 = 0;
-        work[k].g1 = groups;
-    }
-    for (Py_ssize_t k = 1; k < threads; ++k) {
-        const int64_t point = m * k / threads;
-        Py_ssize_t lo = work[k - 1].g0, hi = groups;  /* first group starting at >= point */
-        while (lo < hi) {
-            const Py_ssize_t mid = lo + (hi - lo) / 2;
-            if (starts[mid] < point)
-                lo = mid + 1;
-            else
-                hi = mid;
-        }
-        work[k - 1].g1 = work[k].g0 = lo;
-    }
-}
-
-/* ptr (n + 1,) and list (len,): for each target i, the entries e with target[e] == i in
- * ascending e (a counting sort; ptr must be zeroed).  target[e] in 0..n-1. */
-static void gather_lists(const int64_t *target, Py_ssize_t len, Py_ssize_t n, int64_t *ptr,
-                         int64_t *list)
-{
-    for (Py_ssize_t e = 0; e < len; ++e)
-        ++ptr[target[e] + 1];
-    for (Py_ssize_t i = 0; i < n; ++i)
-        ptr[i + 1] += ptr[i];
-    for (Py_ssize_t e = 0; e < len; ++e)
-        list[ptr[target[e]]++] = e;
-    for (Py_ssize_t i = n; i > 0; --i)  /* ptr[i] ran to the end of list i: shift back */
-        ptr[i] = ptr[i - 1];
-    ptr[0] = 0;
-}
-
-#define SEAM_MAX_THREADS 16
-
-/* seam_cg(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w, diag, b, x,
- *         tolerance, max_iterations, threads=1) -> (iterations, the last max |r / diag|)
+/* seam_csr_cg(indptr, indices, data, diag, rhs, b, x, tolerance, max_iterations, threads)
+ *     -> (iterations, the last max |r / diag|)
  *
- * Jacobi-preconditioned conjugate gradients on (W + P^T S P) x = W b from x = b, stopping
- * when max |r / diag| <= tolerance or after max_iterations: aobake.targets.texels.seams.
- * _cg_numpy operation for operation (tested bit for bit), on `threads` threads (the same
- * bits for any number).  coef (m, 8), lam (m,) float64 the seam points' weights, starts
- * (G + 1,) int64 (group g is points starts[g] .. starts[g + 1] - 1), slots (G, 8) int64 in
- * 0..n-1, gutter (n,) bool, fill_* (e,) (fill_to, fill_from int64 in 0..n-1), w, diag, b
- * (n,) float64; x (n,) float64 written.
- */
-static PyObject *seam_cg(PyObject *self, PyObject *args)
+ * Jacobi-preconditioned conjugate gradients on A x = rhs from x = b (A as seam_assemble
+ * makes it, n rows), stopping when max |r / diag| <= tolerance or after max_iterations:
+ * aobake.targets.texels.seams._cg_numpy operation for operation (tested bit for bit), on
+ * `threads` threads splitting the rows (the same bits for any number: every row's sum is
+ * made by one thread, in column order). */
+static PyObject *seam_csr_cg(PyObject *self, PyObject *args)
 {
-    Py_buffer bcoef = {0}, blam = {0}, bstarts = {0};
-    Py_buffer bslots = {0}, bgut = {0}, bto = {0}, bfrom = {0}, bfw = {0};
-    Py_buffer bw = {0}, bdiag = {0}, bb = {0}, bx = {0};
+    Py_buffer bptr = {0}, bidx = {0}, bdata = {0}, bdiag = {0}, brhs = {0}, bb = {0}, bx = {0};
     double tolerance;
     Py_ssize_t max_iterations, threads = 1, it = 0;
     double left = 0.0;
     double *scratch = NULL;
-    int64_t *lists = NULL;
     PyObject *result = NULL;
     (void)self;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*w*dn|n", &bcoef, &blam, &bstarts,
-                          &bslots, &bgut, &bto, &bfrom, &bfw, &bw, &bdiag, &bb, &bx, &tolerance,
-                          &max_iterations, &threads))
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*w*dn|n", &bptr, &bidx, &bdata, &bdiag, &brhs, &bb,
+                          &bx, &tolerance, &max_iterations, &threads))
         return NULL;
     {
-        const Py_ssize_t n = bgut.len, groups = bslots.len / 64, fills = bto.len / 8;
-        const Py_ssize_t m = blam.len / 8;
-        if (check(&bcoef, "coef", 8, 8 * m) || check(&blam, "lam", 8, m) ||
-            check(&bstarts, "starts", 8, groups + 1) || check(&bslots, "slots", 8, 8 * groups) ||
-            check(&bgut, "gutter", 1, n) || check(&bto, "fill_to", 8, fills) ||
-            check(&bfrom, "fill_from", 8, fills) || check(&bfw, "fill_weight", 8, fills) ||
-            check(&bw, "w", 8, n) || check(&bdiag, "diag", 8, n) || check(&bb, "b", 8, n) ||
-            check(&bx, "x", 8, n))
+        const Py_ssize_t n = bdiag.len / 8, nnz = bdata.len / 8;
+        if (check(&bptr, "indptr", 8, n + 1) || check(&bidx, "indices", 4, nnz) ||
+            check(&bdata, "data", 8, nnz) || check(&bdiag, "diag", 8, n) ||
+            check(&brhs, "rhs", 8, n) || check(&bb, "b", 8, n) || check(&bx, "x", 8, n))
             goto done;
         if (threads < 1) {
             PyErr_SetString(PyExc_ValueError, "threads must be at least 1");
             goto done;
         }
-        const int64_t *starts = bstarts.buf;
-        if (starts[0] != 0 || starts[groups] != m) {
-            PyErr_SetString(PyExc_ValueError, "starts must run from 0 to m");
+        const int64_t *indptr = bptr.buf;
+        const int32_t *indices = bidx.buf;
+        if (indptr[0] != 0 || indptr[n] != nnz) {
+            PyErr_SetString(PyExc_ValueError, "indptr must run from 0 to nnz");
             goto done;
         }
-        for (Py_ssize_t g = 0; g < groups; ++g)
-            if (starts[g] > starts[g + 1]) {
-                PyErr_SetString(PyExc_ValueError, "starts must be non-decreasing");
+        for (Py_ssize_t i = 0; i < n; ++i)
+            if (indptr[i] > indptr[i + 1]) {
+                PyErr_SetString(PyExc_ValueError, "indptr must be non-decreasing");
                 goto done;
             }
-        const int64_t *slots = bslots.buf, *to = bto.buf, *from = bfrom.buf;
-        for (Py_ssize_t i = 0; i < 8 * groups; ++i)
-            if (slots[i] < 0 || slots[i] >= n) {
-                PyErr_SetString(PyExc_IndexError, "slot out of range");
+        for (Py_ssize_t j = 0; j < nnz; ++j)
+            if (indices[j] < 0 || indices[j] >= n) {
+                PyErr_SetString(PyExc_IndexError, "column out of range");
                 goto done;
             }
-        for (Py_ssize_t e = 0; e < fills; ++e)
-            if (to[e] < 0 || to[e] >= n || from[e] < 0 || from[e] >= n) {
-                PyErr_SetString(PyExc_IndexError, "fill index out of range");
-                goto done;
-            }
-        scratch = PyMem_RawMalloc(sizeof(double) * (size_t)(6 * n + 8 * groups + 1));
-        lists = PyMem_RawCalloc((size_t)(3 * (n + 1) + 2 * fills + 8 * groups + 1),
-                                sizeof(int64_t));
-        if (!scratch || !lists) {
+        scratch = PyMem_RawMalloc(sizeof(double) * (size_t)(4 * n + 1));
+        if (!scratch) {
             PyErr_NoMemory();
             goto done;
         }
-        int64_t *to_ptr = lists, *from_ptr = to_ptr + (n + 1), *slot_ptr = from_ptr + (n + 1);
-        int64_t *to_list = slot_ptr + (n + 1), *from_list = to_list + fills;
-        int64_t *slot_list = from_list + fills;
-        const SeamOp op = {n, groups, fills, bcoef.buf, blam.buf, bw.buf, bfw.buf, starts, slots,
-                           to, from, bgut.buf, to_ptr, to_list, from_ptr, from_list, slot_ptr,
-                           slot_list};
-        double *r = scratch, *z = r + n, *p = z + n, *q = p + n, *u = q + n, *v = u + n;
-        double *acc = v + n;
 #ifdef _WIN32
         threads = 1;
 #endif
         if (threads > SEAM_MAX_THREADS)
             threads = SEAM_MAX_THREADS;
-        SeamWork work[SEAM_MAX_THREADS];
+        CsrWork work[SEAM_MAX_THREADS];
         Barrier barrier;
         barrier.count = (int)threads;
         Py_BEGIN_ALLOW_THREADS
-        gather_lists(to, fills, n, to_ptr, to_list);
-        gather_lists(from, fills, n, from_ptr, from_list);
-        gather_lists(slots, 8 * groups, n, slot_ptr, slot_list);
         for (Py_ssize_t k = 0; k < threads; ++k) {
-            SeamWork t = {&op, &barrier, bdiag.buf, bb.buf, bx.buf, r, z, p, q, u, v, acc,
-                          tolerance, max_iterations, 0, 0, 0, 0, 0, 0.0};
+            CsrWork t = {indptr, indices, bdata.buf, bdiag.buf, bb.buf, brhs.buf, &barrier,
+                         bx.buf, scratch, scratch + n, scratch + 2 * n, scratch + 3 * n, n,
+                         0, 0, tolerance, max_iterations, 0, 0.0};
             work[k] = t;
+        }
+        /* rows split by their entries: the first row whose entries start at or past k/T */
+        for (Py_ssize_t k = 0, i = 0; k < threads; ++k) {
+            work[k].i0 = i;
+            const int64_t target = nnz * (k + 1) / threads;
+            while (i < n && (k == threads - 1 || indptr[i] < target))
+                ++i;
+            work[k].i1 = i;
         }
 #ifndef _WIN32
         if (threads > 1) {
@@ -1017,13 +1307,12 @@ static PyObject *seam_cg(PyObject *self, PyObject *args)
             pthread_mutex_init(&barrier.lock, NULL);
             pthread_cond_init(&barrier.turn, NULL);
             barrier.waiting = barrier.generation = barrier.gate = 0;
-            seam_shares(work, threads, n, groups, starts, m);
             for (; started < threads; ++started)
-                if (pthread_create(&handles[started], NULL, seam_cg_thread, &work[started]))
+                if (pthread_create(&handles[started], NULL, csr_cg_thread, &work[started]))
                     break;
             barrier_open(&barrier, started == threads ? 1 : -1);
             if (started == threads)
-                seam_cg_share(&work[0]);
+                csr_cg_share(&work[0]);
             for (Py_ssize_t k = 1; k < started; ++k)
                 pthread_join(handles[k], NULL);
             pthread_mutex_destroy(&barrier.lock);
@@ -1033,22 +1322,20 @@ static PyObject *seam_cg(PyObject *self, PyObject *args)
         }
 #endif
         if (threads == 1) {
-            seam_shares(work, 1, n, groups, starts, m);
-            seam_cg_share(&work[0]);
+            work[0].i0 = 0;
+            work[0].i1 = n;
+            csr_cg_share(&work[0]);
         }
         it = work[0].iterations;
         left = work[0].left;
         Py_END_ALLOW_THREADS
     }
     result = Py_BuildValue("nd", it, left);
-
 done:
     PyMem_RawFree(scratch);
-    PyMem_RawFree(lists);
-    PyBuffer_Release(&bcoef); PyBuffer_Release(&blam); PyBuffer_Release(&bstarts);
-    PyBuffer_Release(&bslots); PyBuffer_Release(&bgut);
-    PyBuffer_Release(&bto); PyBuffer_Release(&bfrom); PyBuffer_Release(&bfw);
-    PyBuffer_Release(&bw); PyBuffer_Release(&bdiag); PyBuffer_Release(&bb); PyBuffer_Release(&bx);
+    PyBuffer_Release(&bptr); PyBuffer_Release(&bidx); PyBuffer_Release(&bdata);
+    PyBuffer_Release(&bdiag); PyBuffer_Release(&brhs); PyBuffer_Release(&bb);
+    PyBuffer_Release(&bx);
     return result;
 }
 
@@ -1295,6 +1582,66 @@ done:
     return result;
 }
 
+/* surface_shading(face, unit, has_face, turned, normals, length, out) -> (fixed, turned)
+ *
+ * aobake.targets.texels.surface.surface_points' choice of shading normal, per sample i of
+ * face f = face[i] (see there): unit (F, 3) float64 the unit face normals, has_face and
+ * turned (F,) bool, normals (s, 3) the unit interpolated normals (zero where undefined) and
+ * length (s,) their lengths before normalising.  On a face not turned against its vertex
+ * normals, the face normal where the interpolated one is zero or points against it
+ * ((n0 f0 + n1 f1) + n2 f2 <= 0, the reference's order); on a turned face, minus the face
+ * normal where it is zero; else the interpolated one.  Returns how many samples took a face
+ * normal, and how many lie on turned faces. */
+static PyObject *surface_shading(PyObject *self, PyObject *args)
+{
+    Py_buffer bface = {0}, bunit = {0}, bhas = {0}, bturned = {0}, bn = {0}, blen = {0}, bout = {0};
+    PyObject *result = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*w*", &bface, &bunit, &bhas, &bturned, &bn, &blen,
+                          &bout))
+        return NULL;
+    {
+        const Py_ssize_t s = bface.len / 8, faces = bhas.len;
+        if (check(&bface, "face", 8, s) || check(&bunit, "unit", 8, 3 * faces) ||
+            check(&bturned, "turned", 1, faces) || check(&bn, "normals", 8, 3 * s) ||
+            check(&blen, "length", 8, s) || check(&bout, "out", 8, 3 * s))
+            goto done;
+        const int64_t *face = bface.buf;
+        const double *unit = bunit.buf, *n = bn.buf, *length = blen.buf;
+        const uint8_t *has = bhas.buf, *turned = bturned.buf;
+        double *out = bout.buf;
+        for (Py_ssize_t i = 0; i < s; ++i)
+            if (face[i] < 0 || face[i] >= faces) {
+                PyErr_SetString(PyExc_IndexError, "face index out of range");
+                goto done;
+            }
+        Py_ssize_t fixed = 0, on_turned = 0;
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t i = 0; i < s; ++i) {
+            const double *f = unit + 3 * face[i], *ni = n + 3 * i;
+            const int zero = length[i] == 0.0, against = turned[face[i]] != 0;
+            double sign = 0.0;  /* 0: the interpolated normal; +-1: +-the face normal */
+            if (!against) {
+                if (has[face[i]] && (zero || (ni[0] * f[0] + ni[1] * f[1]) + ni[2] * f[2] <= 0.0))
+                    sign = 1.0;
+            } else if (zero) {
+                sign = -1.0;
+            }
+            on_turned += against;
+            fixed += sign != 0.0;
+            for (int d = 0; d < 3; ++d)
+                out[3 * i + d] = sign > 0.0 ? f[d] : sign < 0.0 ? -f[d] : ni[d];
+        }
+        Py_END_ALLOW_THREADS
+        result = Py_BuildValue("nn", fixed, on_turned);
+    }
+done:
+    PyBuffer_Release(&bface); PyBuffer_Release(&bunit); PyBuffer_Release(&bhas);
+    PyBuffer_Release(&bturned); PyBuffer_Release(&bn); PyBuffer_Release(&blen);
+    PyBuffer_Release(&bout);
+    return result;
+}
+
 /* The atlas packer's kernels, in _pack.c. */
 PyObject *chart_marks(PyObject *self, PyObject *args);
 PyObject *pack_charts(PyObject *self, PyObject *args);
@@ -1314,13 +1661,19 @@ static PyMethodDef methods[] = {
     {"surface_interp", surface_interp, METH_VARARGS,
      "surface_interp(positions, normals, faces, face, bary, out_points, out_normals, out_length): "
      "lightmap sample points and unit shading normals."},
+    {"surface_shading", surface_shading, METH_VARARGS,
+     "surface_shading(face, unit, has_face, turned, normals, length, out) -> (fixed, turned): "
+     "lightmap samples' shading normals (surface_points' rule)."},
     {"dilate_rings", dilate_rings, METH_VARARGS,
      "dilate_rings(out, filled, height, width, channels, padding) -> rings: "
      "aobake.post.dilate's rings in place"},
-    {"seam_cg", seam_cg, METH_VARARGS,
-     "seam_cg(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w, diag, b, x, "
-     "tolerance, "
-     "max_iterations) -> (iterations, max |r / diag|): the seam erasure's Jacobi-preconditioned CG."},
+    {"seam_assemble", seam_assemble, METH_VARARGS,
+     "seam_assemble(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w) -> "
+     "(indptr, indices, data) bytes: the seam erasure's normal matrix over the covered "
+     "unknowns, CSR."},
+    {"seam_csr_cg", seam_csr_cg, METH_VARARGS,
+     "seam_csr_cg(indptr, indices, data, diag, rhs, b, x, tolerance, max_iterations[, threads]) "
+     "-> (iterations, max |r / diag|): the seam erasure's Jacobi-preconditioned CG."},
     {"chart_marks", chart_marks, METH_VARARGS,
      "chart_marks(xy, faces, face_chart, mask_offset, size, padding, out_covered, out_padded): "
      "the atlas packer's chart masks (unwrap._chart_masks)."},

@@ -20,10 +20,11 @@ except ImportError:  # pragma: no cover - exercised only where no C compiler was
 
 #: stage -> the kernel function it uses
 KERNELS = {"ray_generation": "fill_rays", "escape_counts": "row_counts",
-           "rasterizer": "raster_rows", "atlas_packing": "pack_charts", "seam_solve": "seam_cg",
+           "rasterizer": "raster_rows", "atlas_packing": "pack_charts", "seam_solve": "seam_csr_cg",
            "gutters": "dilate_rings"}
 #: every function the stages call (a module built from an older checkout lacks some)
-FUNCTIONS = set(KERNELS.values()) | {"radix_argsort", "surface_interp", "chart_marks"}
+FUNCTIONS = set(KERNELS.values()) | {"radix_argsort", "surface_interp", "chart_marks",
+                                      "seam_assemble", "surface_shading"}
 
 if _compiled is not None and not FUNCTIONS <= set(dir(_compiled)):
     # An editable install not rebuilt since the kernels changed: numpy for everything

@@ -411,6 +411,26 @@ def _restore_signals(previous: dict) -> None:
         signal.signal(signum, handler)
 
 
+def _prefetching(progress):
+    """``progress`` (or a silent stand-in) whose phase("unwrapping") also starts importing
+    the image writer: every lightmap output is written through OpenImageIO, and while
+    xatlas's child unwraps, this process only waits."""
+    from aobake.outputs import image
+
+    def callback(done, total):
+        if progress is not None:
+            progress(done, total)
+
+    def phase(name):
+        if name == "unwrapping":
+            image.prefetch()
+        if progress is not None:
+            progress.phase(name)
+
+    callback.phase = phase
+    return callback
+
+
 def _run(mesh, out, target, threads, quiet, config, files):
     import aobake
 
@@ -424,6 +444,8 @@ def _run(mesh, out, target, threads, quiet, config, files):
         raise click.UsageError(f"--denoise adds channels to a lightmap: it needs an .exr --out "
                                f"(got {where.out.name})")
     progress, finish = _progress_bar(quiet)
+    if where.target == "texels":
+        progress = _prefetching(progress)
     bake = aobake.bake if where.target == "vertices" else aobake.bake_texels
     unwrapping = None
     if where.target == "texels" and config.unwrap != "never":

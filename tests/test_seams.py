@@ -350,6 +350,45 @@ def test_compiled_solve_gives_the_numpy_bits(torus, case, kernel):
         np.testing.assert_array_equal(fast, slow)
 
 
+@pytest.mark.parametrize("case", ["torus-own-uvs", "sphere-xatlas"])
+def test_assembled_matrix_is_the_normal_matrix(torus, case, kernel):
+    """The solve's CSR matrix is W + P^T G^T Lambda G P over the covered unknowns, made
+    here densely from the system's definition (P the first dilation ring, G the seam
+    points' lookup differences); the kernel's assembly is the numpy one bit for bit, for
+    any number of threads."""
+    from aobake.targets.texels.seams import _assemble_numpy
+
+    result, system, rows, cols = _unerased_case(torus, case, torus_resolution=OPTIONS["resolution"],
+                                                atlas_resolution=48)
+    s = system
+    n, m = len(s.texels), len(s.group)
+    rng = np.random.default_rng(5)
+    lam, w = rng.uniform(0.5, 2.0, m), np.where(s.gutter, 0.0, rng.uniform(0.5, 2.0, n))
+    starts = np.r_[np.nonzero(np.r_[True, s.group[1:] != s.group[:-1]])[0], m].astype(np.int64)
+    parts = (np.ascontiguousarray(s.coef), lam, starts, np.ascontiguousarray(s.slots),
+             np.ascontiguousarray(s.gutter), s.fill_to, s.fill_from, s.fill_weight, w)
+    reference = _assemble_numpy(*parts)
+    P = np.diag(np.where(s.gutter, 0.0, 1.0))
+    np.add.at(P, (s.fill_to, s.fill_from), s.fill_weight)
+    G = np.zeros((m, n))
+    np.add.at(G, (np.repeat(np.arange(m), 8), s.slots[s.group].reshape(-1)), s.coef.reshape(-1))
+    covered = ~s.gutter
+    GP = (G @ P)[:, covered]
+    dense = np.diag(w[covered]) + GP.T @ (lam[:, None] * GP)
+    nc = int(covered.sum())
+    ours = np.zeros((nc, nc))
+    ours[np.repeat(np.arange(nc), np.diff(reference.indptr)), reference.indices] = reference.data
+    assert np.all(np.diff(reference.indices)[np.diff(np.repeat(np.arange(nc),
+                                                                np.diff(reference.indptr))) == 0] > 0)
+    np.testing.assert_allclose(ours, dense, rtol=1e-12, atol=1e-12 * np.abs(dense).max())
+    for threads in (1, 2, 3):
+        ptr, idx, data = kernel.seam_assemble(*parts, threads)
+        np.testing.assert_array_equal(np.frombuffer(ptr, np.int64), reference.indptr)
+        np.testing.assert_array_equal(np.frombuffer(idx, np.int32), reference.indices)
+        np.testing.assert_array_equal(np.frombuffer(data, np.float64).view(np.uint64),
+                                      reference.data.view(np.uint64))
+
+
 @pytest.mark.parametrize("wrap", ["clamp", "repeat"])
 def test_group_key_orders_points_as_a_lexsort_of_their_stencils(wrap):
     """seam_system sorts the points by one key instead of a lexsort of the 8 texels they

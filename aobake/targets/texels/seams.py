@@ -29,15 +29,16 @@ let them leave the range of the chart texels around them.
 Along a seam edge a bilinear lookup is quadratic between the points where either side
 crosses a row or column of texel centres, so 3-point Gauss-Legendre quadrature on each
 such piece integrates (L_A - L_B)^2 exactly.  The normal equations (sparse, symmetric
-positive definite, over the touched texels only) are solved by Jacobi-preconditioned
-conjugate gradients: in the compiled kernel (``seam_cg`` in aobake/_kernels.c), or in
-numpy with the same operations in the same order (the same bits).  Each iteration reads the
-seam points' weights (m, 8), not 8 x 8 matrices per group of points: the solve is bound by
-memory, and they are half the bytes; the eight products of a point's d_p = g_p . u are
-summed as a fixed pairwise tree (three additions deep).  Bunny 1024^2, 127 iterations:
-numpy's einsum and bincount passes 1.6 s; the kernel with 8 x 8 group matrices 0.6 s wall
-on a quiet machine; CPU seconds on a loaded one: group matrices 0.87, points' weights
-summed in order 0.67, as a tree 0.64.
+positive definite, over the covered texels the seams read) are assembled once as a CSR
+matrix (``seam_assemble``: each group of points' 8 x 8 block, read through the dilation
+into the covered unknowns) and solved by Jacobi-preconditioned conjugate gradients on it
+(``seam_csr_cg``), both in aobake/_kernels.c, or in numpy with the same operations in the
+same order (``_assemble_numpy``, ``_cg_numpy``: the same bits).  Bunny 1024^2 on 2 threads:
+assembly ~0.25 s, 130 iterations ~0.3 s (2.6 ms each); applying the operator as the points
+every iteration (the fill, the points' differences, their sums per group, their scatter and
+the fill's transpose) took ~10 ms an iteration, 1.2-1.5 s in all: four passes of random
+reads against one pass over the matrix, whose row of ~15 columns reads x from a vector that
+fits in the cache.  Earlier, with the points: numpy's einsum and bincount passes 1.6 s.
 A block-Jacobi preconditioner over stretches of seam, both sides at once, saved a fifth
 of the iterations on the bunny in an earlier variant and cost more than that to build;
 a direct sparse solve (SuperLU, COLAMD order) of the bunny's 114k covered unknowns took
@@ -87,8 +88,9 @@ UV_SAME = 1e-9
 #: roughly halves both again for about three times the iterations.
 KAPPA = 100.0
 #: the conjugate gradients stop when the Jacobi-scaled residual is below this in every
-#: unknown (value units); the solution is then within about 3e-5 of the exact one (bunny,
-#: spot), far below the seam differences left (~1e-3 rms) and the texels' noise (~0.02)
+#: unknown (value units); the solution is then within about 1e-5 of the exact one (bunny:
+#: 9.9e-6 at most, 1.6e-7 rms against a direct solve of the same matrix), far below the
+#: seam differences left (~1e-3 rms) and the texels' noise (~0.02)
 TOLERANCE = 1e-6
 #: the solve's threads have at least this many unknowns each (a barrier per pass costs
 #: microseconds; an iteration over 10k unknowns takes about half a millisecond)
@@ -476,16 +478,18 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
     lam = kappa * s.weight / var_d
     # Points are stored in group order: group g is points starts[g] .. starts[g + 1] - 1.
     starts = np.r_[np.nonzero(np.r_[True, s.group[1:] != s.group[:-1]])[0], len(s.group)]
-    operator = _Operator(np.ascontiguousarray(s.coef, dtype=np.float64), lam,
-                         starts.astype(np.int64), np.ascontiguousarray(s.slots, dtype=np.int64),
-                         s.gutter, s.fill_to, s.fill_from, s.fill_weight, w)
-    # Jacobi preconditioner: the normal matrix's diagonal (its seam part, each group's
-    # sum over its points of lam_p g_pk^2, through the fill without the fill's cross terms:
-    # a preconditioner need not be exact).
-    seam_diag = _group_sums(operator, (lam[:, None] * operator.coef) * operator.coef)
-    diag = w + s.fill_transpose(np.bincount(s.slots.reshape(-1), minlength=len(s.texels),
-                                            weights=seam_diag.reshape(-1)), square=True)
-    diag = np.where(covered, diag, 1.0)
+    parts = (np.ascontiguousarray(s.coef, dtype=np.float64), lam, starts.astype(np.int64),
+             np.ascontiguousarray(s.slots, dtype=np.int64), np.ascontiguousarray(s.gutter),
+             s.fill_to, s.fill_from, s.fill_weight, w)
+    # The normal matrix over the covered unknowns, assembled once (``_assemble_numpy``).
+    if kernels is not None:
+        indptr, indices, data = kernels.seam_assemble(*parts, int(threads))
+        matrix = Csr(np.frombuffer(indptr, np.int64), np.frombuffer(indices, np.int32),
+                     np.frombuffer(data, np.float64))
+    else:
+        matrix = _assemble_numpy(*parts)
+    # Jacobi preconditioner: the matrix's diagonal.
+    diag = matrix.diagonal()
     info = {"iterations": 0, "converged": True}
     total = max(float(s.weight.sum()), 1e-300)
     before, after = [], []
@@ -493,12 +497,17 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
     for ch in range(values.shape[1]):
         b = np.where(covered, values[:, ch], 0.0)
         before.append(s.differences(b))
+        bc = np.ascontiguousarray(b[covered])
+        rhs = w[covered] * bc
         if kernels is not None:
-            x = np.empty_like(b)
-            it, left = kernels.seam_cg(*operator, diag, b, x, float(tolerance),
-                                       int(max_iterations), int(threads))
+            xc = np.empty_like(bc)
+            it, left = kernels.seam_csr_cg(matrix.indptr, matrix.indices, matrix.data, diag,
+                                           rhs, bc, xc, float(tolerance), int(max_iterations),
+                                           int(threads))
         else:
-            x, it, left = _cg_numpy(operator, diag, b, tolerance, max_iterations)
+            xc, it, left = _cg_numpy(matrix, diag, rhs, bc, tolerance, max_iterations)
+        x = np.zeros_like(b)
+        x[covered] = xc
         info["iterations"] = max(info["iterations"], it)
         info["converged"] &= bool(left <= tolerance)
         after.append(s.differences(x))
@@ -513,26 +522,18 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
     return out, info
 
 
-class _Operator(NamedTuple):
-    """The normal matrix W + P^T S P of the solve as the buffers ``seam_cg`` takes.
+class Csr(NamedTuple):
+    """The solve's normal matrix A = W + P^T S P over the covered unknowns (numbered in
+    texel order, gutter ones skipped): indptr (n + 1,) int64, indices (nnz,) int32
+    ascending in each row, every diagonal stored, data (nnz,) float64."""
 
-    S is the sum over the seam points p of lam_p g_p g_p^T (g_p the lookup difference's
-    weights on its group's 8 texels), kept as the points: coef (m, 8) float64 g_p, lam (m,)
-    float64, starts (G + 1,) int64 the groups' first points, slots (G, 8) int64,
-    gutter (n,) bool,
-    fill_to / fill_from (e,) int64 and fill_weight (e,) float64 the first dilation ring P
-    (``SeamSystem``), w (n,) float64 the data weights (0 on gutter rows).
-    """
+    indptr: np.ndarray
+    indices: np.ndarray
+    data: np.ndarray
 
-    coef: np.ndarray
-    lam: np.ndarray
-    starts: np.ndarray
-    slots: np.ndarray
-    gutter: np.ndarray
-    fill_to: np.ndarray
-    fill_from: np.ndarray
-    fill_weight: np.ndarray
-    w: np.ndarray
+    def diagonal(self) -> np.ndarray:
+        rows = np.repeat(np.arange(len(self.indptr) - 1), np.diff(self.indptr))
+        return np.ascontiguousarray(self.data[rows == self.indices])
 
 
 # The solve's arithmetic is written so that the compiled kernel can repeat it operation for
@@ -541,29 +542,84 @@ class _Operator(NamedTuple):
 # summation depends on the CPU.
 
 
-def _group_sums(op: "_Operator", values: np.ndarray) -> np.ndarray:
-    """(G, 8) float64 the sums over each group's points, in order, of values (m, 8)."""
-    groups = len(op.starts) - 1
-    group = np.repeat(np.arange(groups, dtype=np.int64), np.diff(op.starts))
-    index = (group[:, None] * 8 + np.arange(8)).reshape(-1)
-    return np.bincount(index, weights=values.reshape(-1), minlength=8 * groups
-                       ).reshape(groups, 8)
+def _assemble_numpy(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w
+                    ) -> Csr:
+    """A = W + P^T S P as ``Csr``, the arithmetic of ``seam_assemble`` (aobake/_kernels.c).
+
+    S P: each group g's 8 x 8 block, the sum over its points p in order of (lam_p c_pk) c_pl,
+    read through the map of each slot's texel t (t itself with weight 1 when covered, else
+    its fill entries' texels and weights, in entry order).  A_ab sums, from 0.0 in the order
+    (g, k, a's entry, l, b's entry), the terms (block_gkl w_a) w_b, then 0.0 (every
+    diagonal is stored); the diagonal then adds w_a.
+    """
+    n, groups = len(gutter), len(slots)
+    covered = ~np.asarray(gutter, dtype=bool)
+    nc = int(covered.sum())
+    cidx = np.full(n, -1, dtype=np.int64)
+    cidx[covered] = np.arange(nc)
+    group = np.repeat(np.arange(groups, dtype=np.int64), np.diff(starts))
+    outer = (lam[:, None] * coef)[:, :, None] * coef[:, None, :]  # (m, 8, 8)
+    bins = (group[:, None] * 64 + np.arange(64)).reshape(-1)
+    block = np.bincount(bins, weights=outer.reshape(-1), minlength=64 * groups)
+    # each texel's map: (unknown, weight) entries, covered texels one, gutter ones their fill
+    fills = np.bincount(fill_to, minlength=n)  # entries per gutter texel
+    length = np.where(covered, 1, fills)
+    first = np.cumsum(length) - length
+    map_col = np.empty(int(length.sum()), dtype=np.int64)
+    map_w = np.empty(len(map_col))
+    map_col[first[covered]] = cidx[covered]
+    map_w[first[covered]] = 1.0
+    order = np.argsort(fill_to, kind="stable")  # by gutter texel, each in entry order
+    to = fill_to[order]
+    at = first[to] + np.arange(len(order)) - (np.cumsum(fills) - fills)[to]
+    map_col[at] = cidx[fill_from[order]]
+    map_w[at] = fill_weight[order]
+
+    def expand(texel):  # (entries of each texel's map, in order): (owner, entry index)
+        count = length[texel]
+        owner = np.repeat(np.arange(len(texel)), count)
+        start = np.repeat(first[texel] - (np.cumsum(count) - count), count)
+        return owner, start + np.arange(len(owner))
+
+    flat = slots.reshape(-1)  # slot j = 8 g + k
+    ja, ea = expand(flat)  # pairs (slot j, a's entry), in order of j then entry
+    pair = np.repeat(np.arange(len(ja)), 8)  # each pair with l = 0..7
+    jl = (ja[pair] // 8) * 8 + np.tile(np.arange(8), len(ja))
+    term, eb = expand(flat[jl])
+    pa, jb = pair[term], jl[term]
+    g, k, l_ = ja[pa] // 8, ja[pa] % 8, jb % 8
+    values = (block[g * 64 + k * 8 + l_] * map_w[ea[pa]]) * map_w[eb]
+    rows, cols = map_col[ea[pa]], map_col[eb]
+    diag = np.arange(nc, dtype=np.int64)  # every diagonal, its 0.0 last
+    keys = np.concatenate([rows * nc + cols, diag * nc + diag])
+    values = np.concatenate([values, np.zeros(nc)])
+    unique, inverse = np.unique(keys, return_inverse=True)
+    data = np.bincount(inverse, weights=values, minlength=len(unique))
+    row, col = unique // nc, unique % nc
+    on_diag = row == col
+    data[on_diag] = data[on_diag] + w[covered][row[on_diag]]
+    indptr = np.zeros(nc + 1, dtype=np.int64)
+    np.cumsum(np.bincount(row, minlength=nc), out=indptr[1:])
+    return Csr(indptr, col.astype(np.int32), data)
 
 
-def _apply(op: _Operator, x: np.ndarray) -> np.ndarray:
-    """(n,) (W + P^T S P) x: the fill P; each point's d_p = g_p . u (summed as a fixed
-    pairwise tree), its group's sums of (lam_p d_p) g_p, scattered in group order; then P^T."""
-    n = len(x)
-    u = np.where(op.gutter, 0.0, x) + np.bincount(op.fill_to, weights=op.fill_weight
-                                                  * x[op.fill_from], minlength=n)
-    ug = u[op.slots][np.repeat(np.arange(len(op.slots)), np.diff(op.starts))]  # (m, 8)
-    t = op.coef * ug
-    d = (((t[:, 0] + t[:, 1]) + (t[:, 2] + t[:, 3]))
-         + ((t[:, 4] + t[:, 5]) + (t[:, 6] + t[:, 7])))  # the kernel's pairwise tree
-    y = _group_sums(op, (op.lam * d)[:, None] * op.coef)
-    v = np.bincount(op.slots.reshape(-1), weights=y.reshape(-1), minlength=n)
-    back = np.bincount(op.fill_from, weights=op.fill_weight * v[op.fill_to], minlength=n)
-    return op.w * x + (np.where(op.gutter, 0.0, v) + back)
+def _csr_apply(matrix: Csr, x: np.ndarray, ranks: list) -> np.ndarray:
+    """(n,) A x, each row summed in column order from 0.0 (the kernel's order): ``ranks``
+    from ``_ranks``."""
+    out = np.zeros(len(matrix.indptr) - 1)
+    for rows, at in ranks:
+        out[rows] += matrix.data[at] * x[matrix.indices[at]]
+    return out
+
+
+def _ranks(matrix: Csr) -> list:
+    """Per rank r, (the rows with more than r entries, the position of their r-th)."""
+    length = np.diff(matrix.indptr)
+    out = []
+    for r in range(int(length.max(initial=0))):
+        rows = np.nonzero(length > r)[0]
+        out.append((rows, matrix.indptr[rows] + r))
+    return out
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> float:
@@ -571,19 +627,20 @@ def _dot(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.cumsum(a * b)[-1]) if len(a) else 0.0
 
 
-def _cg_numpy(op: _Operator, diag, b, tolerance, max_iterations
+def _cg_numpy(matrix: Csr, diag, rhs, b, tolerance, max_iterations
               ) -> tuple[np.ndarray, int, float]:
-    """Jacobi-preconditioned conjugate gradients on (W + P^T S P) x = W b from x = b, until
+    """Jacobi-preconditioned conjugate gradients on A x = rhs from x = b, until
     max |r / diag| <= tolerance (value units) or max_iterations: (x (n,), iterations, the
     last max |r / diag|)."""
+    ranks = _ranks(matrix)
     x = b.copy()
-    r = op.w * b - _apply(op, x)  # minus the seam term's gradient at the bake
+    r = rhs - _csr_apply(matrix, x, ranks)  # minus the seam term's gradient at the bake
     z = r / diag
     p = z.copy()
     rz = _dot(r, z)
     it = 0
     while np.max(np.abs(z), initial=0.0) > tolerance and it < max_iterations:
-        q = _apply(op, p)
+        q = _csr_apply(matrix, p, ranks)
         alpha = rz / _dot(p, q)
         x += alpha * p
         r -= alpha * q

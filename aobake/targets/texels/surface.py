@@ -53,6 +53,7 @@ def surface_points(positions, normals, faces, samples: TexelSamples, threads: in
     fn = np.cross(ftri[:, 1] - ftri[:, 0], ftri[:, 2] - ftri[:, 0])
     unit, fn_len = normalize(fn)
     turned = None
+    has_face = fn_len[:, 0] > 0  # (f,) bool
     if normals is not None:
         unit_normals = normalize(normals)[0]
         corner_sum = unit_normals[faces].sum(axis=1)  # (f, 3)
@@ -76,24 +77,26 @@ def surface_points(positions, normals, faces, samples: TexelSamples, threads: in
             return (bary[:, 0, None] * values[corners[:, 0]] + bary[:, 1, None] * values[corners[:, 1]]
                     + bary[:, 2, None] * values[corners[:, 2]])
 
-        fnorm = unit[face]
         if kept is not None:
-            kept[lo:hi] = fnorm
+            kept[lo:hi] = unit[face]
         if kernels is not None:
             n, n_len = np.empty((hi - lo, 3)), np.empty((hi - lo, 1))
             kernels.surface_interp(positions, empty if normals is None else normals, faces,
                                    face, bary, points[lo:hi], n, n_len)
+            if normals is not None:  # the choice below, in one pass
+                return kernels.surface_shading(face, unit, has_face, turned, n, n_len,
+                                               shading[lo:hi])
         else:
             points[lo:hi] = interpolate(positions)
+        fnorm = unit[face]
         if normals is None:
             shading[lo:hi] = fnorm
             return 0, 0
-        if kernels is None:
-            n, n_len = normalize(interpolate(normals))
-        has_face = fn_len[face, 0] > 0
+        n, n_len = normalize(interpolate(normals))
         zero = n_len[:, 0] == 0
         against = turned[face]
-        bad = has_face & ~against & (zero | (np.einsum("ij,ij->i", n, fnorm) <= 0))
+        along = (n[:, 0] * fnorm[:, 0] + n[:, 1] * fnorm[:, 1]) + n[:, 2] * fnorm[:, 2]
+        bad = has_face[face] & ~against & (zero | (along <= 0))
         n[bad] = fnorm[bad]
         flip = against & zero  # no interpolated direction: the face's, on its normals' side
         n[flip] = -fnorm[flip]

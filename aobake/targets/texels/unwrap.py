@@ -163,7 +163,12 @@ def uv_islands(uv, faces_uv) -> np.ndarray:
     """(f,) int64 UV island of each face: faces joined by UV vertices at the same place
     (welded first: an island may repeat its seam vertices, or a mesh have one ``vt`` per
     corner)."""
-    _, same = np.unique(np.asarray(uv, np.float64), axis=0, return_inverse=True)
+    uv = np.asarray(uv, np.float64)
+    # one complex number per vertex: a 1-D unique (u, then v; -0.0 == 0.0 as along rows),
+    # ~10x faster than np.unique along rows; only which vertices weld matters here
+    key = np.empty(len(uv), np.complex128)
+    key.real, key.imag = uv[:, 0], uv[:, 1]  # set, not computed: no inf * 0
+    _, same = np.unique(key, return_inverse=True)
     return connected_labels(len(uv), same.ravel()[faces_uv])
 
 
