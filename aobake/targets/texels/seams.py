@@ -70,7 +70,7 @@ from typing import NamedTuple
 import numpy as np
 
 from aobake import _native
-from aobake.vectors import distinct
+from aobake.vectors import distinct, weld
 
 log = logging.getLogger(__name__)
 
@@ -191,7 +191,9 @@ class SeamSystem:
 
     def differences(self, x: np.ndarray) -> np.ndarray:
         """(m,) L_A - L_B at the seam points of the map whose covered texels are x (n,)."""
-        return np.einsum("pk,pk->p", self.coef, self.fill(x)[self.slots[self.group]])
+        # each group's 8 texels read once, then repeated per point (contiguous rows): the
+        # same numbers as indexing with slots[group], without an (m, 8) index array
+        return np.einsum("pk,pk->p", self.coef, self.fill(x)[self.slots][self.group])
 
 
 # --- seam edges and points -------------------------------------------------------------
@@ -213,13 +215,13 @@ def seam_edges(mesh: SeamMesh) -> tuple[np.ndarray, np.ndarray]:
     empty = np.zeros((0, 2, 2))
     if not len(faces):
         return empty, empty
-    weld = _weld(np.asarray(mesh.positions, dtype=np.float64))
+    welded = weld(np.asarray(mesh.positions, dtype=np.float64))
     # Half-edges (face, corner k -> k + 1), each stored from its lower welded end.
     a_corner = faces.reshape(-1)
     b_corner = np.roll(faces, -1, axis=1).reshape(-1)
     a_uv = faces_uv.reshape(-1)
     b_uv = np.roll(faces_uv, -1, axis=1).reshape(-1)
-    pa, pb = weld[a_corner], weld[b_corner]
+    pa, pb = welded[a_corner], welded[b_corner]
     keep = pa != pb
     swap = pa > pb
     lo_v = np.where(swap, b_corner, a_corner)[keep]
@@ -249,20 +251,6 @@ def seam_edges(mesh: SeamMesh) -> tuple[np.ndarray, np.ndarray]:
               & (np.einsum("ij,ij->i", normals[hi_v[one]], normals[hi_v[other]]) >= smooth_cos))
     seam = differ & smooth
     return uv_a[seam], uv_b[seam]
-
-
-def _weld(positions: np.ndarray) -> np.ndarray:
-    """(v,) int64 label of each position (v, 3): its rank among the distinct positions in
-    lexicographic (x, y, z) order, as ``np.unique(axis=0, return_inverse=True)`` numbers
-    them (a stable lexsort of the columns: 6x faster than unique's sort of row records)."""
-    if not len(positions):
-        return np.zeros(0, dtype=np.int64)
-    order = np.lexsort(positions.T[::-1])
-    ranked = positions[order]
-    new = np.r_[True, np.any(ranked[1:] != ranked[:-1], axis=1)]
-    weld = np.empty(len(positions), dtype=np.int64)
-    weld[order] = np.cumsum(new) - 1
-    return weld
 
 
 def _texel_coords(uv: np.ndarray, width: int, height: int) -> np.ndarray:

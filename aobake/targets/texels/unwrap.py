@@ -30,7 +30,7 @@ import numpy as np
 
 from aobake import _native
 from aobake.errors import InputError
-from aobake.vectors import distinct
+from aobake.vectors import distinct, weld
 
 log = logging.getLogger(__name__)
 
@@ -206,8 +206,7 @@ def _parts(vertices, faces, face_area) -> list[np.ndarray]:
     tessellated eye and a coarse body both get charts of about CHART_FACES triangles.
     The parts are a function of the mesh only, never of the core count.
     """
-    _, vid = np.unique(vertices, axis=0, return_inverse=True)
-    labels = connected_labels(len(vertices), vid.ravel()[faces])
+    labels = connected_labels(len(vertices), weld(np.asarray(vertices, np.float64))[faces])
     k = int(labels.max()) + 1
     count = np.bincount(labels, minlength=k)
     mean = np.bincount(labels, face_area, k) / count
