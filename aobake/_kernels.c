@@ -664,7 +664,8 @@ done:
 }
 
 /* The seam erasure's normal matrix A = W + P^T S P over the covered unknowns, assembled
- * once (seam_assemble), and the conjugate gradients on it (seam_csr_cg): each iteration is
+ * once (seam_pattern, then seam_values), and the conjugate gradients on it (seam_csr_cg):
+ * each iteration is
  * then one pass over a CSR matrix, where the operator applied as the points (the fill,
  * the group sums, their scatter, the fill's transpose: four passes of random reads) took
  * three times as long (the bunny's 114k unknowns: ~10 -> ~3 ms an iteration).
@@ -745,7 +746,7 @@ static void gather_lists(const int64_t *target, Py_ssize_t len, Py_ssize_t n, in
     ptr[0] = 0;
 }
 
-/* The unknowns' maps of seam_assemble (see there): slot j's texel t maps to its unknown
+/* The unknowns' maps of seam_pattern and seam_values: slot j's texel t maps to its unknown
  * (weight 1) when covered, else to its fill entries to_list[to_ptr[t] ..] (fill_from's
  * unknowns, fill_weight). */
 typedef struct {
@@ -805,7 +806,8 @@ static inline void add_at(const int64_t *indptr, const int32_t *indices, double 
 
 #define SEAM_MAX_THREADS 16
 
-/* One thread's rows r0 .. r1 - 1 of seam_assemble: their pattern (pass 0: cols, ascending
+/* One thread's rows r0 .. r1 - 1 of seam_pattern or seam_values: their pattern (pass 0: cols,
+ * ascending
  * per row, counts[a] each row's count) or their values (pass 1: every group read in order,
  * only its terms of these rows added). */
 typedef struct {
@@ -928,83 +930,112 @@ static void assemble_run(AssembleWork *work, Py_ssize_t threads)
 #endif
 }
 
-/* seam_assemble(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w)
- *     -> (indptr, indices, data) bytes: A over the covered unknowns (numbered in texel
- * order, skipping the gutter ones) as CSR, indptr (nc + 1,) int64, indices (nnz,) int32
- * ascending in each row, data (nnz,) float64.  coef (m, 8), lam (m,) float64, starts
- * (G + 1,) int64, slots (G, 8) int64 in 0..n-1, gutter (n,) bool, fill_* (e,) (fill_to a
- * gutter texel, fill_from a covered one), w (n,) float64.
- *
- * The pattern is found row by row (each unknown's slots, ascending); the values are then
- * added group by group, in the order of generation, so every entry's sum is the
- * reference's, and each group's block is made just before its terms (read in order, not
- * looked up per row in 42 MB of blocks: the bunny's assembly 0.5 -> ~0.1 s). */
-static PyObject *seam_assemble(PyObject *self, PyObject *args)
+/* The arrays seam_pattern and seam_values both derive from a system: each unknown's number
+ * (cidx, -1 for a gutter texel), each unknown's texel, and each gutter texel's fill entries
+ * (to_ptr / to_list). */
+typedef struct {
+    int64_t *ints;  /* one allocation: cidx (n), texel (n), to_ptr (n + 1), to_list (fills) */
+    int64_t *cidx, *texel, *to_ptr, *to_list;
+    Py_ssize_t nc;
+} Numbering;
+
+/* Checks the system's index arrays and numbers its unknowns; -1 with an exception set. */
+static int seam_numbering(Py_buffer *bstarts, Py_buffer *bslots, Py_buffer *bgut, Py_buffer *bto,
+                          Py_buffer *bfrom, Py_ssize_t m, Numbering *out)
 {
-    Py_buffer bcoef = {0}, blam = {0}, bstarts = {0}, bslots = {0}, bgut = {0};
-    Py_buffer bto = {0}, bfrom = {0}, bfw = {0}, bw = {0};
-    int64_t *ints = NULL, *in_j = NULL, *in_ptr = NULL, *indptr = NULL;
+    const Py_ssize_t n = bgut->len, groups = bslots->len / 64, fills = bto->len / 8;
+    if (check(bstarts, "starts", 8, groups + 1) || check(bslots, "slots", 8, 8 * groups) ||
+        check(bgut, "gutter", 1, n) || check(bto, "fill_to", 8, fills) ||
+        check(bfrom, "fill_from", 8, fills))
+        return -1;
+    const int64_t *starts = bstarts->buf, *slots = bslots->buf, *to = bto->buf, *from = bfrom->buf;
+    const uint8_t *gutter = bgut->buf;
+    if (starts[0] != 0 || (m >= 0 && starts[groups] != m)) {
+        PyErr_SetString(PyExc_ValueError, "starts must run from 0 to m");
+        return -1;
+    }
+    for (Py_ssize_t g = 0; g < groups; ++g)
+        if (starts[g] > starts[g + 1]) {
+            PyErr_SetString(PyExc_ValueError, "starts must be non-decreasing");
+            return -1;
+        }
+    for (Py_ssize_t i = 0; i < 8 * groups; ++i)
+        if (slots[i] < 0 || slots[i] >= n) {
+            PyErr_SetString(PyExc_IndexError, "slot out of range");
+            return -1;
+        }
+    for (Py_ssize_t e = 0; e < fills; ++e)
+        if (to[e] < 0 || to[e] >= n || from[e] < 0 || from[e] >= n || !gutter[to[e]] ||
+            gutter[from[e]]) {
+            PyErr_SetString(PyExc_IndexError,
+                            "a fill entry must take a covered texel into a gutter one");
+            return -1;
+        }
+    if (n >= INT32_MAX) {
+        PyErr_SetString(PyExc_ValueError, "too many unknowns");
+        return -1;
+    }
+    out->ints = PyMem_RawCalloc((size_t)(3 * n + 1 + fills + 1), sizeof(int64_t));
+    if (!out->ints) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    out->cidx = out->ints;
+    out->texel = out->cidx + n;
+    out->to_ptr = out->texel + n;
+    out->to_list = out->to_ptr + (n + 1);
+    Py_ssize_t nc = 0;
+    for (Py_ssize_t i = 0; i < n; ++i) {
+        out->cidx[i] = gutter[i] ? -1 : nc;
+        if (!gutter[i])
+            out->texel[nc++] = i;
+    }
+    out->nc = nc;
+    gather_lists(to, fills, n, out->to_ptr, out->to_list);
+    return 0;
+}
+
+static Py_ssize_t clamp_threads(Py_ssize_t threads, Py_ssize_t rows)
+{
+    if (threads > SEAM_MAX_THREADS)
+        threads = SEAM_MAX_THREADS;
+    if (threads > rows)
+        threads = rows > 0 ? rows : 1;
+    return threads;
+}
+
+/* seam_pattern(starts, slots, gutter, fill_to, fill_from, threads=1) -> (indptr, indices)
+ *
+ * The pattern of the seam erasure's normal matrix A = W + P^T S P over the covered unknowns
+ * (numbered in texel order, skipping the gutter ones): indptr (nc + 1,) int64 and indices
+ * (nnz,) int32 bytes, each row's columns ascending, every diagonal stored.  It depends on
+ * the system only, not on the baked values, so the seam system's thread makes it while the
+ * samples are traced.  starts (G + 1,) int64 the groups' first points, slots (G, 8) int64 in
+ * 0..n-1, gutter (n,) bool, fill_* (e,) int64 (fill_to a gutter texel, fill_from a covered
+ * one).  Rows split over `threads` (the same pattern for any number). */
+static PyObject *seam_pattern(PyObject *self, PyObject *args)
+{
+    Py_buffer bstarts = {0}, bslots = {0}, bgut = {0}, bto = {0}, bfrom = {0};
     Py_ssize_t threads = 1;
-    PyObject *result = NULL, *pi = NULL, *px = NULL, *pd = NULL;
+    Numbering N = {0};
+    int64_t *in_j = NULL, *in_ptr = NULL, *indptr = NULL;
+    PyObject *result = NULL, *pi = NULL, *px = NULL;
+    AssembleWork work[SEAM_MAX_THREADS];
+    Py_ssize_t shares = 0;
     (void)self;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*|n", &bcoef, &blam, &bstarts, &bslots, &bgut,
-                          &bto, &bfrom, &bfw, &bw, &threads))
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*|n", &bstarts, &bslots, &bgut, &bto, &bfrom, &threads))
         return NULL;
+    if (threads < 1) {
+        PyErr_SetString(PyExc_ValueError, "threads must be at least 1");
+        goto done;
+    }
+    if (seam_numbering(&bstarts, &bslots, &bgut, &bto, &bfrom, -1, &N) < 0)
+        goto done;
     {
-        const Py_ssize_t n = bgut.len, groups = bslots.len / 64, fills = bto.len / 8;
-        const Py_ssize_t m = blam.len / 8;
-        if (check(&bcoef, "coef", 8, 8 * m) || check(&blam, "lam", 8, m) ||
-            check(&bstarts, "starts", 8, groups + 1) || check(&bslots, "slots", 8, 8 * groups) ||
-            check(&bgut, "gutter", 1, n) || check(&bto, "fill_to", 8, fills) ||
-            check(&bfrom, "fill_from", 8, fills) || check(&bfw, "fill_weight", 8, fills) ||
-            check(&bw, "w", 8, n))
-            goto done;
-        const int64_t *starts = bstarts.buf, *slots = bslots.buf, *to = bto.buf, *from = bfrom.buf;
+        const Py_ssize_t groups = bslots.len / 64, nc = N.nc;
+        const int64_t *slots = bslots.buf, *from = bfrom.buf;
         const uint8_t *gutter = bgut.buf;
-        const double *coef = bcoef.buf, *lam = blam.buf, *fw = bfw.buf, *w = bw.buf;
-        if (starts[0] != 0 || starts[groups] != m) {
-            PyErr_SetString(PyExc_ValueError, "starts must run from 0 to m");
-            goto done;
-        }
-        for (Py_ssize_t g = 0; g < groups; ++g)
-            if (starts[g] > starts[g + 1]) {
-                PyErr_SetString(PyExc_ValueError, "starts must be non-decreasing");
-                goto done;
-            }
-        for (Py_ssize_t i = 0; i < 8 * groups; ++i)
-            if (slots[i] < 0 || slots[i] >= n) {
-                PyErr_SetString(PyExc_IndexError, "slot out of range");
-                goto done;
-            }
-        for (Py_ssize_t e = 0; e < fills; ++e)
-            if (to[e] < 0 || to[e] >= n || from[e] < 0 || from[e] >= n || !gutter[to[e]] ||
-                gutter[from[e]]) {
-                PyErr_SetString(PyExc_IndexError,
-                                "a fill entry must take a covered texel into a gutter one");
-                goto done;
-            }
-        if (n >= INT32_MAX) {
-            PyErr_SetString(PyExc_ValueError, "too many unknowns");
-            goto done;
-        }
-        if (threads < 1) {
-            PyErr_SetString(PyExc_ValueError, "threads must be at least 1");
-            goto done;
-        }
-        /* ints: cidx (n), texel (n), to_ptr (n + 1), to_list (fills) */
-        ints = PyMem_RawCalloc((size_t)(3 * n + 1 + fills + 1), sizeof(int64_t));
-        if (!ints) {
-            PyErr_NoMemory();
-            goto done;
-        }
-        int64_t *cidx = ints, *texel = cidx + n, *to_ptr = texel + n, *to_list = to_ptr + (n + 1);
-        Py_ssize_t nc = 0;
-        for (Py_ssize_t i = 0; i < n; ++i) {
-            cidx[i] = gutter[i] ? -1 : nc;
-            if (!gutter[i])
-                texel[nc++] = i;
-        }
-        gather_lists(to, fills, n, to_ptr, to_list);
+        const int64_t *cidx = N.cidx, *to_ptr = N.to_ptr, *to_list = N.to_list;
         Py_ssize_t incoming = 0;  /* (slot, unknown) pairs over all slots' maps */
         for (Py_ssize_t j = 0; j < 8 * groups; ++j) {
             const int64_t t = slots[j];
@@ -1017,7 +1048,7 @@ static PyObject *seam_assemble(PyObject *self, PyObject *args)
             PyErr_NoMemory();
             goto done;
         }
-        const Maps M = {slots, from, cidx, to_ptr, to_list, gutter, fw};
+        const Maps M = {slots, from, cidx, to_ptr, to_list, gutter, NULL};
         Py_BEGIN_ALLOW_THREADS
         /* per unknown a, the slots j whose map holds it, ascending j (a counting sort of
          * the (j, a) pairs, made in ascending j) */
@@ -1042,87 +1073,156 @@ static PyObject *seam_assemble(PyObject *self, PyObject *args)
             in_ptr[a] = in_ptr[a - 1];
         in_ptr[0] = 0;
         Py_END_ALLOW_THREADS
-        /* the pattern, each share's rows on a thread (rows split by their incoming slots) */
-        if (threads > SEAM_MAX_THREADS)
-            threads = SEAM_MAX_THREADS;
-        if (threads > nc)
-            threads = nc > 0 ? nc : 1;
-        AssembleWork work[SEAM_MAX_THREADS];
-        for (Py_ssize_t k = 0, a = 0; k < threads; ++k) {
-            AssembleWork t = {&M, in_ptr, in_j, starts, indptr, NULL, coef, lam, NULL, groups,
+        /* each share's rows on a thread (rows split by their incoming slots) */
+        shares = clamp_threads(threads, nc);
+        int failed = 0;
+        for (Py_ssize_t k = 0, a = 0; k < shares; ++k) {
+            AssembleWork t = {&M, in_ptr, in_j, NULL, NULL, NULL, NULL, NULL, NULL, groups,
                               a, a, 0, 0, NULL, NULL, NULL, NULL, 0, 0};
-            const int64_t target = in_ptr[nc] * (k + 1) / threads;
-            while (a < nc && (k == threads - 1 || in_ptr[a] < target))
+            const int64_t target = in_ptr[nc] * (k + 1) / shares;
+            while (a < nc && (k == shares - 1 || in_ptr[a] < target))
                 ++a;
             t.r1 = a;
+            t.mark = PyMem_RawMalloc(sizeof(int32_t) * (size_t)(nc + 1));
+            t.row_cols = PyMem_RawMalloc(sizeof(int32_t) * (size_t)(nc + 1));
+            t.counts = indptr + 1;  /* each row's count, summed in place below */
+            failed |= !t.mark || !t.row_cols;
             work[k] = t;
-        }
-        int failed = 0;
-        for (Py_ssize_t k = 0; k < threads; ++k) {
-            work[k].mark = PyMem_RawMalloc(sizeof(int32_t) * (size_t)(nc + 1));
-            work[k].row_cols = PyMem_RawMalloc(sizeof(int32_t) * (size_t)(nc + 1));
-            failed |= !work[k].mark || !work[k].row_cols;
         }
         if (!failed) {
             Py_BEGIN_ALLOW_THREADS
-            for (Py_ssize_t k = 0; k < threads; ++k) {
+            for (Py_ssize_t k = 0; k < shares; ++k)
                 for (Py_ssize_t b = 0; b < nc; ++b)
                     work[k].mark[b] = -1;
-                work[k].counts = indptr + 1;  /* each row's count, then summed in place */
-            }
-            assemble_run(work, threads);
+            assemble_run(work, shares);
             Py_END_ALLOW_THREADS
-            for (Py_ssize_t k = 0; k < threads; ++k)
+            for (Py_ssize_t k = 0; k < shares; ++k)
                 failed |= work[k].failed;
         }
         if (failed) {
             PyErr_NoMemory();
-            goto free_work;
+            goto done;
         }
         for (Py_ssize_t a = 0; a < nc; ++a)
             indptr[a + 1] += indptr[a];
         const Py_ssize_t nnz = indptr[nc];
         px = PyBytes_FromStringAndSize(NULL, 4 * nnz);
-        pd = PyBytes_FromStringAndSize(NULL, 8 * nnz);
         pi = PyBytes_FromStringAndSize((const char *)indptr, 8 * (nc + 1));
-        if (!px || !pd || !pi)
-            goto free_work;
+        if (!px || !pi)
+            goto done;
         int32_t *indices = (int32_t *)PyBytes_AS_STRING(px);
-        double *data = (double *)PyBytes_AS_STRING(pd);
-        for (Py_ssize_t k = 0; k < threads; ++k)
+        for (Py_ssize_t k = 0; k < shares; ++k)
             if (work[k].nnz)
                 memcpy(indices + indptr[work[k].r0], work[k].cols,
                        sizeof(int32_t) * (size_t)work[k].nnz);
+        result = Py_BuildValue("(OO)", pi, px);
+    }
+done:
+    for (Py_ssize_t k = 0; k < shares; ++k) {
+        PyMem_RawFree(work[k].mark);
+        PyMem_RawFree(work[k].row_cols);
+        PyMem_RawFree(work[k].cols);
+    }
+    Py_XDECREF(pi); Py_XDECREF(px);
+    PyMem_RawFree(N.ints); PyMem_RawFree(in_ptr); PyMem_RawFree(in_j); PyMem_RawFree(indptr);
+    PyBuffer_Release(&bstarts); PyBuffer_Release(&bslots); PyBuffer_Release(&bgut);
+    PyBuffer_Release(&bto); PyBuffer_Release(&bfrom);
+    return result;
+}
+
+/* seam_values(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w, indptr,
+ *             indices, threads=1) -> data (nnz,) float64 bytes
+ *
+ * The values of A on seam_pattern's pattern (indptr, indices), in the arithmetic of
+ * aobake.targets.texels.seams._assemble_numpy: coef (m, 8), lam (m,) float64, w (n,)
+ * float64, the rest as for seam_pattern.  Every share reads the groups in order and adds its
+ * own rows' terms (each group's block made just before its terms), so every entry's sum is
+ * the reference's whatever the number of threads. */
+static PyObject *seam_values(PyObject *self, PyObject *args)
+{
+    Py_buffer bcoef = {0}, blam = {0}, bstarts = {0}, bslots = {0}, bgut = {0};
+    Py_buffer bto = {0}, bfrom = {0}, bfw = {0}, bw = {0}, bptr = {0}, bidx = {0};
+    Py_ssize_t threads = 1;
+    Numbering N = {0};
+    PyObject *result = NULL, *pd = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*|n", &bcoef, &blam, &bstarts, &bslots,
+                          &bgut, &bto, &bfrom, &bfw, &bw, &bptr, &bidx, &threads))
+        return NULL;
+    if (threads < 1) {
+        PyErr_SetString(PyExc_ValueError, "threads must be at least 1");
+        goto done;
+    }
+    {
+        const Py_ssize_t m = blam.len / 8, n = bgut.len, fills = bto.len / 8;
+        if (check(&bcoef, "coef", 8, 8 * m) || check(&blam, "lam", 8, m) ||
+            check(&bfw, "fill_weight", 8, fills) || check(&bw, "w", 8, n) ||
+            seam_numbering(&bstarts, &bslots, &bgut, &bto, &bfrom, m, &N) < 0)
+            goto done;
+        const Py_ssize_t nc = N.nc, groups = bslots.len / 64, nnz = bidx.len / 4;
+        if (check(&bptr, "indptr", 8, nc + 1) || check(&bidx, "indices", 4, nnz))
+            goto done;
+        const int64_t *indptr = bptr.buf;
+        const int32_t *indices = bidx.buf;
+        if (indptr[0] != 0 || indptr[nc] != nnz) {
+            PyErr_SetString(PyExc_ValueError, "indptr must run from 0 to nnz");
+            goto done;
+        }
+        for (Py_ssize_t a = 0; a < nc; ++a)
+            if (indptr[a] >= indptr[a + 1]) {  /* every row holds at least its diagonal */
+                PyErr_SetString(PyExc_ValueError, "a row without entries: not this pattern");
+                goto done;
+            }
+        for (Py_ssize_t u = 0; u < nnz; ++u)
+            if (indices[u] < 0 || indices[u] >= nc) {
+                PyErr_SetString(PyExc_IndexError, "column out of range");
+                goto done;
+            }
+        pd = PyBytes_FromStringAndSize(NULL, 8 * nnz);
+        if (!pd)
+            goto done;
+        double *data = (double *)PyBytes_AS_STRING(pd);
+        const Maps M = {bslots.buf, bfrom.buf, N.cidx, N.to_ptr, N.to_list, bgut.buf, bfw.buf};
+        const Py_ssize_t shares = clamp_threads(threads, nc);
+        AssembleWork work[SEAM_MAX_THREADS];
+        for (Py_ssize_t k = 0; k < shares; ++k) {
+            AssembleWork t = {&M, NULL, NULL, bstarts.buf, indptr, indices, bcoef.buf, blam.buf,
+                              data, groups, nc * k / shares, nc * (k + 1) / shares, 0, 0,
+                              NULL, NULL, NULL, NULL, 1, 0};
+            work[k] = t;
+        }
+        const double *w = bw.buf;
+        const int64_t *texel = N.texel;
+        int missing = 0;
         Py_BEGIN_ALLOW_THREADS
         for (Py_ssize_t u = 0; u < nnz; ++u)
             data[u] = 0.0;
-        /* the values: every share reads the groups in order, adding its rows' terms */
-        for (Py_ssize_t k = 0; k < threads; ++k) {
-            work[k].pass = 1;
-            work[k].indices = indices;
-            work[k].data = data;
-        }
-        assemble_run(work, threads);
+        assemble_run(work, shares);
         /* the diagonal: + 0.0 (the reference's entry that makes sure it is stored), + w */
-        for (Py_ssize_t a = 0; a < nc; ++a)
-            for (int64_t u = indptr[a]; u < indptr[a + 1]; ++u)
-                if (indices[u] == a)
-                    data[u] = (data[u] + 0.0) + w[texel[a]];
-        Py_END_ALLOW_THREADS
-        result = Py_BuildValue("(OOO)", pi, px, pd);
-    free_work:
-        for (Py_ssize_t k = 0; k < threads; ++k) {
-            PyMem_RawFree(work[k].mark);
-            PyMem_RawFree(work[k].row_cols);
-            PyMem_RawFree(work[k].cols);
+        for (Py_ssize_t a = 0; a < nc; ++a) {
+            int64_t u = indptr[a];
+            while (u < indptr[a + 1] && indices[u] != a)
+                ++u;
+            if (u == indptr[a + 1])
+                missing = 1;
+            else
+                data[u] = (data[u] + 0.0) + w[texel[a]];
         }
+        Py_END_ALLOW_THREADS
+        if (missing) {
+            PyErr_SetString(PyExc_ValueError, "a row without its diagonal: not this pattern");
+            goto done;
+        }
+        result = pd;
+        pd = NULL;
     }
 done:
-    Py_XDECREF(pi); Py_XDECREF(px); Py_XDECREF(pd);
-    PyMem_RawFree(ints); PyMem_RawFree(in_ptr); PyMem_RawFree(in_j); PyMem_RawFree(indptr);
+    Py_XDECREF(pd);
+    PyMem_RawFree(N.ints);
     PyBuffer_Release(&bcoef); PyBuffer_Release(&blam); PyBuffer_Release(&bstarts);
     PyBuffer_Release(&bslots); PyBuffer_Release(&bgut); PyBuffer_Release(&bto);
     PyBuffer_Release(&bfrom); PyBuffer_Release(&bfw); PyBuffer_Release(&bw);
+    PyBuffer_Release(&bptr); PyBuffer_Release(&bidx);
     return result;
 }
 
@@ -1229,7 +1329,7 @@ static void *csr_cg_thread(void *arg)
 /* seam_csr_cg(indptr, indices, data, diag, rhs, b, x, tolerance, max_iterations, threads)
  *     -> (iterations, the last max |r / diag|)
  *
- * Jacobi-preconditioned conjugate gradients on A x = rhs from x = b (A as seam_assemble
+ * Jacobi-preconditioned conjugate gradients on A x = rhs from x = b (A as seam_values
  * makes it, n rows), stopping when max |r / diag| <= tolerance or after max_iterations:
  * aobake.targets.texels.seams._cg_numpy operation for operation (tested bit for bit), on
  * `threads` threads splitting the rows (the same bits for any number: every row's sum is
@@ -1667,10 +1767,12 @@ static PyMethodDef methods[] = {
     {"dilate_rings", dilate_rings, METH_VARARGS,
      "dilate_rings(out, filled, height, width, channels, padding) -> rings: "
      "aobake.post.dilate's rings in place"},
-    {"seam_assemble", seam_assemble, METH_VARARGS,
-     "seam_assemble(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w) -> "
-     "(indptr, indices, data) bytes: the seam erasure's normal matrix over the covered "
-     "unknowns, CSR."},
+    {"seam_pattern", seam_pattern, METH_VARARGS,
+     "seam_pattern(starts, slots, gutter, fill_to, fill_from[, threads]) -> (indptr, indices) "
+     "bytes: the seam erasure's normal matrix's CSR pattern."},
+    {"seam_values", seam_values, METH_VARARGS,
+     "seam_values(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w, indptr, "
+     "indices[, threads]) -> data bytes: its values on that pattern."},
     {"seam_csr_cg", seam_csr_cg, METH_VARARGS,
      "seam_csr_cg(indptr, indices, data, diag, rhs, b, x, tolerance, max_iterations[, threads]) "
      "-> (iterations, max |r / diag|): the seam erasure's Jacobi-preconditioned CG."},

@@ -382,9 +382,11 @@ def test_assembled_matrix_is_the_normal_matrix(torus, case, kernel):
                                                                 np.diff(reference.indptr))) == 0] > 0)
     np.testing.assert_allclose(ours, dense, rtol=1e-12, atol=1e-12 * np.abs(dense).max())
     for threads in (1, 2, 3):
-        ptr, idx, data = kernel.seam_assemble(*parts, threads)
-        np.testing.assert_array_equal(np.frombuffer(ptr, np.int64), reference.indptr)
-        np.testing.assert_array_equal(np.frombuffer(idx, np.int32), reference.indices)
+        ptr, idx = (np.frombuffer(b, t) for b, t in
+                    zip(kernel.seam_pattern(*parts[2:7], threads), (np.int64, np.int32)))
+        data = kernel.seam_values(*parts, ptr, idx, threads)
+        np.testing.assert_array_equal(ptr, reference.indptr)
+        np.testing.assert_array_equal(idx, reference.indices)
         np.testing.assert_array_equal(np.frombuffer(data, np.float64).view(np.uint64),
                                       reference.data.view(np.uint64))
 

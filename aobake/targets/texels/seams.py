@@ -30,8 +30,9 @@ Along a seam edge a bilinear lookup is quadratic between the points where either
 crosses a row or column of texel centres, so 3-point Gauss-Legendre quadrature on each
 such piece integrates (L_A - L_B)^2 exactly.  The normal equations (sparse, symmetric
 positive definite, over the covered texels the seams read) are assembled once as a CSR
-matrix (``seam_assemble``: each group of points' 8 x 8 block, read through the dilation
-into the covered unknowns) and solved by Jacobi-preconditioned conjugate gradients on it
+matrix (``seam_pattern``, made while the samples are traced, then ``seam_values``: each
+group of points' 8 x 8 block, read through the dilation into the covered unknowns) and
+solved by Jacobi-preconditioned conjugate gradients on it
 (``seam_csr_cg``), both in aobake/_kernels.c, or in numpy with the same operations in the
 same order (``_assemble_numpy``, ``_cg_numpy``: the same bits).  Bunny 1024^2 on 2 threads:
 assembly ~0.25 s, 130 iterations ~0.3 s (2.6 ms each); applying the operator as the points
@@ -433,7 +434,7 @@ def _indexer(texels: np.ndarray, size: int):
 def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
           kappa: float | None = None, tolerance: float | None = None,
           max_iterations: int | None = None, compiled: bool | None = None,
-          threads: int = 1) -> tuple[np.ndarray, dict]:
+          threads: int = 1, pattern: tuple | None = None) -> tuple[np.ndarray, dict]:
     """Minimise the erasure energy (module docstring) over the covered ``system.texels``.
 
     values : (n, c) float64 baked values of ``system.texels`` (c channels sharing the
@@ -441,7 +442,7 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
     their stderr (gutter rows ignored).  compiled : the conjugate gradients in the compiled
     kernel (default: when it was built and not forced off, see ``aobake._native``) or in
     numpy; the bits are the same.  threads : the kernel's threads (the same bits for any
-    number; numpy's runs on one).
+    number; numpy's runs on one).  pattern : ``system_pattern(system)``, if made already.
     Returns (x (n, c) float64: the adjusted covered values, gutter rows the dilation of
     them; info: iterations, converged, and rms_before / rms_after, max_before / max_after of
     the lookup difference over the seam points (rms weighted by seam length)).
@@ -465,15 +466,16 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
                        SE_FLOOR ** 2)
     lam = kappa * s.weight / var_d
     # Points are stored in group order: group g is points starts[g] .. starts[g + 1] - 1.
-    starts = np.r_[np.nonzero(np.r_[True, s.group[1:] != s.group[:-1]])[0], len(s.group)]
-    parts = (np.ascontiguousarray(s.coef, dtype=np.float64), lam, starts.astype(np.int64),
+    parts = (np.ascontiguousarray(s.coef, dtype=np.float64), lam, _starts(s),
              np.ascontiguousarray(s.slots, dtype=np.int64), np.ascontiguousarray(s.gutter),
              s.fill_to, s.fill_from, s.fill_weight, w)
-    # The normal matrix over the covered unknowns, assembled once (``_assemble_numpy``).
+    # The normal matrix over the covered unknowns, assembled once (``_assemble_numpy``); its
+    # pattern depends on the system only (``pattern``, made while the samples were traced).
     if kernels is not None:
-        indptr, indices, data = kernels.seam_assemble(*parts, int(threads))
-        matrix = Csr(np.frombuffer(indptr, np.int64), np.frombuffer(indices, np.int32),
-                     np.frombuffer(data, np.float64))
+        indptr, indices = pattern if pattern is not None else system_pattern(s, kernels,
+                                                                              threads)
+        data = kernels.seam_values(*parts, indptr, indices, int(threads))
+        matrix = Csr(indptr, indices, np.frombuffer(data, np.float64))
     else:
         matrix = _assemble_numpy(*parts)
     # Jacobi preconditioner: the matrix's diagonal.
@@ -510,6 +512,22 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
     return out, info
 
 
+def _starts(system: SeamSystem) -> np.ndarray:
+    """(G + 1,) int64 the first point of each group (points are stored in group order)."""
+    g = system.group
+    return np.r_[np.nonzero(np.r_[True, g[1:] != g[:-1]])[0], len(g)].astype(np.int64)
+
+
+def system_pattern(system: SeamSystem, kernels, threads: int = 1) -> tuple:
+    """The compiled solve's matrix pattern (``seam_pattern``): (indptr (n + 1,) int64,
+    indices (nnz,) int32), a function of the system alone, made before the values are
+    known."""
+    indptr, indices = kernels.seam_pattern(
+        _starts(system), np.ascontiguousarray(system.slots, np.int64),
+        np.ascontiguousarray(system.gutter), system.fill_to, system.fill_from, int(threads))
+    return np.frombuffer(indptr, np.int64), np.frombuffer(indices, np.int32)
+
+
 class Csr(NamedTuple):
     """The solve's normal matrix A = W + P^T S P over the covered unknowns (numbered in
     texel order, gutter ones skipped): indptr (n + 1,) int64, indices (nnz,) int32
@@ -532,7 +550,7 @@ class Csr(NamedTuple):
 
 def _assemble_numpy(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w
                     ) -> Csr:
-    """A = W + P^T S P as ``Csr``, the arithmetic of ``seam_assemble`` (aobake/_kernels.c).
+    """A = W + P^T S P as ``Csr``, the arithmetic of ``seam_pattern`` + ``seam_values`` (aobake/_kernels.c).
 
     S P: each group g's 8 x 8 block, the sum over its points p in order of (lam_p c_pk) c_pl,
     read through the map of each slot's texel t (t itself with weight 1 when covered, else
@@ -683,7 +701,8 @@ class Prepared:
 
     covered : (H, W) bool the covered texels it was made for, padding : int, points :
     SeamPoints or None, system : SeamSystem or None (None: nothing to erase), seconds :
-    float how long making it took (on whichever thread made it).
+    float how long making it took (on whichever thread made it), pattern : the compiled
+    solve's matrix pattern (``system_pattern``) or None (no kernel, or no system).
     """
 
     covered: np.ndarray
@@ -691,6 +710,7 @@ class Prepared:
     points: SeamPoints | None
     system: SeamSystem | None
     seconds: float
+    pattern: tuple | None = None
 
 
 def prepare(mesh: SeamMesh, covered, padding: int) -> Prepared:
@@ -700,13 +720,16 @@ def prepare(mesh: SeamMesh, covered, padding: int) -> Prepared:
     clock = time.perf_counter()
     covered = np.asarray(covered, dtype=bool)
     height, width = covered.shape
-    points = system = None
+    points = system = pattern = None
     if padding >= 1 and covered.any():
         points = seam_points(mesh, width, height)
         system = seam_system(points, covered, mesh.wrap)
         if system.n_rows == 0:
             points = system = None
-    return Prepared(covered, int(padding), points, system, time.perf_counter() - clock)
+        elif _native.kernels() is not None:
+            pattern = system_pattern(system, _native.kernels())
+    return Prepared(covered, int(padding), points, system, time.perf_counter() - clock,
+                    pattern)
 
 
 class Pending:
@@ -775,7 +798,8 @@ def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
         se[~system.gutter] = images[channel.error][rows, cols]
         x, solved = solve(b, se, system, compiled=compiled,
                           threads=max(1, min(int(threads or 1),
-                                             len(system.texels) // THREAD_UNKNOWNS)))
+                                             len(system.texels) // THREAD_UNKNOWNS)),
+                          pattern=prepared.pattern)
         x = x[~system.gutter]
         if direction:  # unit directions again (a zero mean stays zero)
             length = np.linalg.norm(x, axis=1, keepdims=True)
