@@ -1,4 +1,4 @@
-"""aobake._xatlas (xatlas built from third_party/xatlas, with two speed patches) charts
+"""aobake._xatlas (xatlas built from third_party/xatlas, with three speed patches) charts
 exactly like the xatlas package, which is its fallback: the same vertices, faces and UVs,
 bit for bit, on meshes with many charts, several parts and a chart cap."""
 

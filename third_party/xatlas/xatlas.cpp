@@ -5405,6 +5405,9 @@ private:
 		Vector3 centroidSum = Vector3(0.0f); // Sum of chart face centroids.
 		Vector3 centroid = Vector3(0.0f); // Average centroid of chart faces.
 		Array<uint32_t> faces;
+		// aobake: the chart's faces (in faces' order) that may still border a face no chart
+		// holds; the others give no candidate until resetCharts (see addFaceToChart)
+		Array<uint32_t> frontier;
 		Array<uint32_t> failedPlanarRegions;
 		CostQueue candidates;
 		uint32_t seed;
@@ -5499,6 +5502,7 @@ private:
 			chart->centroidSum = Vector3(0.0f);
 			chart->centroid = Vector3(0.0f);
 			chart->faces.clear();
+			chart->frontier.clear();
 			chart->candidates.clear();
 			chart->failedPlanarRegions.clear();
 			addFaceToChart(chart, chart->seed);
@@ -5802,10 +5806,18 @@ private:
 		}
 		chart->centroid = chart->centroidSum / float(chart->faces.size());
 		// Refresh candidates.
+		// aobake: over the frontier, not every face of the chart: a face whose neighbours
+		// are all skipped below stays so until resetCharts clears the chart (faces join
+		// charts and planar regions fail, never the other way), so it pushes nothing, and
+		// the faces that do push are visited in the same order: the same candidates.
 		chart->candidates.clear();
-		for (uint32_t i = 0; i < faceCount; i++) {
+		for (uint32_t i = oldFaceCount; i < faceCount; i++)
+			chart->frontier.push_back(chart->faces[i]);
+		uint32_t kept = 0;
+		for (uint32_t i = 0; i < chart->frontier.size(); i++) {
 			// Traverse neighboring faces, add the ones that do not belong to any chart yet.
-			const uint32_t f = chart->faces[i];
+			const uint32_t f = chart->frontier[i];
+			bool open = false;
 			for (uint32_t j = 0; j < 3; j++) {
 				const uint32_t edge = f * 3 + j;
 				const uint32_t oedge = m_data.mesh->oppositeEdge(edge);
@@ -5816,11 +5828,15 @@ private:
 					continue; // Face belongs to another chart.
 				if (chart->failedPlanarRegions.contains(m_planarCharts.regionIdFromFace(oface)))
 					continue; // Failed to add this faces planar region to the chart before.
+				open = true;
 				const float cost = computeCost(chart, oface);
 				if (cost < FLT_MAX)
 					chart->candidates.push(cost, oface);
 			}
+			if (open)
+				chart->frontier[kept++] = f;
 		}
+		chart->frontier.resize(kept);
 		return true;
 	}
 
