@@ -112,7 +112,8 @@ PyObject *chart(PyObject *, PyObject *args)
         if (!list) goto done;
         for (uint32_t m = 0; m < atlas->meshCount; m++) {
             const xatlas::Mesh &mesh = atlas->meshes[m];
-            PyObject *vmapping = PyBytes_FromStringAndSize(nullptr, 4 * (Py_ssize_t)mesh.vertexCount);
+            PyObject *vmapping =
+                PyBytes_FromStringAndSize(nullptr, 4 * (Py_ssize_t)mesh.vertexCount);
             PyObject *faces = PyBytes_FromStringAndSize(nullptr, 4 * (Py_ssize_t)mesh.indexCount);
             PyObject *uv = PyBytes_FromStringAndSize(nullptr, 8 * (Py_ssize_t)mesh.vertexCount);
             if (!vmapping || !faces || !uv) {

@@ -377,9 +377,10 @@ def test_assembled_matrix_is_the_normal_matrix(torus, case, kernel):
     dense = np.diag(w[covered]) + GP.T @ (lam[:, None] * GP)
     nc = int(covered.sum())
     ours = np.zeros((nc, nc))
-    ours[np.repeat(np.arange(nc), np.diff(reference.indptr)), reference.indices] = reference.data
-    assert np.all(np.diff(reference.indices)[np.diff(np.repeat(np.arange(nc),
-                                                                np.diff(reference.indptr))) == 0] > 0)
+    ours[np.repeat(np.arange(nc), np.diff(reference.indptr)), reference.indices] = \
+        reference.data
+    row = np.repeat(np.arange(nc), np.diff(reference.indptr))
+    assert np.all(np.diff(reference.indices)[np.diff(row) == 0] > 0)  # ascending in a row
     np.testing.assert_allclose(ours, dense, rtol=1e-12, atol=1e-12 * np.abs(dense).max())
     for threads in (1, 2, 3):
         ptr, idx = (np.frombuffer(b, t) for b, t in

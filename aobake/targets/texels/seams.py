@@ -35,7 +35,8 @@ group of points' 8 x 8 block, read through the dilation into the covered unknown
 solved by Jacobi-preconditioned conjugate gradients on it
 (``seam_csr_cg``), both in aobake/_kernels.c, or in numpy with the same operations in the
 same order (``_assemble_numpy``, ``_cg_numpy``: the same bits).  Bunny 1024^2 on 2 threads:
-assembly ~0.25 s, 130 iterations ~0.3 s (2.6 ms each); applying the operator as the points
+the pattern ~0.12 s (on the seam system's thread), the values ~0.16 s, 130 iterations
+~0.3 s (2.6 ms each); applying the operator as the points
 every iteration (the fill, the points' differences, their sums per group, their scatter and
 the fill's transpose) took ~10 ms an iteration, 1.2-1.5 s in all: four passes of random
 reads against one pass over the matrix, whose row of ~15 columns reads x from a vector that
@@ -180,14 +181,6 @@ class SeamSystem:
         ones (P x; the gutter entries of x are ignored)."""
         out = np.where(self.gutter, 0.0, x)
         return out + np.bincount(self.fill_to, weights=self.fill_weight * x[self.fill_from],
-                                 minlength=len(out))
-
-    def fill_transpose(self, y: np.ndarray, square: bool = False) -> np.ndarray:
-        """(n,) P^T y (with ``square``, by the squared weights): a gutter entry's share goes
-        to its covered neighbours; the gutter entries of the result are 0."""
-        weight = self.fill_weight ** 2 if square else self.fill_weight
-        out = np.where(self.gutter, 0.0, y)
-        return out + np.bincount(self.fill_from, weights=weight * y[self.fill_to],
                                  minlength=len(out))
 
     def differences(self, x: np.ndarray) -> np.ndarray:
@@ -550,7 +543,8 @@ class Csr(NamedTuple):
 
 def _assemble_numpy(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w
                     ) -> Csr:
-    """A = W + P^T S P as ``Csr``, the arithmetic of ``seam_pattern`` + ``seam_values`` (aobake/_kernels.c).
+    """A = W + P^T S P as ``Csr``: the arithmetic of ``seam_pattern`` and ``seam_values``
+    (aobake/_kernels.c).
 
     S P: each group g's 8 x 8 block, the sum over its points p in order of (lam_p c_pk) c_pl,
     read through the map of each slot's texel t (t itself with weight 1 when covered, else
