@@ -1130,6 +1130,30 @@ done:
     return result;
 }
 
+/* Checks a CSR pattern of n rows: indptr (n + 1,) from 0 to nnz, non-decreasing (with
+ * `nonempty`, increasing: every row holds its diagonal), indices in 0..n-1; -1 with an
+ * exception set. */
+static int check_csr(const int64_t *indptr, const int32_t *indices, Py_ssize_t n,
+                     Py_ssize_t nnz, int nonempty)
+{
+    if (indptr[0] != 0 || indptr[n] != nnz) {
+        PyErr_SetString(PyExc_ValueError, "indptr must run from 0 to nnz");
+        return -1;
+    }
+    for (Py_ssize_t i = 0; i < n; ++i)
+        if (indptr[i] > indptr[i + 1] || (nonempty && indptr[i] == indptr[i + 1])) {
+            PyErr_SetString(PyExc_ValueError, nonempty ? "a row without entries: not this pattern"
+                                                       : "indptr must be non-decreasing");
+            return -1;
+        }
+    for (Py_ssize_t j = 0; j < nnz; ++j)
+        if (indices[j] < 0 || indices[j] >= n) {
+            PyErr_SetString(PyExc_IndexError, "column out of range");
+            return -1;
+        }
+    return 0;
+}
+
 /* seam_values(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w, indptr,
  *             indices, threads=1) -> data (nnz,) float64 bytes
  *
@@ -1164,20 +1188,8 @@ static PyObject *seam_values(PyObject *self, PyObject *args)
             goto done;
         const int64_t *indptr = bptr.buf;
         const int32_t *indices = bidx.buf;
-        if (indptr[0] != 0 || indptr[nc] != nnz) {
-            PyErr_SetString(PyExc_ValueError, "indptr must run from 0 to nnz");
+        if (check_csr(indptr, indices, nc, nnz, 1) < 0)  /* every row holds its diagonal */
             goto done;
-        }
-        for (Py_ssize_t a = 0; a < nc; ++a)
-            if (indptr[a] >= indptr[a + 1]) {  /* every row holds at least its diagonal */
-                PyErr_SetString(PyExc_ValueError, "a row without entries: not this pattern");
-                goto done;
-            }
-        for (Py_ssize_t u = 0; u < nnz; ++u)
-            if (indices[u] < 0 || indices[u] >= nc) {
-                PyErr_SetString(PyExc_IndexError, "column out of range");
-                goto done;
-            }
         pd = PyBytes_FromStringAndSize(NULL, 8 * nnz);
         if (!pd)
             goto done;
@@ -1358,20 +1370,8 @@ static PyObject *seam_csr_cg(PyObject *self, PyObject *args)
         }
         const int64_t *indptr = bptr.buf;
         const int32_t *indices = bidx.buf;
-        if (indptr[0] != 0 || indptr[n] != nnz) {
-            PyErr_SetString(PyExc_ValueError, "indptr must run from 0 to nnz");
+        if (check_csr(indptr, indices, n, nnz, 0) < 0)
             goto done;
-        }
-        for (Py_ssize_t i = 0; i < n; ++i)
-            if (indptr[i] > indptr[i + 1]) {
-                PyErr_SetString(PyExc_ValueError, "indptr must be non-decreasing");
-                goto done;
-            }
-        for (Py_ssize_t j = 0; j < nnz; ++j)
-            if (indices[j] < 0 || indices[j] >= n) {
-                PyErr_SetString(PyExc_IndexError, "column out of range");
-                goto done;
-            }
         scratch = PyMem_RawMalloc(sizeof(double) * (size_t)(4 * n + 1));
         if (!scratch) {
             PyErr_NoMemory();

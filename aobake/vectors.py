@@ -50,9 +50,10 @@ def distinct(index: np.ndarray, size: int) -> np.ndarray:
 
 
 def weld(positions: np.ndarray) -> np.ndarray:
-    """(v,) int64 label of each position (v, 3): its rank among the distinct positions in
-    lexicographic (x, y, z) order, as ``np.unique(axis=0, return_inverse=True)`` numbers
-    them (a stable lexsort of the columns: 6x faster than unique's sort of row records)."""
+    """(v,) int64 label of each row of positions (v, k) float (3-D positions, UVs): its rank
+    among the distinct rows in lexicographic order (equal as floats, -0.0 == 0.0), as
+    ``np.unique(axis=0, return_inverse=True)`` numbers them (a stable lexsort of the
+    columns: 3-6x faster than unique's sort of row records)."""
     if not len(positions):
         return np.zeros(0, dtype=np.int64)
     order = np.lexsort(positions.T[::-1])
