@@ -40,7 +40,9 @@ Copyright (c) 2012 Brandon Pelfrey
 #if XATLAS_C_API
 #include "xatlas_c.h"
 #endif
+#include <algorithm> // aobake: std::sort
 #include <atomic>
+#include <vector> // aobake: the sweep's edges
 #include <condition_variable>
 #include <mutex>
 #include <thread>
@@ -1608,9 +1610,11 @@ private:
 
 struct Fit
 {
-	static bool computeBasis(ConstArrayView<Vector3> points, Basis *basis)
+	// aobake: pointSum, if given, is the sum of the points in their order (as the fit
+	// would add them).
+	static bool computeBasis(ConstArrayView<Vector3> points, Basis *basis, const Vector3 *pointSum = nullptr)
 	{
-		if (computeLeastSquaresNormal(points, &basis->normal)) {
+		if (computeLeastSquaresNormal(points, &basis->normal, pointSum)) {
 			basis->tangent = Basis::computeTangent(basis->normal);
 			basis->bitangent = Basis::computeBitangent(basis->normal, basis->tangent);
 			return true;
@@ -1623,7 +1627,7 @@ private:
 	// Fast, and accurate to within a few degrees.
 	// Returns None if the points do not span a plane.
 	// https://www.ilikebigbits.com/2015_03_04_plane_from_points.html
-	static bool computeLeastSquaresNormal(ConstArrayView<Vector3> points, Vector3 *normal)
+	static bool computeLeastSquaresNormal(ConstArrayView<Vector3> points, Vector3 *normal, const Vector3 *pointSum)
 	{
 		XA_DEBUG_ASSERT(points.length >= 3);
 		if (points.length == 3) {
@@ -1632,8 +1636,12 @@ private:
 		}
 		const float invN = 1.0f / float(points.length);
 		Vector3 centroid(0.0f);
-		for (uint32_t i = 0; i < points.length; i++)
-			centroid += points[i];
+		if (pointSum)
+			centroid = *pointSum;
+		else {
+			for (uint32_t i = 0; i < points.length; i++)
+				centroid += points[i];
+		}
 		centroid *= invN;
 		// Calculate full 3x3 covariance matrix, excluding symmetries:
 		float xx = 0.0f, xy = 0.0f, xz = 0.0f, yy = 0.0f, yz = 0.0f, zz = 0.0f;
@@ -3573,6 +3581,9 @@ public:
 		m_cellDataOffsets.clear();
 	}
 
+	// aobake: the edges appended since reset.
+	const Array<uint32_t> &edges() const { return m_edges; }
+
 	void append(uint32_t edge)
 	{
 		XA_DEBUG_ASSERT(m_cellDataOffsets.isEmpty());
@@ -3609,6 +3620,11 @@ public:
 	// If edges is empty, checks for intersection with all edges in the grid.
 	bool intersect(float epsilon, ConstArrayView<uint32_t> edges = ConstArrayView<uint32_t>(), ConstArrayView<uint32_t> ignoreEdges = ConstArrayView<uint32_t>())
 	{
+		// aobake: the edges against each other by a sweep, not through a grid built for
+		// this one test (see selfIntersect).
+		bool intersection;
+		if (edges.length == 0 && ignoreEdges.length == 0 && m_edges.size() > 20 && selfIntersect(epsilon, &intersection))
+			return intersection;
 		bool bruteForce = m_edges.size() <= 20;
 		if (!bruteForce && m_cellDataOffsets.isEmpty())
 			bruteForce = !createGrid();
@@ -3701,6 +3717,77 @@ public:
 #endif
 
 private:
+	// aobake: whether two of the edges intersect, by a sweep along the longer side of
+	// their bounds: each edge against the edges that start (in the sorted order) before
+	// it ends.  It tests every pair the brute-force loop tests after its bounds check
+	// (linesIntersect is symmetric in its two edges, bit for bit), where the grid tested
+	// the pairs that share a cell its traversal visits: the same pairs whenever that
+	// traversal finds every cell a crossing lies in, for a grid the test built, cleared
+	// and filled each time, at every face a chart grows by.
+	struct SweepEdge
+	{
+		float lo, hi;           // bounds along the sweep axis
+		float lo2, hi2;         // bounds along the other axis
+		uint32_t vertex[2];
+		Vector2 p1, p2;
+		bool operator<(const SweepEdge &other) const { return lo < other.lo; }
+		// Beats both xatlas's and std's swap templates for std::sort.
+		friend void swap(SweepEdge &a, SweepEdge &b) { const SweepEdge t = a; a = b; b = t; }
+	};
+
+	// False if it cannot tell (a position not finite: no order to sweep in).
+	bool selfIntersect(float epsilon, bool *intersection)
+	{
+		const uint32_t edgeCount = m_edges.size();
+		m_sweep.resize(edgeCount);
+		Extents2 bounds;
+		bounds.reset();
+		for (uint32_t i = 0; i < edgeCount; i++) {
+			const uint32_t edge = m_edges[i];
+			SweepEdge &e = m_sweep[i];
+			e.vertex[0] = vertexAt(meshEdgeIndex0(edge));
+			e.vertex[1] = vertexAt(meshEdgeIndex1(edge));
+			e.p1 = m_positions[e.vertex[0]];
+			e.p2 = m_positions[e.vertex[1]];
+			if (!isFinite(e.p1) || !isFinite(e.p2))
+				return false;
+			bounds.add(e.p1);
+			bounds.add(e.p2);
+		}
+		const bool alongX = bounds.max.x - bounds.min.x >= bounds.max.y - bounds.min.y;
+		for (uint32_t i = 0; i < edgeCount; i++) {
+			SweepEdge &e = m_sweep[i];
+			const Vector2 a = alongX ? e.p1 : Vector2(e.p1.y, e.p1.x);
+			const Vector2 b = alongX ? e.p2 : Vector2(e.p2.y, e.p2.x);
+			e.lo = min(a.x, b.x);
+			e.hi = max(a.x, b.x);
+			e.lo2 = min(a.y, b.y);
+			e.hi2 = max(a.y, b.y);
+		}
+		std::sort(m_sweep.begin(), m_sweep.end());
+		for (uint32_t i = 0; i < edgeCount; i++) {
+			const SweepEdge &e1 = m_sweep[i];
+			for (uint32_t j = i + 1; j < edgeCount; j++) {
+				const SweepEdge &e2 = m_sweep[j];
+				if (e2.lo > e1.hi)
+					break;
+				if (e2.lo2 > e1.hi2 || e2.hi2 < e1.lo2)
+					continue;
+				// Connected edges can only overlap, as in the loop above.
+				if (e1.vertex[0] == e2.vertex[0] || e1.vertex[0] == e2.vertex[1] || e1.vertex[1] == e2.vertex[0] || e1.vertex[1] == e2.vertex[1])
+					continue;
+				if (linesIntersect(e1.p1, e1.p2, e2.p1, e2.p2, epsilon)) {
+					*intersection = true;
+					return true;
+				}
+			}
+		}
+		*intersection = false;
+		return true;
+	}
+
+	std::vector<SweepEdge> m_sweep;
+
 	bool createGrid()
 	{
 		// Compute edge extents. Min will be the grid origin.
@@ -5408,6 +5495,15 @@ private:
 		// aobake: the chart's faces (in faces' order) that may still border a face no chart
 		// holds; the others give no candidate until resetCharts (see addFaceToChart)
 		Array<uint32_t> frontier;
+		// aobake: the chart's boundary edges while it had boundaryFaces faces (in no
+		// particular order: the intersection test does not depend on it); see
+		// isChartParameterizationValid
+		Array<uint32_t> boundary;
+		uint32_t boundaryFaces = UINT32_MAX;
+		// aobake: the corners' positions of faces[0, points.size() / 3), in that order, and
+		// their sum in that order (see computeChartBasis)
+		Array<Vector3> points;
+		Vector3 pointSum = Vector3(0.0f);
 		Array<uint32_t> failedPlanarRegions;
 		CostQueue candidates;
 		uint32_t seed;
@@ -5502,6 +5598,8 @@ private:
 			chart->centroidSum = Vector3(0.0f);
 			chart->centroid = Vector3(0.0f);
 			chart->faces.clear();
+			chart->points.clear();
+			chart->pointSum = Vector3(0.0f);
 			chart->frontier.clear();
 			chart->candidates.clear();
 			chart->failedPlanarRegions.clear();
@@ -5680,57 +5778,85 @@ private:
 		return oppositeEdge == UINT32_MAX || m_faceCharts[oppositeFace] != chart->id;
 	}
 
+	// aobake: the corners of the faces added since the last call appended to the chart's
+	// points (not all gathered again), and their sum carried on: the same points in the
+	// same order, so the same sums and the same fit.
 	bool computeChartBasis(Chart *chart, Basis *basis)
 	{
 		const uint32_t faceCount = chart->faces.size();
-		m_tempPoints.resize(chart->faces.size() * 3);
-		for (uint32_t i = 0; i < faceCount; i++) {
+		for (uint32_t i = chart->points.size() / 3; i < faceCount; i++) {
 			const uint32_t f = chart->faces[i];
-			for (uint32_t j = 0; j < 3; j++)
-				m_tempPoints[i * 3 + j] = m_data.mesh->position(m_data.mesh->vertexAt(f * 3 + j));
-		}
-		return Fit::computeBasis(m_tempPoints, basis);
-	}
-
-	bool isFaceFlipped(uint32_t face) const
-	{
-		const Vector2 &v1 = m_texcoords[face * 3 + 0];
-		const Vector2 &v2 = m_texcoords[face * 3 + 1];
-		const Vector2 &v3 = m_texcoords[face * 3 + 2];
-		const float parametricArea = ((v2.x - v1.x) * (v3.y - v1.y) - (v3.x - v1.x) * (v2.y - v1.y)) * 0.5f;
-		return parametricArea < 0.0f;
-	}
-
-	void parameterizeChart(const Chart *chart)
-	{
-		const uint32_t faceCount = chart->faces.size();
-		for (uint32_t i = 0; i < faceCount; i++) {
-			const uint32_t face = chart->faces[i];
 			for (uint32_t j = 0; j < 3; j++) {
-				const uint32_t offset = face * 3 + j;
-				const Vector3 &pos = m_data.mesh->position(m_data.mesh->vertexAt(offset));
-				m_texcoords[offset] = Vector2(dot(chart->basis.tangent, pos), dot(chart->basis.bitangent, pos));
+				const Vector3 &p = m_data.mesh->position(m_data.mesh->vertexAt(f * 3 + j));
+				chart->points.push_back(p);
+				chart->pointSum += p;
 			}
 		}
+		return Fit::computeBasis(chart->points, basis, &chart->pointSum);
+	}
+
+	// aobake: the chart's faces cut back to faceCount, its points with them (their sum
+	// added up again, in order, rather than subtracted).
+	void truncateChart(Chart *chart, uint32_t faceCount)
+	{
+		chart->faces.resize(faceCount);
+		if (chart->points.size() > faceCount * 3) {
+			chart->points.resize(faceCount * 3);
+			chart->pointSum = Vector3(0.0f);
+			for (uint32_t i = 0; i < chart->points.size(); i++)
+				chart->pointSum += chart->points[i];
+		}
+	}
+
+	// aobake: the positions from the chart's points (computeChartBasis has just brought
+	// them up to date); returns how many faces are flipped (negative parametric area),
+	// counted from the texcoords just made rather than in a second pass over them.
+	uint32_t parameterizeChart(const Chart *chart)
+	{
+		const uint32_t faceCount = chart->faces.size();
+		XA_DEBUG_ASSERT(chart->points.size() == faceCount * 3);
+		uint32_t flippedFaceCount = 0;
+		for (uint32_t i = 0; i < faceCount; i++) {
+			const uint32_t face = chart->faces[i];
+			Vector2 t[3];
+			for (uint32_t j = 0; j < 3; j++) {
+				const Vector3 &pos = chart->points[i * 3 + j];
+				t[j] = Vector2(dot(chart->basis.tangent, pos), dot(chart->basis.bitangent, pos));
+				m_texcoords[face * 3 + j] = t[j];
+			}
+			const float parametricArea = ((t[1].x - t[0].x) * (t[2].y - t[0].y) - (t[2].x - t[0].x) * (t[1].y - t[0].y)) * 0.5f;
+			if (parametricArea < 0.0f)
+				flippedFaceCount++;
+		}
+		return flippedFaceCount;
 	}
 
 	// m_faceCharts for the chart faces must be set to the chart ID. Needed to compute boundary edges.
-	bool isChartParameterizationValid(const Chart *chart)
+	// aobake: oldFaceCount, if the chart's faces from it on are new, lets the boundary
+	// come from the chart's boundary at that count, when known, instead of a scan of every
+	// face: an edge of an old face is on the new boundary if it was on the old one and its
+	// opposite face is not new, so only the old boundary's and the new faces' edges are
+	// looked at.
+	// aobake: flippedFaceCount from parameterizeChart.
+	bool isChartParameterizationValid(const Chart *chart, uint32_t flippedFaceCount, uint32_t oldFaceCount = UINT32_MAX)
 	{
 		const uint32_t faceCount = chart->faces.size();
 		// Check for flipped faces in the parameterization. OK if all are flipped.
-		uint32_t flippedFaceCount = 0;
-		for (uint32_t i = 0; i < faceCount; i++) {
-			if (isFaceFlipped(chart->faces[i]))
-				flippedFaceCount++;
-		}
 		if (flippedFaceCount != 0 && flippedFaceCount != faceCount)
 			return false;
 		// Check for boundary intersection in the parameterization.
 		XA_PROFILE_START(clusteredChartsPlaceSeedsBoundaryIntersection)
 		XA_PROFILE_START(clusteredChartsGrowBoundaryIntersection)
 		m_boundaryGrid.reset(m_texcoords);
-		for (uint32_t i = 0; i < faceCount; i++) {
+		uint32_t firstNewFace = 0;
+		if (oldFaceCount != UINT32_MAX && oldFaceCount == chart->boundaryFaces) {
+			for (uint32_t i = 0; i < chart->boundary.size(); i++) {
+				if (isChartBoundaryEdge(chart, chart->boundary[i]))
+					m_boundaryGrid.append(chart->boundary[i]);
+			}
+			firstNewFace = oldFaceCount;
+		}
+		for (uint32_t i = firstNewFace; i < faceCount; i++) {
 			const uint32_t f = chart->faces[i];
 			for (uint32_t j = 0; j < 3; j++) {
 				const uint32_t edge = f * 3 + j;
@@ -5775,7 +5901,7 @@ private:
 		} else {
 			// Use best fit normal.
 			if (!computeChartBasis(chart, &basis)) {
-				chart->faces.resize(oldFaceCount);
+				truncateChart(chart, oldFaceCount);
 				return false;
 			}
 			if (dot(basis.normal, m_data.faceNormals[face]) < 0.0f) // Flip normal if oriented in the wrong direction.
@@ -5783,15 +5909,16 @@ private:
 		}
 		if (!firstFace) {
 			// Compute orthogonal parameterization and check that it is valid.
-			parameterizeChart(chart);
+			const uint32_t flippedFaceCount = parameterizeChart(chart);
 			for (uint32_t i = oldFaceCount; i < faceCount; i++)
 				m_faceCharts[chart->faces[i]] = chart->id;
-			if (!isChartParameterizationValid(chart)) {
+			if (!isChartParameterizationValid(chart, flippedFaceCount, oldFaceCount)) {
 				for (uint32_t i = oldFaceCount; i < faceCount; i++)
 					m_faceCharts[chart->faces[i]] = -1;
-				chart->faces.resize(oldFaceCount);
+				truncateChart(chart, oldFaceCount);
 				return false;
 			}
+			m_boundaryGrid.edges().copyTo(chart->boundary);
 		}
 		// Add face(s) to chart.
 		chart->basis = basis;
@@ -5804,6 +5931,17 @@ private:
 			m_data.isFaceInChart.set(f);
 			chart->centroidSum += m_data.mesh->computeFaceCenter(f);
 		}
+		if (firstFace) {
+			chart->boundary.clear();
+			for (uint32_t i = 0; i < faceCount; i++) {
+				for (uint32_t j = 0; j < 3; j++) {
+					const uint32_t edge = chart->faces[i] * 3 + j;
+					if (isChartBoundaryEdge(chart, edge))
+						chart->boundary.push_back(edge);
+				}
+			}
+		}
+		chart->boundaryFaces = faceCount;
 		chart->centroid = chart->centroidSum / float(chart->faces.size());
 		// Refresh candidates.
 		// aobake: over the frontier, not every face of the chart: a face whose neighbours
@@ -6093,7 +6231,7 @@ private:
 		// Compute basis using best fit normal.
 		Basis basis;
 		if (!computeChartBasis(owner, &basis)) {
-			owner->faces.resize(oldOwnerFaceCount);
+			truncateChart(owner, oldOwnerFaceCount);
 			for (uint32_t i = 0; i < chartFaceCount; i++)
 				m_faceCharts[chart->faces[i]] = chart->id;
 			return false;
@@ -6101,14 +6239,14 @@ private:
 		if (dot(basis.normal, m_data.faceNormals[owner->faces[0]]) < 0.0f) // Flip normal if oriented in the wrong direction.
 			basis.normal = -basis.normal;
 		// Compute orthogonal parameterization and check that it is valid.
-		parameterizeChart(owner);
-		if (!isChartParameterizationValid(owner)) {
-			owner->faces.resize(oldOwnerFaceCount);
+		if (!isChartParameterizationValid(owner, parameterizeChart(owner))) {
+			truncateChart(owner, oldOwnerFaceCount);
 			for (uint32_t i = 0; i < chartFaceCount; i++)
 				m_faceCharts[chart->faces[i]] = chart->id;
 			return false;
 		}
 		// Merge chart.
+		owner->boundaryFaces = UINT32_MAX; // aobake: its boundary is not known now
 		owner->basis = basis;
 		owner->failedPlanarRegions.push_back(chart->failedPlanarRegions);
 		// Update adjacencies?
@@ -6129,7 +6267,6 @@ private:
 	Array<int> m_faceCharts;
 	Array<Chart *> m_charts;
 	CostQueue m_bestTriangles;
-	Array<Vector3> m_tempPoints;
 	UniformGrid2 m_boundaryGrid;
 #if XA_MERGE_CHARTS
 	// mergeCharts
