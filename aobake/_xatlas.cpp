@@ -3,7 +3,7 @@
  *
  * One function, the one call aobake makes of the xatlas package (xatlas-python):
  *
- *   chart(meshes, max_chart_area, texels_per_unit)
+ *   chart(meshes, max_chart_area, texels_per_unit, charts_only=False)
  *       meshes: sequence of (positions, vertex_count, indices, face_count); positions a
  *       C-contiguous buffer of vertex_count * 3 float32, indices of face_count * 3 uint32.
  *       Charts every mesh (ChartOptions defaults but maxChartArea) and packs them with
@@ -12,6 +12,11 @@
  *       vmapping (k,) uint32 (xref), indices (face_count, 3) uint32 and uv (k, 2) float32
  *       divided by the atlas's width and height, exactly as xatlas-python's Atlas[i] returns
  *       them, so the two give the same bits.
+ *   charts_only: PackOptions::aobakeChartsOnly (third_party/xatlas/README.md): each chart
+ *       transformed as packing does, but placed nowhere (no search for a place, xatlas's
+ *       one serial step); the uv are then in texels (not divided) and width = height = 1.
+ *       The same vmapping and indices; each chart's uv are the packed ones but for the
+ *       chart's translation (and a swap of its axes where packing turned it).
  *
  * The GIL is released while xatlas runs (on its own threads).
  */
@@ -57,7 +62,10 @@ PyObject *chart(PyObject *, PyObject *args)
 {
     PyObject *meshes;
     float max_chart_area, texels_per_unit;
-    if (!PyArg_ParseTuple(args, "Off", &meshes, &max_chart_area, &texels_per_unit)) return nullptr;
+    int charts_only = 0;
+    if (!PyArg_ParseTuple(args, "Off|p", &meshes, &max_chart_area, &texels_per_unit,
+                          &charts_only))
+        return nullptr;
     PyObject *seq = PySequence_Fast(meshes, "meshes must be a sequence");
     if (!seq) return nullptr;
     const Py_ssize_t n = PySequence_Fast_GET_SIZE(seq);
@@ -102,6 +110,7 @@ PyObject *chart(PyObject *, PyObject *args)
         pack_options.padding = 0;
         pack_options.bilinear = false;
         pack_options.texelsPerUnit = texels_per_unit;
+        pack_options.aobakeChartsOnly = charts_only != 0;
         Py_BEGIN_ALLOW_THREADS
         xatlas::Generate(handle.atlas, chart_options, pack_options);
         Py_END_ALLOW_THREADS
@@ -128,9 +137,13 @@ PyObject *chart(PyObject *, PyObject *args)
             for (uint32_t v = 0; v < mesh.vertexCount; v++) {
                 const xatlas::Vertex &vertex = mesh.vertexArray[v];
                 xref[v] = vertex.xref;
-                // as xatlas-python: float / uint32 -> float
-                st[2 * v] = vertex.uv[0] / atlas->width;
-                st[2 * v + 1] = vertex.uv[1] / atlas->height;
+                if (charts_only) {  // in texels: there is no atlas to divide by
+                    st[2 * v] = vertex.uv[0];
+                    st[2 * v + 1] = vertex.uv[1];
+                } else {  // as xatlas-python: float / uint32 -> float
+                    st[2 * v] = vertex.uv[0] / atlas->width;
+                    st[2 * v + 1] = vertex.uv[1] / atlas->height;
+                }
             }
             std::memcpy(PyBytes_AS_STRING(faces), mesh.indexArray, 4 * (size_t)mesh.indexCount);
             PyObject *item = Py_BuildValue("(NNN)", vmapping, faces, uv);  // takes all three
@@ -140,7 +153,8 @@ PyObject *chart(PyObject *, PyObject *args)
             }
             PyList_SET_ITEM(list, m, item);
         }
-        result = Py_BuildValue("(IIN)", atlas->width, atlas->height, list);
+        result = Py_BuildValue("(IIN)", charts_only ? 1u : atlas->width,
+                               charts_only ? 1u : atlas->height, list);
     }
 done:
     delete[] buffers;
@@ -150,8 +164,9 @@ done:
 
 PyMethodDef methods[] = {
     {"chart", chart, METH_VARARGS,
-     "chart(meshes, max_chart_area, texels_per_unit) -> (width, height, [(vmapping, indices, "
-     "uv) bytes per mesh]): xatlas charts, packed without padding (see aobake/_xatlas.cpp)"},
+     "chart(meshes, max_chart_area, texels_per_unit, charts_only=False) -> (width, height, "
+     "[(vmapping, indices, uv) bytes per mesh]): xatlas charts, packed without padding or "
+     "only transformed as packing does (see aobake/_xatlas.cpp)"},
     {nullptr, nullptr, 0, nullptr},
 };
 

@@ -1,6 +1,8 @@
-"""aobake._xatlas (xatlas built from third_party/xatlas, with three speed patches) charts
-exactly like the xatlas package, which is its fallback: the same vertices, faces and UVs,
-bit for bit, on meshes with many charts, several parts and a chart cap."""
+"""aobake._xatlas (xatlas built from third_party/xatlas, with speed patches) charts exactly
+like the xatlas package, which is its fallback: the same vertices, faces and UVs, bit for
+bit, on meshes with many charts, several parts and a chart cap, when it places the charts
+as the package does; unplaced (what aobake uses), each chart's UVs are the placed ones but
+for a whole-texel translation (and an axis swap where packing turned the chart)."""
 
 import numpy as np
 import pytest
@@ -36,7 +38,7 @@ def _meshes():
 @pytest.mark.parametrize("cap", [0.0, 40.0])
 def test_built_xatlas_charts_exactly_like_the_package(name, cap):
     meshes = _meshes()[name]
-    ours = unwrap.xatlas_charts(meshes, cap, 4.0, library="aobake._xatlas")
+    ours = unwrap.xatlas_charts(meshes, cap, 4.0, library="aobake._xatlas", placed=True)
     theirs = unwrap.xatlas_charts(meshes, cap, 4.0, library="xatlas")
     assert ours[:2] == theirs[:2]
     assert len(ours[2]) == len(theirs[2]) == len(meshes)
@@ -49,6 +51,45 @@ def test_built_xatlas_charts_exactly_like_the_package(name, cap):
         assert fi.shape == faces.shape
         charts += unwrap.connected_labels(len(vm), fi.astype(np.int64)).max() + 1
     assert charts > 10  # a real charting, not one chart per mesh
+
+
+def _placement_errors(placed, unplaced, faces):
+    """Per chart of ``faces`` (m, 3) int64: the largest deviation of ``placed`` (k, 2)
+    float64 texels from ``unplaced`` (k, 2) (or it with its axes swapped, whichever fits)
+    plus one whole-texel translation."""
+    chart = unwrap.connected_labels(len(placed), faces)
+    vertex_chart = np.full(len(placed), -1)
+    vertex_chart[faces.reshape(-1)] = np.repeat(chart, 3)
+    out = []
+    for c in range(int(chart.max()) + 1):
+        v = np.flatnonzero(vertex_chart == c)
+        fits = []
+        for swapped in (False, True):
+            d = placed[v] - (unplaced[v][:, ::-1] if swapped else unplaced[v])
+            fits.append(float(np.abs(d - np.round(d[0])).max()))
+        out.append(min(fits))
+    return out
+
+
+@built
+@pytest.mark.parametrize("name", ["bumpy sphere", "three parts"])
+@pytest.mark.parametrize("cap", [0.0, 40.0])
+def test_unplaced_charts_are_the_placed_ones_translated(name, cap):
+    meshes = _meshes()[name]
+    placed = unwrap.xatlas_charts(meshes, cap, 4.0, library="aobake._xatlas", placed=True)
+    unplaced = unwrap.xatlas_charts(meshes, cap, 4.0, library="aobake._xatlas")
+    width, height = placed[:2]
+    assert unplaced[:2] == (1, 1) and width > 1 and height > 1
+    # The placed UVs are float32(float32(x + t) / W) (xatlas's sum, the binding's division),
+    # read back times W: each rounding at most half a float32 ulp at the atlas's size.
+    tolerance = 2.0 * float(np.spacing(np.float32(max(width, height))))
+    for (vm, fi, uv), (vm2, fi2, uv2) in zip(placed[2], unplaced[2]):
+        np.testing.assert_array_equal(vm, vm2)
+        np.testing.assert_array_equal(fi, fi2)
+        assert uv2.min() >= 0.5 - 1e-6  # each chart at its own texel-centre origin
+        errors = _placement_errors(uv.astype(np.float64) * [width, height],
+                                   uv2.astype(np.float64), fi.astype(np.int64))
+        assert max(errors) <= tolerance
 
 
 @built

@@ -8563,6 +8563,23 @@ struct Atlas
 			minChartPerimeter = min(minChartPerimeter, chartOrderArray[c]);
 			maxChartPerimeter = max(maxChartPerimeter, chartOrderArray[c]);
 		}
+		// aobake: the charts as transformed above, in no atlas (PackOptions::aobakeChartsOnly):
+		// the placement below only translates a chart (and may swap its axes), so the
+		// rasterisation and the search for a place are skipped.  The padding offset is
+		// removed as it is below.
+		if (options.aobakeChartsOnly) {
+			for (uint32_t c = 0; c < chartCount; c++) {
+				Chart *chart = m_charts[c];
+				chart->atlasIndex = 0;
+				for (uint32_t v = 0; v < chart->uniqueVertexCount(); v++) {
+					Vector2 &texcoord = chart->uniqueVertexAt(v);
+					texcoord.x -= (float)options.padding;
+					texcoord.y -= (float)options.padding;
+				}
+			}
+			m_width = m_height = 0;
+			return true;
+		}
 		// Sort charts by perimeter.
 		m_radix.sort(chartOrderArray);
 		const uint32_t *ranks = m_radix.ranks();

@@ -229,6 +229,12 @@ struct PackOptions
 
 	// Rotate charts to improve packing.
 	bool rotateCharts = true;
+
+	// aobake: only each chart's own transform (rotated to its axis, scaled, stretched to
+	// whole texels, offset to texel centres, as packing does it), without placing it in an
+	// atlas: every chart's UVs start near (0.5, 0.5) + padding, they overlap, and the
+	// atlas is 0 x 0.  For a caller that lays the charts out itself.
+	bool aobakeChartsOnly = false;
 };
 
 // Call after ComputeCharts. Can be called multiple times to re-pack charts with different options.

@@ -292,16 +292,26 @@ def _built_xatlas():
     return _xatlas
 
 
-def xatlas_charts(meshes, max_chart_area: float, texels_per_unit: float, library=None):
+def xatlas_charts(meshes, max_chart_area: float, texels_per_unit: float, library=None,
+                  placed: bool = False):
     """Chart and pack ``meshes`` (list of (positions (n, 3) float32, faces (m, 3) uint32))
     with xatlas: ChartOptions' defaults but ``max_chart_area`` (0: none), PackOptions'
     padding 0, no bilinear margin, ``texels_per_unit``.  ``library``: "aobake._xatlas",
     "xatlas" or None (``charting_library``).  Returns (width, height, per mesh (vmapping
-    (k,) uint32, faces (m, 3) uint32, uv (k, 2) float32 over width and height))."""
+    (k,) uint32, faces (m, 3) uint32, uv (k, 2) float32 over width and height)).
+
+    The package places the charts in its atlas; aobake._xatlas only when ``placed``, else
+    it transforms each chart as its packing would and leaves it where it is (width =
+    height = 1, uv in texels: xatlas's one serial step skipped, the bunny 0.25 s).  The
+    charts are the same; a chart's UVs differ from the placed ones by a whole-texel
+    translation (and a swap of their axes where packing turned it) and float32 rounding,
+    which the layout (``_layout``, its own frame per chart) does not see.
+    """
     library = library or charting_library()
     if library == "aobake._xatlas":
         width, height, out = _built_xatlas().chart(
-            [(p, len(p), f, len(f)) for p, f in meshes], max_chart_area, texels_per_unit)
+            [(p, len(p), f, len(f)) for p, f in meshes], max_chart_area, texels_per_unit,
+            not placed)
         return width, height, [(np.frombuffer(vm, np.uint32), np.frombuffer(fi, np.uint32)
                                 .reshape(-1, 3), np.frombuffer(uv, np.float32).reshape(-1, 2))
                                for vm, fi, uv in out]
