@@ -2,7 +2,7 @@
 and where the time goes (unwrap, rasterise, trace, write).
 
     python benchmarks/bench_lightmap.py [--resolution 1024] [--rays 256] [--threads 2] [--padding P]
-                                        [--phases-only] [--strict]
+                                        [--phases-only]
 
 First table (in-process bakes against the bare loop): ../shared/meshes/spot.obj (baked into
 the UVs it ships) and ../shared/meshes/stanford-bunny.obj (no UVs: a new atlas).  Also
@@ -16,10 +16,9 @@ the bunny and the ogre, one after the other, and its phases from the report: loa
 (+ the own-UV check), rasterise, trace, seams, splat (gutters, intervals, the rest of
 splat+dilate), write, and import/other (the process's wall time outside the bake and the
 write: interpreter start, imports, the CLI), with the share of the wall time that is not
-tracing.  ``--strict`` adds, per mesh, a second run in which the seam system is made after
-tracing on the bake's thread instead of on its own thread while the samples trace, so that
-no non-tracing work hides inside the trace phase: its share ("strict share") counts every
-second of it.
+tracing.  Nothing of the bake runs beside the tracing (the seam system is made after it,
+beside the splatting), so the trace phase is tracing alone and the share counts every
+second of the rest.
 """
 
 from __future__ import annotations
@@ -103,21 +102,12 @@ PHASES = [("load", ("load_s",)), ("unwrap", ("unwrap_s", "uv_check_s")),
           ("rasterize", ("rasterize_s",)), ("trace", ("trace_s",)), ("seams", ("seams_s",))]
 
 
-#: ``python -m aobake`` with the seam system made after tracing (``--strict``): with no
-#: system made during the trace, the erasure makes it on the bake's thread.
-_SERIAL_SEAMS = ("import runpy, sys; import aobake.targets.texels as texels; "
-                 "texels._prepare_seams = lambda *args: None; sys.argv[0] = 'aobake'; "
-                 "runpy.run_module('aobake', run_name='__main__', alter_sys=True)")
-
-
-def cli_phases(path: Path, args, serial: bool = False) -> dict:
+def cli_phases(path: Path, args) -> dict:
     """One run of the ``aobake`` command on ``path`` (EXR + report in a temporary folder):
-    phase name -> seconds, from its report and its wall time.  ``serial``: the seam system
-    made after tracing (``_SERIAL_SEAMS``)."""
+    phase name -> seconds, from its report and its wall time."""
     with tempfile.TemporaryDirectory() as tmp:
         report = Path(tmp, "report.json")
-        start = ["-c", _SERIAL_SEAMS] if serial else ["-m", "aobake"]
-        command = [sys.executable, *start, str(path), "--out", str(Path(tmp, "ao.exr")),
+        command = [sys.executable, "-m", "aobake", str(path), "--out", str(Path(tmp, "ao.exr")),
                    "--report", str(report), "--quiet", "--resolution", str(args.resolution),
                    "--rays", str(args.rays), "--texel-samples", str(args.texel_samples),
                    "--threads", str(args.threads), "--padding", str(args.padding)]
@@ -135,7 +125,6 @@ def cli_phases(path: Path, args, serial: bool = False) -> dict:
     row["import/other"] = wall - t["total_s"] - t["write_s"]
     row["total"] = wall
     row["atlas"] = data["texture"]["atlas"]
-    row["side"] = t.get("seam_system_s", 0.0)  # made on its own thread during tracing
     return row
 
 
@@ -149,23 +138,16 @@ def print_phases(args) -> None:
             m.read_bytes()
     if meshes[0].is_file():
         cli_phases(meshes[0], warm)
-    # --strict: the serial run right after the usual one, so both see the same machine
-    rows = [(m.name, cli_phases(m, args), cli_phases(m, args, serial=True) if args.strict
-             else None) for m in meshes if m.is_file()]
+    rows = [(m.name, cli_phases(m, args)) for m in meshes if m.is_file()]
     names = [name for name, _ in PHASES] + ["splat", "write", "import/other", "total"]
     print(f"aobake CLI, resolution {args.resolution}^2, padding {args.padding}, {args.rays} rays "
-          f"per texel over {args.texel_samples} samples, {args.threads} threads (seconds; "
-          "side: the seam system made on its own thread while tracing, CPU seconds)\n")
-    strict = " strict total | strict share |" if args.strict else ""
-    print("| mesh | atlas | " + " | ".join(names) + " | side | non-trace share |" + strict)
-    print("|" + "---|" * (len(names) + 4 + 2 * bool(args.strict)))
-    for mesh, r, serial in rows:
+          f"per texel over {args.texel_samples} samples, {args.threads} threads (seconds)\n")
+    print("| mesh | atlas | " + " | ".join(names) + " | non-trace share |")
+    print("|" + "---|" * (len(names) + 3))
+    for mesh, r in rows:
         share = 1.0 - r["trace"] / r["total"]
-        line = (f"| {mesh} | {r['atlas']} | " + " | ".join(f"{r[n]:.2f}" for n in names)
-                + f" | {r['side']:.2f} | {share:.1%} |")
-        if serial is not None:
-            line += f" {serial['total']:.2f} | {1.0 - serial['trace'] / serial['total']:.1%} |"
-        print(line)
+        print(f"| {mesh} | {r['atlas']} | " + " | ".join(f"{r[n]:.2f}" for n in names)
+              + f" | {share:.1%} |")
 
 
 def main():
@@ -177,9 +159,6 @@ def main():
     parser.add_argument("--padding", type=int, default=DEFAULTS["padding"])
     parser.add_argument("--phases-only", action="store_true",
                         help="only the CLI phase table (spot, bunny, ogre)")
-    parser.add_argument("--strict", action="store_true",
-                        help="in the CLI table, also each mesh with the seam system made after "
-                             "tracing (nothing overlapped with it)")
     args = parser.parse_args()
     if args.phases_only:
         print_phases(args)

@@ -413,9 +413,9 @@ def test_group_key_orders_points_as_a_lexsort_of_their_stencils(wrap):
         assert (np.argsort(key, kind="stable") == expected).all(), (width, height)
 
 
-def test_system_made_while_tracing_is_the_one_used(torus, monkeypatch):
-    """The seam system is made once, on its thread before the values exist (the covered
-    texels predicted from the samples' normals), and the bake matches the cached one."""
+def test_system_made_on_its_thread_is_the_one_used(torus, monkeypatch):
+    """The seam system is made once, on its own thread while the values are splatted, and
+    the bake matches the cached one."""
     calls = []
     original = seams.prepare
 
@@ -454,7 +454,7 @@ def test_a_system_for_other_covered_texels_is_made_again(torus):
 
 
 def test_a_system_that_failed_on_its_thread_is_made_again(torus, monkeypatch):
-    """A failure while the system is made beside the tracing (memory, say) is not the
+    """A failure while the system is made on its own thread (memory, say) is not the
     bake's: the erasure makes it again, and the bake is the same."""
     import threading
 
@@ -462,7 +462,7 @@ def test_a_system_that_failed_on_its_thread_is_made_again(torus, monkeypatch):
 
     def failing_off_the_main_thread(*args, **kwargs):
         if threading.current_thread() is not threading.main_thread():
-            raise MemoryError("no memory beside the tracing")
+            raise MemoryError("no memory on the seam thread")
         return original(*args, **kwargs)
 
     monkeypatch.setattr(seams, "prepare", failing_off_the_main_thread)

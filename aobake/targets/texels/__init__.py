@@ -21,10 +21,8 @@ from aobake.samplers import sample_set
 from aobake.targets.base import Finished, SamplePoints
 from aobake.targets.texels.atlas import check_texture_budget, make_atlas, split_corners
 from aobake.targets.texels.gather import channels as gather_channels
-from aobake.targets.texels.gather import subset, texel_counts
-from aobake.targets.texels.seams import Pending, SeamMesh
+from aobake.targets.texels.seams import SeamMesh
 from aobake.targets.texels.surface import surface_points
-from aobake.vectors import defined
 
 
 #: fewer covered texels per chart (new atlas) or per face (own UVs) than this draws a warning
@@ -72,12 +70,10 @@ class TexelTarget:
         sizes = np.sqrt(2.0 * scene.areas()[samples.face])
         state = dict(atlas=atlas, uv=bake_uv, faces_uv=bake_faces_uv, check=check,
                      samples=samples, compiled=compiled, size=atlas.size, seams=None,
-                     seam_system=None, threads=threads)
+                     threads=threads)
         if config.seams != "off":  # UV seams erased in gather
             state["seams"] = SeamMesh(scene.vertices, scene.vertex_normals, scene.faces,
                                       bake_uv, bake_faces_uv, atlas.wrap)
-            state["seam_system"] = _prepare_seams(state["seams"], samples, normals,
-                                                  config.padding)
         kernels = {"rasterizer": compiled, "atlas_packing": atlas.packing_compiled,  # None: own UVs
                    "seam_solve": None if config.seams == "off" else compiled,
                    "gutters": compiled if config.padding > 0 else None}
@@ -112,7 +108,6 @@ class TexelTarget:
                                                   config.confidence, state["seams"],
                                                   timings, seam_info, denoise,
                                                   compiled=state["compiled"],
-                                                  seam_system=state.pop("seam_system"),
                                                   threads=state["threads"])
         timings["splat_dilate_s"] = time.perf_counter() - clock
         shared = int(np.count_nonzero(samples.shared >= 2))
@@ -148,17 +143,6 @@ class TexelTarget:
         return Finished(result, values, rays, len(plan.points),
                         report={"texture": texture, "timings": timings},
                         rays_key="rays_per_texel_sample")
-
-
-def _prepare_seams(mesh, samples, normals, padding: int):
-    """The seam system (``seams.Pending``), made on its own thread while the samples are
-    traced: it needs the atlas and the covered texels, not the values.  The texels counted
-    covered are those of the samples that will be traced, by the tracer's rule
-    (``aobake.vectors.defined``: a sample without a normal casts no ray); the
-    erasure makes the system again if the bake's covered texels differ after all."""
-    traced = defined(normals)
-    covered = texel_counts(samples if traced.all() else subset(samples, traced)) > 0
-    return Pending(mesh, covered, padding)
 
 
 def _denoise_stats(images, covered, quantities) -> dict:

@@ -77,7 +77,7 @@ def texel_counts(samples: TexelSamples) -> np.ndarray:
 def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, padding: int,
              to_tangent=None, dof: int = 0, confidence: float = 0.95, seams=None,
              timings: dict | None = None, seam_info: dict | None = None, denoise=None,
-             compiled: bool | None = None, seam_system=None, threads: int = 1
+             compiled: bool | None = None, threads: int = 1
              ) -> tuple[dict, np.ndarray, np.ndarray]:
     """Texel channels of a bake.
 
@@ -96,10 +96,10 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     agree across its UV seams (``seams.erase_seams``; the time goes to ``timings["seams_s"]``
     and its counts to ``seam_info``; ``compiled`` as in ``seams.solve``).  An adjusted
     texel keeps its stderr (an upper bound on the adjusted value's: see ``seams``) and its
-    interval becomes the hull of the baked one and the one around the adjusted value.
-    seam_system : None, or the ``seams.Pending`` system of ``seams``, made while the
-    samples were traced (its wait counts in ``timings["seams_s"]``, its making in
-    ``timings["seam_system_s"]``),
+    interval becomes the hull of the baked one and the one around the adjusted value.  The
+    seam system needs the covered texels only: it is made on its own thread
+    (``seams.Pending``, ``timings["seam_system_s"]``) while this one splats the values and
+    their intervals, and the erasure waits for it (the wait counts in ``seams_s``).
     threads : the seam solve's.
     denoise : None, or (points (s, 3), normals (s, 3) float64 of all samples, uv (t, 2),
     faces_uv (f, 3) the bake UVs, face areas (f,) float64): adds ``<q>_denoised`` and
@@ -112,11 +112,16 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     sub = samples if traced.all() else subset(samples, traced)
     count = texel_counts(sub)
     covered = count > 0
+    pending_system = None
+    if seams is not None:
+        from aobake.targets.texels.seams import Pending
+
+        pending_system = Pending(seams, covered, padding)
     rays_img = np.bincount(sub.texel, weights=rays[traced].astype(np.float64),
                            minlength=width * height).reshape(height, width)
     out = {}
     order = []  # channel names in output order (value, stderr, interval, per quantity)
-    pending = []
+    intervals = []  # (quantity, rays, degrees of freedom per texel) of the interval channels
     for q in quantities:
         value, error = values[q.value.name][traced], values[q.error.name][traced]
         if q.texel == "direction":
@@ -142,9 +147,13 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
             out[q.error.exr[0]] = np.where(blind, NO_INFORMATION_ANGLE, out[q.error.exr[0]])
         order += list(q.value.exr if q.texel == "direction" else q.value.exr[:1])
         order.append(q.error.exr[0])
-        if q.interval:
+        if q.interval:  # from the baked values, widened below where the erasure moves them
             order += [q.interval[0].exr[0], q.interval[1].exr[0]]
-            pending.append((q, out[q.value.exr[0]].copy(), mean_variance, variance))
+            low, high, n, dof_t = _texel_interval(out[q.value.exr[0]], out[q.error.exr[0]],
+                                                  mean_variance, variance, sub, rays_img,
+                                                  count, dof, confidence)
+            out[q.interval[0].exr[0]], out[q.interval[1].exr[0]] = low, high
+            intervals.append((q, n, dof_t))
     from aobake.targets.texels.seams import SeamChannel
 
     erase = [SeamChannel.of(q) for q in quantities]
@@ -162,25 +171,24 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
         from aobake.targets.texels.seams import erase_seams
 
         clock = time.perf_counter()
-        prepared = None if seam_system is None else seam_system.take()
+        prepared = pending_system.take()
         erased = erase_seams(out, erase, seams, covered, padding,
                              directions=to_tangent is None, compiled=compiled,
                              prepared=prepared, threads=threads)
         if timings is not None:
             timings["seams_s"] = time.perf_counter() - clock
-            if prepared is not None:  # made on its thread while tracing
+            if prepared is not None:  # made on its thread while the values were splatted
                 timings["seam_system_s"] = prepared.seconds
         del prepared  # its memory is the gutters' next
         if seam_info is not None and erased is not None:
             seam_info.update(erased.info)
-    adjusted = None if erased is None else erased.adjusted
-    # Intervals from the baked values (bit for bit as without erasure); at adjusted texels
-    # widened to hold the interval around the adjusted value too.
-    for q, baked, mean_variance, variance in pending:
-        out.update(_texel_interval(q, sub, baked, out[q.error.exr[0]], mean_variance,
-                                   variance, rays_img, count, dof, confidence,
-                                   None if adjusted is None else (adjusted,
-                                                                  out[q.value.exr[0]])))
+    # The intervals (from the baked values, bit for bit as without erasure) at adjusted
+    # texels widened to hold the interval around the adjusted value too.
+    if erased is not None:
+        for q, n, dof_t in intervals:
+            _widen_interval(out[q.interval[0].exr[0]], out[q.interval[1].exr[0]],
+                            erased.adjusted, out[q.value.exr[0]], out[q.error.exr[0]], n,
+                            dof_t, confidence)
     out = {name: out[name] for name in order}
     names = list(out)
     stack = np.stack([out[n] for n in names], axis=-1)
@@ -232,17 +240,16 @@ def _renormalise(axes, where) -> None:
         a *= scale  # 1 elsewhere: those texels keep their bits
 
 
-def _texel_interval(q, sub, value, stderr, mean_variance, variance, texel_rays, count, dof,
-                    confidence, adjusted=None) -> dict:
+def _texel_interval(value, stderr, mean_variance, variance, sub, texel_rays, count, dof,
+                    confidence):
     """The interval of a texel that averages its s samples' estimates.
 
-    t quantile with the Welch-Satterthwaite degrees of freedom of the sum of the samples'
-    variances, (sum v)^2 / sum(v^2 / dof), rounded down (conservative), and the
+    value, stderr, mean_variance (the mean of the samples' variances), texel_rays, count :
+    (H, W) per texel; variance : (s,) per sample of ``sub``; dof : a sample's degrees of
+    freedom.  t quantile with the Welch-Satterthwaite degrees of freedom of the sum of the
+    samples' variances, (sum v)^2 / sum(v^2 / dof), rounded down (conservative), and the
     rule-of-three floor of all the texel's rays (see ``aobake.stats.error_bars``).
-    adjusted : None or (where (H, W) bool, new value (H, W)): texels whose value the seam
-    erasure changed; their interval is the hull of the baked one and the one (same stderr,
-    rays and degrees of freedom) around the new value, so it holds the value and covers the
-    baked texel's mean as often as before.
+    Returns (low, high, rays, degrees of freedom), each (H, W) float64.
     """
     total = mean_variance * count  # sum of v
     squares = splat(sub, variance ** 2)[..., 0] * count  # sum of v^2
@@ -255,10 +262,15 @@ def _texel_interval(q, sub, value, stderr, mean_variance, variance, texel_rays, 
     low, high = np.zeros(value.shape), np.ones(value.shape)
     _, low[covered], high[covered] = stats.error_bars(value[covered], stderr[covered],
                                                       n[covered], dof[covered], confidence)
-    if adjusted is not None:
-        where, new = adjusted
-        _, new_low, new_high = stats.error_bars(new[where], stderr[where], n[where], dof[where],
-                                                confidence)
-        low[where] = np.minimum(low[where], new_low)
-        high[where] = np.maximum(high[where], new_high)
-    return {q.interval[0].exr[0]: low, q.interval[1].exr[0]: high}
+    return low, high, n, dof
+
+
+def _widen_interval(low, high, where, new, stderr, n, dof, confidence) -> None:
+    """The intervals ``low``, ``high`` (H, W) of the texels ``where`` (H, W) bool, whose value
+    the seam erasure changed to ``new`` (H, W), made (in place) the hull of the baked one
+    and the one (same stderr, rays ``n`` and degrees of freedom ``dof``) around the new
+    value: it holds the value and covers the baked texel's mean as often as before."""
+    _, new_low, new_high = stats.error_bars(new[where], stderr[where], n[where], dof[where],
+                                            confidence)
+    low[where] = np.minimum(low[where], new_low)
+    high[where] = np.maximum(high[where], new_high)

@@ -30,7 +30,7 @@ Along a seam edge a bilinear lookup is quadratic between the points where either
 crosses a row or column of texel centres, so 3-point Gauss-Legendre quadrature on each
 such piece integrates (L_A - L_B)^2 exactly.  The normal equations (sparse, symmetric
 positive definite, over the covered texels the seams read) are assembled once as a CSR
-matrix (``seam_pattern``, made while the samples are traced, then ``seam_values``: each
+matrix (``seam_pattern``, made with the system, then ``seam_values``: each
 group of points' 8 x 8 block, read through the dilation into the covered unknowns) and
 solved by Jacobi-preconditioned conjugate gradients on it
 (``seam_csr_cg``), both in aobake/_kernels.c, or in numpy with the same operations in the
@@ -463,7 +463,7 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
              np.ascontiguousarray(s.slots, dtype=np.int64), np.ascontiguousarray(s.gutter),
              s.fill_to, s.fill_from, s.fill_weight, w)
     # The normal matrix over the covered unknowns, assembled once (``_assemble_numpy``); its
-    # pattern depends on the system only (``pattern``, made while the samples were traced).
+    # pattern depends on the system only (``pattern``, made with the system by ``prepare``).
     if kernels is not None:
         indptr, indices = pattern if pattern is not None else system_pattern(s, kernels,
                                                                               threads)
@@ -710,7 +710,7 @@ class Prepared:
 def prepare(mesh: SeamMesh, covered, padding: int) -> Prepared:
     """The seam points and system of ``mesh`` for the covered texels (H, W) bool: all of
     the erasure that does not depend on the baked values, so it can be made while they are
-    traced (``aobake.targets.texels.TexelTarget.sample``)."""
+    splatted into texels (``Pending``, ``aobake.targets.texels.gather.channels``)."""
     clock = time.perf_counter()
     covered = np.asarray(covered, dtype=bool)
     height, width = covered.shape
@@ -728,8 +728,10 @@ def prepare(mesh: SeamMesh, covered, padding: int) -> Prepared:
 
 class Pending:
     """A seam system being made on its own thread (``prepare`` of the arguments), while the
-    samples are traced.  ``take()`` waits for it and hands it over, once: nothing else keeps
-    it, so its memory is free again for the gutters once the erasure is done."""
+    caller splats the traced values into texels (after tracing: work beside the tracing
+    would slow it by as much, and hide in its time).  ``take()`` waits for it and hands it
+    over, once: nothing else keeps it, so its memory is free again for the gutters once the
+    erasure is done."""
 
     def __init__(self, mesh: SeamMesh, covered, padding: int):
         pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="aobake-seams")
@@ -739,9 +741,9 @@ class Pending:
             pool.shutdown(wait=False)
 
     def take(self) -> Prepared | None:
-        """The system, or None if making it failed on its thread (a MemoryError while the
-        tracing held memory, say): ``erase_seams`` then makes it on the caller's thread,
-        where a real failure is raised."""
+        """The system, or None if making it failed on its thread (a MemoryError, say):
+        ``erase_seams`` then makes it on the caller's thread, where a real failure is
+        raised."""
         future, self._future = self._future, None
         try:
             return future.result()
