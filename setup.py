@@ -20,7 +20,7 @@ setup(
     ext_modules=[
         Extension("aobake._kernels", ["aobake/_kernels.c", "aobake/_pack.c"],
                   depends=["aobake/_buffers.h"], extra_compile_args=FLAGS, optional=True),
-        # xatlas's charting with three speed patches (third_party/xatlas/README.md): the same
+        # xatlas's charting with speed patches (third_party/xatlas/README.md): the same
         # charts as the xatlas package, which stays the fallback.  Flags as that package's
         # release build; -pthread for xatlas's task scheduler.
         Extension("aobake._xatlas", ["aobake/_xatlas.cpp", "third_party/xatlas/xatlas.cpp"],

@@ -1,5 +1,5 @@
-/* aobake._xatlas: xatlas's charting, built from third_party/xatlas (three speed patches, the
- * same charts: see third_party/xatlas/README.md), for aobake.targets.texels.unwrap.
+/* aobake._xatlas: xatlas's charting, built from third_party/xatlas (speed patches, the same
+ * charts: see third_party/xatlas/README.md), for aobake.targets.texels.unwrap.
  *
  * One function, the one call aobake makes of the xatlas package (xatlas-python):
  *
