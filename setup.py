@@ -22,12 +22,15 @@ setup(
                   depends=["aobake/_buffers.h"], extra_compile_args=FLAGS, optional=True),
         # xatlas's charting with speed patches (third_party/xatlas/README.md): the same
         # charts as the xatlas package, which stays the fallback.  Flags as that package's
-        # release build; -pthread for xatlas's task scheduler.
+        # release build; -pthread for xatlas's task scheduler; no fused multiply-adds, for the
+        # boundary sweep relies on linesIntersect giving the same bits in either order of its
+        # edges (x86-64 without -march has no FMA: the package's bits either way).
         Extension("aobake._xatlas", ["aobake/_xatlas.cpp", "third_party/xatlas/xatlas.cpp"],
                   depends=["third_party/xatlas/xatlas.h"], include_dirs=["third_party/xatlas"],
                   language="c++", optional=True,
                   extra_compile_args=[] if sys.platform == "win32"
-                  else ["-O3", "-DNDEBUG", "-std=c++17", "-fvisibility=hidden", "-pthread"],
+                  else ["-O3", "-DNDEBUG", "-std=c++17", "-fvisibility=hidden", "-pthread",
+                        "-ffp-contract=off"],
                   extra_link_args=[] if sys.platform == "win32" else ["-pthread"]),
     ],
 )

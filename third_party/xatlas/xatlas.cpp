@@ -3735,7 +3735,17 @@ private:
 		friend void swap(SweepEdge &a, SweepEdge &b) { const SweepEdge t = a; a = b; b = t; }
 	};
 
-	// False if it cannot tell (a position not finite: no order to sweep in).
+	// Not NaN nor infinite, by the exponent bits (xatlas's isFinite tells only +inf and
+	// one NaN pattern apart).
+	static bool sweepable(float f)
+	{
+		FloatUint32 fu;
+		fu.f = f;
+		return (fu.u & 0x7F800000u) != 0x7F800000u;
+	}
+
+	// False if it cannot tell (a position not finite: no order to sweep in; std::sort on
+	// NaN keys is undefined).
 	bool selfIntersect(float epsilon, bool *intersection)
 	{
 		const uint32_t edgeCount = m_edges.size();
@@ -3749,7 +3759,7 @@ private:
 			e.vertex[1] = vertexAt(meshEdgeIndex1(edge));
 			e.p1 = m_positions[e.vertex[0]];
 			e.p2 = m_positions[e.vertex[1]];
-			if (!isFinite(e.p1) || !isFinite(e.p2))
+			if (!sweepable(e.p1.x) || !sweepable(e.p1.y) || !sweepable(e.p2.x) || !sweepable(e.p2.y))
 				return false;
 			bounds.add(e.p1);
 			bounds.add(e.p2);
@@ -8566,7 +8576,8 @@ struct Atlas
 		// aobake: the charts as transformed above, in no atlas (PackOptions::aobakeChartsOnly):
 		// the placement below only translates a chart (and may swap its axes), so the
 		// rasterisation and the search for a place are skipped.  The padding offset is
-		// removed as it is below.
+		// removed as it is below.  Every chart says atlas 0 (the output's atlasIndex is
+		// unsigned), though no atlas is made: getNumAtlases() is 0.
 		if (options.aobakeChartsOnly) {
 			for (uint32_t c = 0; c < chartCount; c++) {
 				Chart *chart = m_charts[c];

@@ -232,8 +232,9 @@ struct PackOptions
 
 	// aobake: only each chart's own transform (rotated to its axis, scaled, stretched to
 	// whole texels, offset to texel centres, as packing does it), without placing it in an
-	// atlas: every chart's UVs start near (0.5, 0.5) + padding, they overlap, and the
-	// atlas is 0 x 0.  For a caller that lays the charts out itself.
+	// atlas: every chart's UVs start near (0.5, 0.5), they overlap, the atlas is 0 x 0
+	// with no sub-atlas (atlasCount 0, though charts and vertices say atlasIndex 0).  For
+	// a caller that lays the charts out itself.
 	bool aobakeChartsOnly = false;
 };
 

@@ -116,7 +116,8 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     if seams is not None:
         from aobake.targets.texels.seams import Pending
 
-        pending_system = Pending(seams, covered, padding)
+        # the pattern, its last step, on the bake's threads: the splatting is over by then
+        pending_system = Pending(seams, covered, padding, threads)
     rays_img = np.bincount(sub.texel, weights=rays[traced].astype(np.float64),
                            minlength=width * height).reshape(height, width)
     out = {}

@@ -707,10 +707,11 @@ class Prepared:
     pattern: tuple | None = None
 
 
-def prepare(mesh: SeamMesh, covered, padding: int) -> Prepared:
+def prepare(mesh: SeamMesh, covered, padding: int, threads: int = 1) -> Prepared:
     """The seam points and system of ``mesh`` for the covered texels (H, W) bool: all of
     the erasure that does not depend on the baked values, so it can be made while they are
-    splatted into texels (``Pending``, ``aobake.targets.texels.gather.channels``)."""
+    splatted into texels (``Pending``, ``aobake.targets.texels.gather.channels``).
+    ``threads``: the matrix pattern's (the same pattern for any number)."""
     clock = time.perf_counter()
     covered = np.asarray(covered, dtype=bool)
     height, width = covered.shape
@@ -721,7 +722,7 @@ def prepare(mesh: SeamMesh, covered, padding: int) -> Prepared:
         if system.n_rows == 0:
             points = system = None
         elif _native.kernels() is not None:
-            pattern = system_pattern(system, _native.kernels())
+            pattern = system_pattern(system, _native.kernels(), threads)
     return Prepared(covered, int(padding), points, system, time.perf_counter() - clock,
                     pattern)
 
@@ -733,10 +734,11 @@ class Pending:
     over, once: nothing else keeps it, so its memory is free again for the gutters once the
     erasure is done."""
 
-    def __init__(self, mesh: SeamMesh, covered, padding: int):
+    def __init__(self, mesh: SeamMesh, covered, padding: int, threads: int = 1):
         pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="aobake-seams")
         try:
-            self._future = pool.submit(_native.carried(prepare), mesh, covered, padding)
+            self._future = pool.submit(_native.carried(prepare), mesh, covered, padding,
+                                       threads)
         finally:
             pool.shutdown(wait=False)
 
