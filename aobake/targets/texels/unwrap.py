@@ -860,6 +860,35 @@ def _layout(uv, faces, face_chart, R: int, P: int, chart_image: bool, kernels=No
     return _placed(uv, faces, face_chart, best, R, P, chart_image, len(tried))
 
 
+def _better_layout(uv, faces, face_chart, R: int, P: int, chart_image: bool, kernels=None):
+    """``_layout`` of the charts as given and of their mirror images (u and v swapped), on
+    two threads: the one that covers more texels (the first on a tie; either if the other
+    does not fit).
+
+    The packer moves charts by whole texels and quarter turns, so a mirror image is a shape
+    it cannot make, and which of the two it starts from moves the coverage by a few points
+    either way (the scale search stops at another layout): over the bunny and the ogre at
+    256^2-1024^2 and paddings 1-8, -2.8 to +1.7 points between the two, none better
+    everywhere.  The better of both is at least either, for about one layout's wall time
+    (the packs run compiled, without the GIL).
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    def attempt(start):
+        try:
+            return _layout(start, faces, face_chart, R, P, chart_image, kernels), None
+        except InputError as exc:
+            return None, exc
+
+    mirrored = np.ascontiguousarray(uv[:, ::-1])
+    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="aobake-layout") as pool:
+        results = list(pool.map(attempt, (uv, mirrored)))
+    fitted = [layout for layout, _ in results if layout is not None]
+    if not fitted:
+        raise results[0][1]
+    return max(fitted, key=lambda layout: layout[3]["coverage"])  # max keeps the first tie
+
+
 def _placed(uv, faces, face_chart, best, R: int, P: int, chart_image: bool, packs: int):
     """The packed layout ``best`` = (scale, origin, covered, padded, place, used) as UVs.
 
@@ -1010,8 +1039,8 @@ def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False,
         cap = chart_cap(max(1, int(texel_density * math.sqrt(area / FIRST_EFFICIENCY))), P)
     vmapping, new_faces, uv_a, face_chart, unit = _xatlas_charts(positions, faces, cap)
     if texel_density is None:
-        uv, scale, image, info = _layout(uv_a, new_faces, face_chart, R, P, chart_image,
-                                         kernels)
+        uv, scale, image, info = _better_layout(uv_a, new_faces, face_chart, R, P,
+                                                chart_image, kernels)
     else:
         uv, scale, image, info, R = _layout_at_density(uv_a, new_faces, face_chart,
                                                        float(texel_density) * unit, P,
