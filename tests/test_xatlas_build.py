@@ -33,11 +33,19 @@ def _meshes():
     }
 
 
-@built
-@pytest.mark.parametrize("name", ["bumpy sphere", "three parts"])
-@pytest.mark.parametrize("cap", [0.0, 40.0])
-def test_built_xatlas_charts_exactly_like_the_package(name, cap):
-    meshes = _meshes()[name]
+def each_mesh(test):
+    """The test with aobake._xatlas built, on each of ``_meshes()`` (its ``meshes``
+    argument), uncapped and with a chart cap (``cap``)."""
+    def run(name, cap):
+        test(_meshes()[name], cap)
+
+    run.__name__, run.__doc__ = test.__name__, test.__doc__
+    return built(pytest.mark.parametrize("name", ["bumpy sphere", "three parts"])(
+        pytest.mark.parametrize("cap", [0.0, 40.0])(run)))
+
+
+@each_mesh
+def test_built_xatlas_charts_exactly_like_the_package(meshes, cap):
     ours = unwrap.xatlas_charts(meshes, cap, 4.0, library="aobake._xatlas", placed=True)
     theirs = unwrap.xatlas_charts(meshes, cap, 4.0, library="xatlas")
     assert ours[:2] == theirs[:2]
@@ -71,11 +79,8 @@ def _placement_errors(placed, unplaced, faces):
     return out
 
 
-@built
-@pytest.mark.parametrize("name", ["bumpy sphere", "three parts"])
-@pytest.mark.parametrize("cap", [0.0, 40.0])
-def test_unplaced_charts_are_the_placed_ones_translated(name, cap):
-    meshes = _meshes()[name]
+@each_mesh
+def test_unplaced_charts_are_the_placed_ones_translated(meshes, cap):
     placed = unwrap.xatlas_charts(meshes, cap, 4.0, library="aobake._xatlas", placed=True)
     unplaced = unwrap.xatlas_charts(meshes, cap, 4.0, library="aobake._xatlas")
     width, height = placed[:2]
