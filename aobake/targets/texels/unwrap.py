@@ -1007,7 +1007,9 @@ def _xatlas_atlas(positions, faces, resolution, padding, chart_image=False,
        (skyline drop + holes, ``_Packer``), moved by whole texels and quarter turns, so the
        marks hold every texel the rasteriser can cover.  The scale is searched
        for the largest one whose layout fits in R x R, R = min(width, height) (2-4 packs);
-       the layout sits in the top-left corner of the image.
+       the layout sits in the top-left corner of the image.  It is made twice, of the
+       charts as xatlas turned them and of their mirror images, the better kept
+       (``_better_layout``).
     4. The marks (``_chart_masks`` from the frame coordinates on: the per-texel tests and
        the growing) and each pack (``_pack_in_order``'s whole loop) run in aobake/_pack.c
        when it was built, step for step as the numpy reference, which stays the fallback
