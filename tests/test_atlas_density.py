@@ -291,3 +291,25 @@ def test_charts_that_fill_the_image_with_padding_alone_get_one_texel_each():
     charts = connected_labels(len(atlas.uv), atlas.faces)
     assert charts.max() + 1 == n
     assert len(np.unique(charts[samples.face])) == n  # every chart holds a sample
+
+
+# (mesh, resolution, padding): the charts as given cover more, their mirror images do,
+# and a tie (the box's squares)
+@pytest.mark.parametrize("name, resolution, padding",
+                         [("torus", 256, 2), ("torus", 256, 1), ("box", 256, 2)])
+def test_the_better_of_the_two_layouts_is_kept(name, resolution, padding):
+    """A new atlas lays out the charts as xatlas turned them and their mirror images
+    (``_better_layout``): it keeps the one that covers more texels, the first on a tie,
+    whatever the threads' timing."""
+    mesh = MESHES[name]()
+    vm, faces, uv, face_chart, _ = unwrapping._xatlas_charts(np.asarray(mesh.vertices),
+                                                             np.asarray(mesh.faces))
+    args = (faces, face_chart, resolution, padding, False, unwrapping._packing_kernels(None))
+    given = unwrapping._layout(uv, *args)
+    mirrored = unwrapping._layout(np.ascontiguousarray(uv[:, ::-1]), *args)
+    better = unwrapping._better_layout(uv, *args)
+    coverage = [layout[3]["coverage"] for layout in (given, mirrored)]
+    assert better[3]["coverage"] == max(coverage)
+    expected = mirrored if coverage[1] > coverage[0] else given
+    np.testing.assert_array_equal(better[0], expected[0])  # the same UVs, bit for bit
+    assert better[1] == expected[1]
