@@ -14,15 +14,16 @@ Python API::
 import logging
 
 from aobake import outputs
-from aobake.bake import bake, bake_points, bake_texels, run
+from aobake.bake import bake, bake_points, bake_texels, bake_view, run
 from aobake.config import BakeConfig
 from aobake.errors import AobakeError, InputError, OutputError
 from aobake.outputs import write
-from aobake.results import BakeResult, TexelResult
+from aobake.results import BakeResult, TexelResult, ViewResult
 from aobake.scene import Scene, load_scene
 
 __all__ = ["AobakeError", "BakeConfig", "BakeResult", "InputError", "OutputError", "Scene",
-           "TexelResult", "bake", "bake_points", "bake_texels", "load_scene", "outputs", "run",
+           "TexelResult", "ViewResult", "bake", "bake_points", "bake_texels", "bake_view",
+           "load_scene", "outputs", "run",
            "write"]
 __version__ = "0.1.0"
 

@@ -31,7 +31,6 @@ sqrt((t se)^2 + h0^2) clipped to [0, 1] around the pilot's estimate.
 
 from __future__ import annotations
 
-import copy
 import logging
 import math
 from statistics import NormalDist
@@ -39,7 +38,7 @@ from statistics import NormalDist
 import numpy as np
 
 from aobake import stats
-from aobake.rays import RayGenerator
+from aobake.estimates import Estimates
 from aobake.samplers import REPLICATES, sample_set
 
 log = logging.getLogger(__name__)
@@ -114,8 +113,10 @@ def rays_needed(pilot: dict, names, n_pilot: int, pilot_dof: float, sampler: str
 def estimate(tracer, points, normals, ids, threads, chunk_rays, progress, sizes):
     """The two stages for all points (as ``Tracer.estimate``).
 
-    Returns (field name -> (n,) / (n, 3) float64 of the final stage, rays (n,) int32 cast in
-    all (pilot + final), summary dict for the report).
+    Returns Estimates: the fields of the final stage, rays (n,) int32 cast in all (pilot +
+    final), and the extras of the final stage plus ``final_rays`` (n,) int64 and ``capped``
+    (n,) bool, from which :func:`summary` makes the report's section (each point's
+    stages depend on that point alone: any split of the points gives the same rows).
     """
     config = tracer.config
     tolerance, max_rays = config.tolerance, config.max_rays
@@ -126,13 +127,16 @@ def estimate(tracer, points, normals, ids, threads, chunk_rays, progress, sizes)
             return None
         return lambda done, count: progress(min(total, (offset + done) // 2), total)
 
-    pilot, pilot_rays = tracer.estimate(points, normals, ids, threads, chunk_rays,
-                                        staged(0), sizes=sizes)
+    first = tracer.estimate(points, normals, ids, threads, chunk_rays, staged(0), sizes=sizes)
+    pilot, pilot_rays = first.fields, first.rays
     traced = np.flatnonzero(pilot_rays > 0)
     n_pilot = tracer.samples.rays
     pilot_dof = tracer.samples.rays - 1 if tracer.samples.iid else tracer.samples.groups - 1
     names = [(q.value.name, q.error.name) for q in tracer.quantities if q.interval]
     out = tracer.no_information(normals)
+    extras = {name: np.zeros_like(array) for name, array in first.extras.items()}
+    if "ray_distances" in extras:
+        extras.pop("ray_distances")  # refused up front: one stage's distances would mislead
     rays = pilot_rays.copy()
     final_rays = np.zeros(total, dtype=np.int64)
     capped = np.zeros(total, dtype=bool)
@@ -145,18 +149,33 @@ def estimate(tracer, points, normals, ids, threads, chunk_rays, progress, sizes)
         done = 0
         for n in np.unique(need):
             sel = traced[need == n]
-            stage = final_stage(tracer, int(n))
-            values, r = stage.estimate(points[sel], normals[sel], ids[sel], threads, chunk_rays,
-                                       staged(total + done),
-                                       sizes=None if sizes is None else sizes[sel])
+            stage = tracer.with_rays(int(n), stage=1)
+            final = stage.estimate(points[sel], normals[sel], ids[sel], threads, chunk_rays,
+                                   staged(total + done),
+                                   sizes=None if sizes is None else sizes[sel])
             done += len(sel)
-            for name, array in values.items():
+            for name, array in final.fields.items():
                 out[name][sel] = array
-            rays[sel] += r[:]
-            final_rays[sel] = r
+            for name, array in extras.items():
+                array[sel] = final.extras[name]
+            rays[sel] += final.rays[:]
+            final_rays[sel] = final.rays
     elif len(traced):  # only bent normals: nothing to meet, the pilot is the bake
         out, final_rays[traced] = pilot, pilot_rays[traced]
-    reach = np.zeros(total)
+        extras = {name: first.extras[name] for name in extras}
+    extras.update(final_rays=final_rays, capped=capped)
+    return Estimates(out, rays, extras)
+
+
+def summary(tracer, estimates) -> dict:
+    """The report's ``tolerance`` section from the merged estimates of :func:`estimate`."""
+    config = tracer.config
+    tolerance, max_rays = config.tolerance, config.max_rays
+    out, rays = estimates.fields, estimates.rays
+    final_rays, capped = estimates.extras["final_rays"], estimates.extras["capped"]
+    traced = np.flatnonzero(rays > 0)
+    names = [(q.value.name, q.error.name) for q in tracer.quantities if q.interval]
+    reach = np.zeros(len(rays))
     for value, _ in names:
         q = next(q for q in tracer.quantities if q.value.name == value)
         low, high = out[q.interval[0].name], out[q.interval[1].name]
@@ -164,12 +183,12 @@ def estimate(tracer, points, normals, ids, threads, chunk_rays, progress, sizes)
     met = (reach <= tolerance) & (rays > 0)
     worst = float(reach[traced].max()) if len(traced) else 0.0
     fixed = int(final_rays[traced].max()) * len(traced) if len(traced) else 0
-    summary = {
+    section = {
         "tolerance": tolerance,
         "scheme": "two-stage: a pilot of rays, then fresh rays chosen from its spread "
                   "(aobake.adaptive); the pilot's rays are not in the estimate",
         "max_rays": max_rays,
-        "pilot_rays_per_point": n_pilot,
+        "pilot_rays_per_point": tracer.samples.rays,
         "points_met": int(np.count_nonzero(met)),
         "points_missed": int(np.count_nonzero(~met & ~capped & (rays > 0))),
         "points_capped": int(np.count_nonzero(capped)),
@@ -182,18 +201,9 @@ def estimate(tracer, points, normals, ids, threads, chunk_rays, progress, sizes)
         # (the count the worst point needed), and no pilot.
         "fixed_budget_rays": fixed,
     }
-    summary["saving_vs_fixed"] = (fixed / summary["rays_total"]) if summary["rays_total"] else None
-    return out, rays, summary
-
-
-def final_stage(tracer, rays: int):
-    """A shallow copy of ``tracer`` casting ``rays`` per point from the final key stream
-    (the scene, backend and frame are shared)."""
-    stage = copy.copy(tracer)
-    stage.samples = sample_set(tracer.config.sampler, rays, tracer.config.replicates)
-    stage.generator = RayGenerator(stage.samples, tracer.config.weighting, tracer.config.seed,
-                                   compiled=tracer.generator.compiled, stage=1)
-    return stage
+    section["saving_vs_fixed"] = (fixed / section["rays_total"]) if section["rays_total"] \
+        else None
+    return section
 
 
 def min_final_dof(config) -> int:

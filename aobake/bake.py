@@ -18,23 +18,26 @@ import numpy as np
 from dataclasses import replace
 from typing import Callable
 
-from aobake import _native, adaptive
+from aobake import _native
+from aobake import occluders as occluder_stage
 from aobake import report as reports
 from aobake.config import BakeConfig
 from aobake.errors import InputError
-from aobake.results import BakeResult, TexelResult
+from aobake.executors import EXECUTORS, Job
+from aobake.methods import METHODS
+from aobake.results import BakeResult, TexelResult, ViewResult
 from aobake.scene import load_scene
-from aobake.targets import PointsTarget, TexelTarget, VertexTarget
-from aobake.trace import DEFAULT_CHUNK_RAYS, Tracer, default_threads
+from aobake.targets import CameraTarget, PointsTarget, TexelTarget, VertexTarget
+from aobake.trace import DEFAULT_CHUNK_RAYS, default_threads
 
 log = logging.getLogger(__name__)
 
 
-def _built_tracer(scene, config, rays: int):
-    """(Tracer, seconds its construction took)."""
+def _timed(function, *args):
+    """(function(*args), seconds it took)."""
     clock = time.perf_counter()
-    tracer = Tracer(scene, config, rays=rays)
-    return tracer, time.perf_counter() - clock
+    value = function(*args)
+    return value, time.perf_counter() - clock
 
 
 def run(
@@ -45,20 +48,35 @@ def run(
     threads: int | None = None,
     chunk_rays: int = DEFAULT_CHUNK_RAYS,
     progress: Callable[[int, int], None] | None = None,
+    method: str = "rays",
+    executor: str = "threads",
+    workers: int | None = None,
+    chunk_points: int | None = None,
 ):
     """Bake ``mesh`` (a path, trimesh mesh/scene or Scene) at ``target``'s points.
 
+    The one composition root: scene -> occluders -> sample points (the target) -> the
+    method's estimates (on the executor) -> the target's result -> the report.
+
     Returns the target's result (BakeResult or TexelResult) with its report.
-    ``threads`` and ``chunk_rays`` change the speed and memory, never the numbers.
-    ``progress(done, total)`` is called as points are traced; if it has a ``phase(name)``
-    attribute, that is called as each stage starts ("loading", "unwrapping", "rasterising",
-    "tracing", ...), so a long unwrap shows too.
+    ``threads``, ``chunk_rays``, ``executor`` (``EXECUTORS``: threads | processes),
+    ``workers`` and ``chunk_points`` change the speed and memory, never the numbers.
+    ``method``: ``METHODS`` key.  ``progress(done, total)`` is called as points are
+    estimated; if it has a ``phase(name)`` attribute, that is called as each stage starts
+    ("loading", "unwrapping", "rasterising", "tracing", ...), so a long unwrap shows too.
     """
     if getattr(target, "check", None):
         target.check(config)
-    if threads is not None and (isinstance(threads, bool) or int(threads) != threads or threads < 1):
-        raise InputError(f"threads must be a positive integer (or None: all cores), got {threads}")
-    if int(chunk_rays) != chunk_rays or chunk_rays < 1:
+    if method not in METHODS:
+        raise InputError(f"unknown method {method!r}; choose from {', '.join(sorted(METHODS))}")
+    if executor not in EXECUTORS:
+        raise InputError(f"unknown executor {executor!r}; choose from "
+                         f"{', '.join(sorted(EXECUTORS))}")
+    for name, value in (("threads", threads), ("workers", workers),
+                        ("chunk_points", chunk_points)):
+        if value is not None and not _positive_integer(value):
+            raise InputError(f"{name} must be a positive integer (or None), got {value!r}")
+    if isinstance(chunk_rays, bool) or int(chunk_rays) != chunk_rays or chunk_rays < 1:
         raise InputError(f"chunk_rays must be a positive integer, got {chunk_rays}")
     threads = threads or default_threads()
     reports.prefetch_versions()  # for the report; looked up while the bake runs
@@ -70,78 +88,92 @@ def run(
     timings["load_s"] = time.perf_counter() - clock
 
     warnings: list = []
-    # The backend's acceleration structure is built on a thread while the target finds its
-    # points (a lightmap's unwrap, in a child process, and rasterisation): neither needs
-    # the other, and the build (the bunny: ~0.1 s) no longer waits for the loading's end.
-    Tracer.check(scene)  # its errors first, not after the target's work
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="aobake-tracer")
+    occluder_stage.check(scene)  # its errors first, not after the target's work
+    rays_per_point = target.rays_per_point(config)
+    compiled = _native.kernels() is not None  # decided once, on this thread
+    # The occluders come first: a target may cast primary rays through them (the camera).
+    # Their acceleration structure and the method are built on a thread while the target
+    # finds its points (a lightmap's unwrap, in a child process, and rasterisation):
+    # neither needs the other unless the target asks for the occluders.
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="aobake-occluders")
     try:
-        building = pool.submit(_native.carried(_built_tracer), scene, config,
-                               target.rays_per_point(config))
-        plan = target.sample(scene, config, threads, timings, warnings, phase)
-        tracer, timings["tracer_s"] = building.result()
+        building = pool.submit(_native.carried(_timed), occluder_stage.build, scene, config)
+        prepared = pool.submit(_native.carried(_timed), _prepare, building, scene, config,
+                               method, rays_per_point, compiled)
+
+        def occluders():
+            return building.result()[0]
+
+        plan = target.sample(scene, config, occluders, threads, timings, warnings, phase)
+        timings["occluders_s"] = building.result()[1]
+        the_method, timings["method_s"] = prepared.result()
     finally:  # an error or interrupt in sample() does not wait for the build
         pool.shutdown(wait=False, cancel_futures=True)
-    if config.keep_distances:
-        _check_kept(len(plan.points), tracer.samples.rays)
+    if hasattr(the_method, "check_points"):
+        the_method.check_points(len(plan.points))
     phase("tracing")
     clock = time.perf_counter()
-    if config.tolerance is None:
-        values, rays = tracer.estimate(plan.points, plan.normals, plan.ids, threads, chunk_rays,
-                                       progress, sizes=plan.sizes)
-        adaptive_summary = None
-    else:
-        values, rays, adaptive_summary = adaptive.estimate(
-            tracer, plan.points, plan.normals, plan.ids, threads, chunk_rays, progress,
-            plan.sizes)
+    job = Job(scene, config, method, rays_per_point, compiled,
+              key=f"{id(scene):x}-{time.monotonic_ns():x}")
+    runner = EXECUTORS[executor](workers=workers, chunk_points=chunk_points)
+    estimates = runner.estimate(job, the_method, plan, threads, chunk_rays, progress)
     timings["trace_s"] = time.perf_counter() - clock
-    done = target.finish(scene, config, plan, values, rays, timings, warnings)
+    done = target.finish(scene, config, plan, estimates, timings, warnings)
     wall = time.perf_counter() - start
 
-    report = reports.build(target.name, scene, tracer, config, points=done.points, rays=done.rays,
-                           values=done.values, wall=wall, threads=threads,
-                           chunk_rays=chunk_rays, warnings=warnings,
-                           kernels={**tracer.kernel_stages(), **plan.kernels}, cast=done.cast)
-    if done.rays_key != "rays_per_point":  # what a "point" is for this target
-        report["parameters"][done.rays_key] = report["parameters"].pop("rays_per_point")
+    record = the_method.record(estimates)
+    report = reports.build(target.name, scene, config, record, the_method, done, wall=wall,
+                           threads=threads, chunk_rays=chunk_rays, warnings=warnings,
+                           kernels={**the_method.kernel_stages(), **plan.kernels},
+                           executor={"name": executor, "workers": workers,
+                                     "chunk_points": chunk_points})
     report.update(done.report)
     # Every target's phases (a lightmap's add unwrap, raster, splat); writing is added by
     # aobake.write to the report file it writes.
     report["timings"] = {**timings, **report.get("timings", {}), "total_s": wall}
-    if adaptive_summary is not None:
-        report["tolerance"] = adaptive_summary
+    summary = record.get("tolerance")
+    if summary is not None:
+        report["tolerance"] = summary
         log.info("tolerance %g: %d points met it, %d missed, %d capped at %d rays; %d rays "
                  "(a fixed count for the same worst case: %d)", config.tolerance,
-                 adaptive_summary["points_met"], adaptive_summary["points_missed"],
-                 adaptive_summary["points_capped"], config.max_rays,
-                 adaptive_summary["rays_total"], adaptive_summary["fixed_budget_rays"])
+                 summary["points_met"], summary["points_missed"], summary["points_capped"],
+                 config.max_rays, summary["rays_total"], summary["fixed_budget_rays"])
     for message in warnings:
         log.warning(message)
     done.result.report = report
-    if config.keep_distances:
+    if config.keep_distances and hasattr(the_method, "kept"):
         mapping = plan.state if plan.state is not None else np.arange(len(plan.points))
-        done.result.kept = {"ray_distances": tracer.distances.reshape(len(plan.points), -1),
-                            "ray_point": np.asarray(mapping, dtype=np.int32)}
+        done.result.kept = the_method.kept(estimates, mapping)
     return done.result
 
 
-#: the most bytes of kept ray distances a bake may hold (float32: 4 bytes per ray)
-MAX_KEPT_BYTES = 4 << 30
+def _positive_integer(value) -> bool:
+    try:
+        return not isinstance(value, bool) and int(value) == value and value >= 1
+    except (TypeError, ValueError, OverflowError):
+        return False
 
 
-def _check_kept(points: int, rays: int) -> None:
-    """Refuse --keep-distances up front when the distances would not fit."""
-    need = 4 * points * rays
-    if need > MAX_KEPT_BYTES:
-        raise InputError(f"keeping every ray's distance needs {need / 2**30:.1f} GiB "
-                         f"({points} points x {rays} rays x 4 bytes); the limit is "
-                         f"{MAX_KEPT_BYTES / 2**30:.0f} GiB: use fewer rays")
+def _prepare(building, scene, config, method: str, rays_per_point: int, compiled: bool):
+    """The method prepared on the occluders (waits for them)."""
+    built = building.result()[0]
+    return METHODS[method].prepare(scene, config, built, rays_per_point, compiled=compiled)
 
 
 def _config(config: BakeConfig | None, options: dict) -> BakeConfig:
     if config is None:
         return BakeConfig(**options)
     return replace(config, **options) if options else config
+
+
+#: run()'s keywords that change where and how fast, never the numbers (or the method)
+RUN_OPTIONS = ("method", "executor", "workers", "chunk_points")
+
+
+def _split(options: dict) -> tuple[dict, dict]:
+    """(BakeConfig fields, run() keywords) of a bake function's keyword arguments."""
+    run_kw = {k: options.pop(k) for k in RUN_OPTIONS if k in options}
+    return options, run_kw
 
 
 def bake(mesh, config: BakeConfig | None = None, *, threads: int | None = None,
@@ -153,22 +185,27 @@ def bake(mesh, config: BakeConfig | None = None, *, threads: int | None = None,
     max_distance="10%", seed=0, ...).  Returns a :class:`BakeResult` whose arrays
     line up with ``result.positions`` (the scene's vertices, in file order).
     """
+    options, run_kw = _split(options)
     return run(_config(config, options), mesh, VertexTarget(), threads=threads,
-               chunk_rays=chunk_rays, progress=progress)
+               chunk_rays=chunk_rays, progress=progress, **run_kw)
 
 
 def bake_points(mesh, points, normals, config: BakeConfig | None = None, *, point_ids=None,
+                point_sizes=None,
                 threads: int | None = None, chunk_rays: int = DEFAULT_CHUNK_RAYS,
                 progress: Callable[[int, int], None] | None = None, **options) -> BakeResult:
     """Evaluate arbitrary query points against ``mesh``: reference values where you need them.
 
     points : (n, 3) float, normals : (n, 3) float (normalised here; zero = not sampled),
-    point_ids : (n,) int64 sample-stream ids (default 0..n-1).  The points are
-    offset along their normals by the configured ray offset, like vertices.
+    point_ids : (n,) int64 sample-stream ids (default 0..n-1), point_sizes : (n,) float64
+    the size of each point's own triangles (sqrt of twice the area; default: the scene's
+    median triangle size).  The points are offset along their normals by the configured
+    ray offset, like vertices.
     """
-    target = PointsTarget(points, normals, point_ids)
+    options, run_kw = _split(options)
+    target = PointsTarget(points, normals, point_ids, point_sizes)
     return run(_config(config, options), mesh, target, threads=threads, chunk_rays=chunk_rays,
-               progress=progress)
+               progress=progress, **run_kw)
 
 
 def bake_texels(mesh, config: BakeConfig | None = None, *, threads: int | None = None,
@@ -182,5 +219,23 @@ def bake_texels(mesh, config: BakeConfig | None = None, *, threads: int | None =
     split over them: each casts ceil(rays / texel_samples)), unwrap ('auto': own UVs
     when valid, else xatlas | 'always' | 'never'), bent_space ('object' | 'tangent').
     """
+    options, run_kw = _split(options)
     return run(_config(config, options), mesh, TexelTarget(), threads=threads,
-               chunk_rays=chunk_rays, progress=progress)
+               chunk_rays=chunk_rays, progress=progress, **run_kw)
+
+
+def bake_view(mesh, config: BakeConfig | None = None, *, camera=None, look=None, gltf=None,
+              size=(960, 540), fov: float = 40.0, threads: int | None = None,
+              chunk_rays: int = DEFAULT_CHUNK_RAYS,
+              progress: Callable[[int, int], None] | None = None, **options) -> ViewResult:
+    """A camera view of ``mesh``: the G-buffer and the method's values at every pixel's first
+    hit (``aobake view``; see ``aobake.targets.camera``).
+
+    camera : ``aobake.camera.Camera``, or look : dict(look_from, look_at, up, fov), or gltf :
+    (path, camera name | None); none of them: a three-quarter view framing the scene.
+    size : (width, height) pixels; fov : vertical degrees (default camera and look-at).
+    """
+    options, run_kw = _split(options)
+    target = CameraTarget(camera, look=look, gltf=gltf, size=size, fov=fov)
+    return run(_config(config, options), mesh, target, threads=threads, chunk_rays=chunk_rays,
+               progress=progress, **run_kw)

@@ -21,6 +21,8 @@ import click
 from aobake.config import (CHOICES, DEFAULTS, MAX_CONFIDENCE, MAX_RAYS, parse_distance,
                            parse_resolution)
 from aobake.errors import AobakeError
+from aobake.executors import EXECUTORS
+from aobake.methods import METHODS
 from aobake.outputs.registry import MESH_OUTPUTS, suffixes
 from aobake.quantities import QUANTITIES
 from aobake.samplers.base import MAX_REPLICATES, MIN_REPLICATES
@@ -47,6 +49,17 @@ class DistanceType(click.ParamType):
             return parse_distance(value)
         except ValueError as exc:
             self.fail(str(exc), param, ctx)
+
+
+class FiniteRange(click.FloatRange):
+    """click's FloatRange, refusing NaN and infinity: a NaN passes every comparison click
+    makes, and would reach the library as a value (exit 1 instead of a usage error)."""
+
+    def convert(self, value, param, ctx):
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return number
 
 
 class TauType(click.ParamType):
@@ -144,7 +157,13 @@ def _refit_command():
 
 
 #: sub-command name -> function returning its click command (imported when used)
-SUBCOMMANDS = {"compare": _compare_command, "refit": _refit_command}
+def _view_command():
+    from aobake.cli_view import view_command
+
+    return view_command(main)
+
+
+SUBCOMMANDS = {"compare": _compare_command, "refit": _refit_command, "view": _view_command}
 
 
 #: glibc mallopt parameters (malloc.h)
@@ -231,7 +250,7 @@ def _keep_freed_memory() -> None:
               type=click.Choice(CHOICES["backfaces"]),
               help="ignore: rays pass through back faces (costs closest-hit queries).")
 @click.option("--ray-offset", default=DEFAULTS["ray_offset"], show_default=True,
-              type=click.FloatRange(0, 0.1, min_open=True, max_open=True),
+              type=FiniteRange(0, 0.1, min_open=True, max_open=True),
               help="Ray origin offset along the normal, as a fraction of the point's own "
                    "triangle size (at least 64 float32 ulps of its coordinates).")
 @click.option("--backend", default=DEFAULTS["backend"], show_default=True,
@@ -239,10 +258,10 @@ def _keep_freed_memory() -> None:
               help="Tracing backend: embree, or reference (float64 numpy, every ray against "
                    "every triangle: slow, for validating on small scenes).")
 @click.option("--confidence", default=DEFAULTS["confidence"], show_default=True,
-              type=click.FloatRange(0.5, MAX_CONFIDENCE),
+              type=FiniteRange(0.5, MAX_CONFIDENCE),
               help="Level of the *_ci_low / *_ci_high interval every ao and obscurance value "
                    "carries.")
-@click.option("--tolerance", default=None, type=click.FloatRange(0.0, 0.5, max_open=True),
+@click.option("--tolerance", default=None, type=FiniteRange(0.0, 0.5, max_open=True),
               help="Ask for an accuracy instead of a ray count: every ao/obscurance value "
                    "within E of the truth at --confidence. --rays is then a pilot; each point "
                    "casts fresh rays chosen from it (up to --max-rays). The report counts the "
@@ -260,9 +279,21 @@ def _keep_freed_memory() -> None:
                    "charts and seams (docs/lightmaps.md).")
 @click.option("--threads", default=None, type=click.IntRange(min=1),
               help="Worker threads. Default: all cores.")
+@click.option("--method", "method", default="rays", show_default=True,
+              type=click.Choice(sorted(METHODS)),
+              help="How values are estimated: rays (ray-traced, with error bars: the reference).")
+@click.option("--executor", default="threads", show_default=True,
+              type=click.Choice(sorted(EXECUTORS)),
+              help="Where the points are estimated: threads (this process) or processes (a "
+                   "local pool of --workers processes). The same bits either way.")
+@click.option("--workers", default=None, type=click.IntRange(min=1),
+              help="--executor processes: worker processes. Default: --threads (all cores).")
+@click.option("--chunk-points", default=None, type=click.IntRange(min=1),
+              help="Points per work item (default: a few items per worker). The same bits "
+                   "for any value.")
 @click.option("--resolution", default=None, show_default=str(DEFAULTS["resolution"][0]),
               type=ResolutionType(), help="Lightmap size: N (square) or WxH.")
-@click.option("--texel-density", default=None, type=click.FloatRange(min=0.0, min_open=True),
+@click.option("--texel-density", default=None, type=FiniteRange(min=0.0, min_open=True),
               help="Instead of --resolution: texels per scene unit along the surface. A new "
                    "atlas puts every chart at exactly this density in the smallest square "
                    "image that holds them (own UVs: the smallest square reaching it on "
@@ -298,7 +329,7 @@ def _keep_freed_memory() -> None:
 @click.option("--quiet", is_flag=True, help="No progress bar or warnings.")
 @click.version_option(package_name="aobake")
 def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, report_path, quiet,
-         unwrap, quantities, **config):
+         unwrap, quantities, method, executor, workers, chunk_points, **config):
     """Bake ambient occlusion of MESH (OBJ, PLY, STL, OFF, GLB/glTF) per vertex or into a
     UV lightmap, written to --out."""
     if config["resolution"] is not None and config["texel_density"] is not None:
@@ -307,17 +338,26 @@ def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, report_p
         config["resolution"] = DEFAULTS["resolution"]
     if config["texel_density"] is None:
         del config["texel_density"]
+    run = dict(threads=threads, method=method, executor=executor, workers=workers,
+               chunk_points=chunk_points)
+    _guarded(quiet, _run, mesh, out, target, run, quiet,
+             dict(config, quantities=quantities or DEFAULTS["quantities"],
+                  unwrap={None: "auto", True: "always", False: "never"}[unwrap]),
+             dict(mesh_out=mesh_out, report=report_path, half=half, bit_depth=int(bit_depth),
+                  r_only=r_only))
+
+
+def _guarded(quiet: bool, function, *args) -> None:
+    """Run a bake command's work under the CLI's contract: library errors as one line and
+    exit 1, SIGINT 130, SIGTERM/SIGHUP 128 + the signal (outputs are one transaction: an
+    interrupted bake leaves no file)."""
     logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING,
                         format="aobake: warning: %(message)s", stream=sys.stderr)
     _route_python_warnings(quiet)
     _keep_freed_memory()
     previous = _catch_signals()
     try:
-        _run(mesh, out, target, threads, quiet,
-             dict(config, quantities=quantities or DEFAULTS["quantities"],
-                  unwrap={None: "auto", True: "always", False: "never"}[unwrap]),
-             dict(mesh_out=mesh_out, report=report_path, half=half, bit_depth=int(bit_depth),
-                  r_only=r_only))
+        function(*args)
     except (AobakeError, ValueError) as exc:
         click.echo(f"aobake: error: {exc}", err=True)
         sys.exit(1)
@@ -431,7 +471,7 @@ def _prefetching(progress):
     return callback
 
 
-def _run(mesh, out, target, threads, quiet, config, files):
+def _run(mesh, out, target, run, quiet, config, files):
     import aobake
 
     config = aobake.BakeConfig(**config)  # validated before any file is touched
@@ -453,7 +493,7 @@ def _run(mesh, out, target, threads, quiet, config, files):
 
         unwrapping.prestart()  # its start overlaps the loading; ended if own UVs are baked
     try:
-        result = bake(mesh, config, threads=threads, progress=progress)
+        result = bake(mesh, config, progress=progress, **run)
     finally:
         finish()
         if unwrapping is not None:
@@ -488,7 +528,7 @@ def _run(mesh, out, target, threads, quiet, config, files):
 @click.option("--out", "-o", "out", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Where to write the refitted bake (any per-vertex format; .npz keeps the "
                    "distances for another refit).")
-@click.option("--tau", default=None, type=click.FloatRange(min=0.0),
+@click.option("--tau", default=None, type=TauType(),
               help="New obscurance decay per scene unit (adds obscurance if it was not baked).")
 @click.option("--max-distance", default=None, type=DistanceType(),
               help="New max distance (scene units or P%), at most the baked one.")

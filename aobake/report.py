@@ -54,29 +54,42 @@ def error_summary(quantities, values: dict, rays: np.ndarray) -> dict:
             for q in quantities}
 
 
-def build(target: str, scene, tracer, config, *, points: int, rays: np.ndarray, values: dict,
-          wall: float, threads: int, chunk_rays: int, warnings: list, kernels: dict,
-          cast: int | None = None) -> dict:
-    """The report dict of one bake.  ``cast``: rays actually traced when points shared
-    samples (default: the sum of ``rays``); ``kernels``: stage -> compiled? (``_native.used``)."""
-    cast = int(rays.astype(np.int64).sum()) if cast is None else int(cast)
-    parameters = tracer.parameters()
+def build(target: str, scene, config, record: dict, method, done, *, wall: float, threads: int,
+          chunk_rays: int, warnings: list, kernels: dict, executor: dict) -> dict:
+    """The report dict of one bake, from the method's record (``method.record(estimates)``:
+    its ``parameters``) and the target's (``done``: a ``targets.base.Finished``);
+    ``kernels``: stage -> compiled? (``_native.used``)."""
+    parameters = dict(record["parameters"])
     parameters["kernels"] = _native.used(kernels)
-    return {
+    rays = done.rays
+    if done.rays_key != "rays_per_point" and "rays_per_point" in parameters:
+        parameters[done.rays_key] = parameters.pop("rays_per_point")  # what a "point" is here
+    report = {
         "aobake_report": 1,
         "target": target,
         "config": config.to_dict(),
         "conventions": conventions(config.weighting),
         "scene": scene.stats(),
         "parameters": parameters,
-        "points": int(points),
-        "points_sampled": int(np.count_nonzero(rays)),
-        "rays_cast": cast,
-        "wall_time_s": wall,
-        "rays_per_second": cast / wall if wall > 0 else None,
+        "points": int(done.points),
+    }
+    if method.casts_rays:
+        cast = int(rays.astype(np.int64).sum()) if done.cast is None else int(done.cast)
+        report.update({
+            "points_sampled": int(np.count_nonzero(rays)),
+            "rays_cast": cast,
+            "wall_time_s": wall,
+            "rays_per_second": cast / wall if wall > 0 else None,
+        })
+    else:
+        report["wall_time_s"] = wall
+    report.update({
         "threads": threads,
         "chunk_rays": int(chunk_rays),
-        "error": error_summary(tracer.quantities, values, rays),
+        "executor": executor,
+        "error": error_summary(method.error_quantities(), done.values, rays)
+        if method.casts_rays else {},
         "warnings": list(scene.warnings) + list(warnings),
         "versions": versions(),
-    }
+    })
+    return report

@@ -1,4 +1,7 @@
-"""What a bake returns: per-point results (vertices, query points) or a lightmap."""
+"""What a bake returns, in two kinds: per-point results (``points``: vertices, query points)
+and images (``image``: lightmap texels and camera pixels).  Writers are chosen by
+(kind, extension) (``aobake.outputs.registry``); each result says its kind and the target
+that made it, so nothing is guessed from its attributes."""
 
 from __future__ import annotations
 
@@ -33,6 +36,11 @@ class BakeResult:
     report: dict = field(default_factory=dict)
     kept: dict = field(default_factory=dict)
 
+    #: the result kind (writers are chosen by kind and extension) and the target writers
+    #: check formats against (query points write the same formats as vertices)
+    kind = "points"
+    target = "vertices"
+
     def __getattr__(self, name):
         if name in FIELDS and name != "values":
             return self.__dict__.get("values", {}).get(name)
@@ -45,7 +53,23 @@ class BakeResult:
 
 
 @dataclass
-class TexelResult:
+class ImageResult:
+    """An image of per-pixel values (the ``image`` kind).
+
+    channels : name -> (H, W) float32 (EXR channel names of ``aobake.quantities.FIELDS``,
+    plus ``coverage``), row 0 = top of the image; covered : (H, W) bool pixels with values;
+    report : dict.
+    """
+
+    channels: dict
+    covered: np.ndarray
+    report: dict
+
+    kind = "image"
+
+
+@dataclass
+class TexelResult(ImageResult):
     """A baked lightmap.
 
     channels : name -> (H, W) float32 images after gutter dilation ('ao', 'ao_stderr',
@@ -56,7 +80,21 @@ class TexelResult:
     atlas : ``aobake.targets.texels.atlas.Atlas``; report : dict.
     """
 
-    channels: dict
-    covered: np.ndarray
-    atlas: object
-    report: dict
+    atlas: object = None
+
+    target = "texels"
+
+
+@dataclass
+class ViewResult(ImageResult):
+    """A camera view (``aobake view``): the G-buffer and per-pixel values.
+
+    channels : name -> (H, W) float32 (``aobake.targets.camera.GBUFFER`` and the method's
+    fields; docs/conventions.md), covered : (H, W) bool pixels that see the scene,
+    camera : ``aobake.camera.Camera``; report : dict (its ``camera`` section re-projects a
+    pixel exactly).
+    """
+
+    camera: object = None
+
+    target = "view"

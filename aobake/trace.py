@@ -20,10 +20,9 @@ from typing import Callable
 import numpy as np
 
 from aobake import _native
-from aobake.backends import BACKENDS
-from aobake.backends.plane import PlaneOccluder
-from aobake.backends.union import Union, query_name
-from aobake.config import AXES, OFFSET_ULPS, BakeConfig
+from aobake.backends.union import query_name
+from aobake.config import OFFSET_ULPS, BakeConfig
+from aobake.estimates import Estimates
 from aobake.quantities import QUANTITIES, Traced
 from aobake.rays import RayGenerator
 from aobake.samplers import sample_set
@@ -135,62 +134,39 @@ class Tracer:
     rays over the texel's samples).
     """
 
-    @staticmethod
-    def check(scene) -> None:
-        """ValueError for a scene no tracer can be built for (checked before any work)."""
-        if not math.isfinite(scene.diagonal) or scene.diagonal <= 0:
-            raise ValueError(f"{scene.source}: scene has zero extent")
-
-    def __init__(self, scene, config: BakeConfig, rays: int | None = None):
-        self.scene, self.config = scene, config
-        self.check(scene)
-        diagonal = scene.diagonal
-        self.diagonal = diagonal
-        lo, hi = scene.bounds
-        # The backend's frame: rebased on the per-axis median of the vertices (far-from-origin
-        # scenes; the median, not the bbox centre, so a stray far-away triangle does not move
-        # the bulk of the scene to large float32 coordinates, where its rays would need larger
-        # offsets) and scaled by a power of two so the scene spans [-1, 1] (tiny and huge
-        # scenes).  A power of two scales float32 values and spacings exactly, so this changes
-        # no bit at ordinary scales, and Embree's float32 arithmetic never under- or overflows.
-        self.center = np.median(scene.vertices[np.unique(scene.faces)], axis=0)
-        reach = float(np.maximum(np.abs(hi - self.center), np.abs(lo - self.center)).max())
-        self.scale = 2.0 ** -math.frexp(reach)[1]
-        # Stepping past a back face (--backfaces ignore): OFFSET_ULPS ulps of the scene's
-        # largest local coordinate, a length any point of the scene can resolve.
-        local_extent = reach * self.scale
-        self.step = OFFSET_ULPS * float(np.spacing(np.float32(local_extent)))
-        self.offsets = None  # (min, median, max) of the per-point offsets, set by estimate()
-        self.max_distance = config.resolve_max_distance(diagonal)
-        self.tau = config.resolve_tau(diagonal)
+    def __init__(self, scene, config: BakeConfig, occluders, rays: int | None = None,
+                 stage: int = 0, compiled: bool | None = None):
+        """occluders : ``aobake.occluders.Occluders`` of ``scene`` (built once per bake),
+        rays : rays per point (default ``config.rays``), stage : the key stream (0; 1 for
+        ``--tolerance``'s final stage), compiled : use the compiled kernels (default: as
+        ``_native.kernels()`` says on the calling thread)."""
+        self.scene, self.config, self.occluders = scene, config, occluders
+        self.center, self.scale, self.step = occluders.center, occluders.scale, occluders.step
+        self.diagonal = occluders.diagonal
+        self.max_distance = config.resolve_max_distance(self.diagonal)
+        self.tau = config.resolve_tau(self.diagonal)
         self.quantities = [QUANTITIES[name] for name in config.quantities]
         self.samples = sample_set(config.sampler, config.rays if rays is None else rays,
                                   config.replicates)
         # Decided once, on the calling thread, and recorded as decided (report: kernels).
-        self.kernels = _native.kernels()
+        if compiled is None:
+            compiled = _native.kernels() is not None
+        self.kernels = _native.kernels() if compiled else None
+        if compiled and self.kernels is None:  # asked for by a caller that had them
+            self.kernels = _native._compiled
         self.generator = RayGenerator(self.samples, config.weighting, config.seed,
-                                      compiled=self.kernels is not None)
+                                      compiled=self.kernels is not None, stage=stage)
         # --keep-distances: every ray's nearest-hit distance is kept (for aobake.refit), so
         # its queries are distance queries whatever the quantities.
         self.need_distance = config.keep_distances or any(q.needs_distance
                                                           for q in self.quantities)
-        #: (n, R, m) float32 local-unit hit distances of the last estimate() (inf on a miss
-        #: and for untraced points) when config.keep_distances, else None
-        self.distances = None
-        local = (scene.vertices - self.center) * self.scale
-        # Vertices no face uses never reach a ray; zero them so a far-off one cannot overflow
-        # the backend's float32 cast.
-        unused = np.ones(len(local), dtype=bool)
-        unused[scene.faces.ravel()] = False
-        local[unused] = 0.0
-        occluders = [BACKENDS[config.backend](local, scene.faces, scene.face_normals, self.step)]
-        if config.ground_plane:
-            axis = AXES.index(config.up_axis)
-            self.ground_height = float(lo[axis])
-            occluders.append(PlaneOccluder(axis, (self.ground_height - self.center[axis])
-                                           * self.scale))
-        self.occluders = Union(occluders)
         self.query = query_name(self.need_distance, config.backfaces)
+
+    def with_rays(self, rays: int, stage: int) -> "Tracer":
+        """The same occluders and settings casting ``rays`` per point from key stream
+        ``stage`` (``--tolerance``'s final stage)."""
+        return Tracer(self.scene, self.config, self.occluders, rays, stage,
+                      compiled=self.kernels is not None)
 
     def kernel_stages(self) -> dict:
         """stage -> compiled? for the stages this tracer runs (see ``_native.used``)."""
@@ -201,13 +177,14 @@ class Tracer:
                 stages[stage] = compiled
         return stages
 
-    def parameters(self) -> dict:
-        """Every parameter actually used, in scene units, for the report."""
+    def parameters(self, offsets: tuple | None) -> dict:
+        """Every parameter actually used, in scene units, for the report; ``offsets``: the
+        (min, median, max) ray offset over the traced points (None: nothing traced)."""
         params = {
             "max_distance": self.max_distance,
             "tau": self.tau,
-            "ray_offset": None if self.offsets is None else self.offsets[1],
-            "ray_offset_range": None if self.offsets is None else [self.offsets[0], self.offsets[2]],
+            "ray_offset": None if offsets is None else offsets[1],
+            "ray_offset_range": None if offsets is None else [offsets[0], offsets[2]],
             "ray_offset_rule": f"max({self.config.ray_offset:g} x own triangle size, "
                                f"{OFFSET_ULPS} float32 ulps of |local coordinate| + that size); "
                                "query points: the scene's median triangle size",
@@ -222,13 +199,8 @@ class Tracer:
                                + " degrees of freedom (texels: Welch-Satterthwaite over "
                                  "their samples), h0 = 1 - (1 - confidence)^(1/n) (rule of three)",
             "query": self.query,
-            "backend": self.config.backend,
-            "rebase_center": self.center.tolist(),
-            "trace_scale": self.scale,
-            "diagonal": self.diagonal,
         }
-        if self.config.ground_plane:
-            params["ground_plane"] = {"axis": self.config.up_axis, "height": self.ground_height}
+        params.update(self.occluders.record())
         return params
 
     def traced(self, points: np.ndarray, normals: np.ndarray, ids: np.ndarray,
@@ -288,12 +260,16 @@ class Tracer:
         chunk_rays: int = DEFAULT_CHUNK_RAYS,
         progress: Callable[[int, int], None] | None = None,
         sizes: np.ndarray | None = None,
-    ) -> tuple[dict, np.ndarray]:
+    ) -> Estimates:
         """Estimates for all points (n, 3) float64 with normals (n, 3) float64 and ids (n,) int64;
         sizes (n,) float64 the size of each point's own triangles (None: unknown).
 
         Points whose normal is zero are not traced (0 rays, no-information estimate).
-        Returns (field name -> (n,) / (n, 3) float64 array, rays (n,) int32).
+        Returns the fields (name -> (n,) / (n, 3) float64), rays (n,) int32 and the extras
+        ``ray_offset`` (n,) float64 (scene units; 0 where not traced) and, with
+        ``keep_distances``, ``ray_distances`` (n, R, m) float32 local-unit hit distances
+        (inf on a miss and for untraced points).  Each point's values depend on that point
+        alone, so any split of the points gives the same rows.
         """
         n = len(points)
         normals = np.asarray(normals, dtype=np.float64)
@@ -306,35 +282,39 @@ class Tracer:
         out = self.no_information(normals)
         rays = np.zeros(n, dtype=np.int32)
         rays[valid] = self.samples.rays
-
-        keep = self.config.keep_distances
-        if keep:
-            self.distances = np.full((n, self.samples.groups, self.samples.m), np.inf,
-                                     dtype=np.float32)
+        # The offsets each point uses (local units), kept for the report (not computed twice).
+        offsets = np.zeros(n)
+        distances = None
+        if self.config.keep_distances:
+            distances = np.full((n, self.samples.groups, self.samples.m), np.inf,
+                                dtype=np.float32)
+        extras = {"ray_offset": offsets}
+        if distances is not None:
+            extras["ray_distances"] = distances
         if self.samples.piece < self.samples.m:
             if len(valid):
-                self._report_offsets(point_offsets(
+                offsets[valid] = point_offsets(
                     (kept - self.center) * self.scale,
                     None if sizes is None else (sizes if every else sizes[valid]) * self.scale,
-                    self.config.ray_offset))
-            self._stream(points, normals, ids, sizes, order, out, threads, progress)
-            return out, rays
-        # The offsets each chunk uses, kept for the report (not computed twice).
-        offsets = np.zeros(n)
+                    self.config.ray_offset)
+            self._stream(points, normals, ids, sizes, order, out, distances, threads, progress)
+            offsets /= self.scale
+            return Estimates(out, rays, extras)
 
         def work(i):
             sel = order[i * per_chunk:(i + 1) * per_chunk]
             used = np.empty(len(sel))
             traced = self.traced(points[sel], normals[sel], ids[sel],
                                  None if sizes is None else sizes[sel], offsets_out=used)
-            return sel, self.estimate_traced(traced), traced.distance if keep else None, used
+            return (sel, self.estimate_traced(traced),
+                    traced.distance if distances is not None else None, used)
 
         def land(i, result):
             sel, values, distance, used = result
             for name, array in values.items():
                 out[name][sel] = array
             if distance is not None:
-                self.distances[sel] = distance
+                distances[sel] = distance
             offsets[sel] = used
 
         done = [0]
@@ -345,17 +325,11 @@ class Tracer:
                 progress(done[0], len(order))
 
         run_chunks(n_chunks, work, land, threads or default_threads(), tick)
-        if len(valid):
-            self._report_offsets(offsets[valid])
-        return out, rays
+        offsets /= self.scale  # scene units (a power of two: exact)
+        return Estimates(out, rays, extras)
 
-    def _report_offsets(self, local: np.ndarray) -> None:
-        """The report's (min, median, max) ray offset in scene units, from the offsets
-        (k,) float64 of every traced point in local units (any order)."""
-        used = local / self.scale
-        self.offsets = (float(used.min()), float(np.median(used)), float(used.max()))
-
-    def _stream(self, points, normals, ids, sizes, order, out, threads, progress) -> None:
+    def _stream(self, points, normals, ids, sizes, order, out, distances, threads,
+                progress) -> None:
         """Points whose rays exceed one piece: each work item traces one piece (samples j0 ..
         j0 + piece - 1 of every replicate) of one point into its quantities' moments, and the
         pieces of a point are folded in piece order (items land out of order; at most the
@@ -373,7 +347,7 @@ class Tracer:
             traced = self.traced(points[sel], normals[sel], ids[sel],
                                  None if sizes is None else sizes[sel], j0, min(piece, m - j0))
             moments = [q.moments(traced) for q in quantities]
-            if self.distances is None:  # keep only what the fold needs (normals, settings)
+            if distances is None:  # keep only what the fold needs (normals, settings)
                 traced = replace(traced, directions=None, occluded=None, distance=None)
             return moments, traced
 
@@ -383,9 +357,9 @@ class Tracer:
                 i = state["next"]
                 moments, traced = pending.pop(i)
                 b = i % pieces
-                if self.distances is not None:
+                if distances is not None:
                     j0 = b * piece
-                    self.distances[order[i // pieces], :, j0:j0 + traced.distance.shape[2]] = \
+                    distances[order[i // pieces], :, j0:j0 + traced.distance.shape[2]] = \
                         traced.distance[0]
                 if b == 0:
                     state["moments"] = moments

@@ -45,6 +45,7 @@ from aobake.outputs.texture import write_texture  # noqa: E402
 from aobake.scene import load_scene  # noqa: E402
 from aobake.targets.texels.raster import rasterize  # noqa: E402
 from aobake.targets.texels.surface import surface_points  # noqa: E402
+from aobake.occluders import build as build_occluders  # noqa: E402
 from aobake.trace import DEFAULT_CHUNK_RAYS, Tracer  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "meshes"
@@ -65,7 +66,7 @@ def case(path: Path, unwrap: str, args):
     # The same rays through a bare embreex loop: rebuild the same sample points.
     scene = load_scene(path)
     k = args.texel_samples
-    tracer = Tracer(scene, config, rays=-(-config.rays // k))
+    tracer = Tracer(scene, config, build_occluders(scene, config), rays=-(-config.rays // k))
     atlas = result.atlas
     # Atlas UVs per face corner (the atlas faces follow the scene's face order).
     samples = rasterize(atlas.uv, atlas.faces, args.resolution, args.resolution, k, config.seed)

@@ -102,6 +102,7 @@ import aobake  # noqa: E402
 from aobake.config import DEFAULT_RAY_OFFSET, BakeConfig  # noqa: E402
 from aobake.scene import load_scene  # noqa: E402
 from aobake.targets.vertices import vertex_sizes  # noqa: E402
+from aobake.occluders import build as build_occluders  # noqa: E402
 from aobake.trace import DEFAULT_CHUNK_RAYS, Tracer, morton_order, point_offsets  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
@@ -269,7 +270,7 @@ def run_bare(scene, rays: int, threads: int) -> dict:
     from embreex.mesh_construction import TriangleMesh
 
     config = BakeConfig(rays=rays)
-    tracer = Tracer(scene, config)
+    tracer = Tracer(scene, config, build_occluders(scene, config))
     V, N = scene.vertices, scene.vertex_normals
     keys = np.ascontiguousarray(np.concatenate([V, N], axis=1))
     _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)

@@ -36,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import aobake  # noqa: E402
 from aobake.targets.vertices import vertex_sizes  # noqa: E402
+from aobake.occluders import build as build_occluders  # noqa: E402
 from aobake.trace import DEFAULT_CHUNK_RAYS, Tracer, morton_order, point_offsets  # noqa: E402
 from aobake.config import BakeConfig  # noqa: E402
 from aobake.scene import load_scene, make_scene  # noqa: E402
@@ -105,7 +106,7 @@ def main():
         result = aobake.bake(scene, config, threads=args.threads)
         wall = time.perf_counter() - start
         cast = result.report["rays_cast"]
-        tracer = Tracer(scene, config)
+        tracer = Tracer(scene, config, build_occluders(scene, config))
         keys = np.concatenate([scene.vertices, scene.vertex_normals], axis=1)
         _, first = np.unique(keys, axis=0, return_index=True)
         valid = first[np.linalg.norm(scene.vertex_normals[first], axis=1) > 0.5]

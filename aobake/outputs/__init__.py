@@ -33,6 +33,8 @@ class Outputs:
     mesh_out: Path | None
     mesh_out_given: bool
     report: Path | None
+    #: a view's JSON side file (camera and conventions): <out stem>.camera.json
+    camera: Path | None = None
 
 
 def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=None,
@@ -46,7 +48,8 @@ def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=Non
     out = Path(out)
     target = target or default_target(out)
     writer_for(out, target)  # the format exists for this target
-    if target == "texels" and quantities is not None and out.suffix.lower() != ".exr" \
+    if target in ("texels", "view") and quantities is not None \
+            and out.suffix.lower() != ".exr" \
             and not {"ao", "obscurance"} & set(quantities):
         raise OutputError(f"{out}: a {out.suffix} lightmap holds ao or obscurance; add -q ao "
                           "(or write .exr, which holds every channel)")
@@ -62,8 +65,10 @@ def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=Non
     mesh_out = None if mesh_out is None else Path(mesh_out)
     report = None if report is None else Path(report)
     mesh = None if mesh is None or not isinstance(mesh, (str, os.PathLike)) else Path(mesh)
+    camera = out.with_name(out.stem + ".camera.json") if target == "view" else None
     roles = [("--out", out), ("--mesh-out" if given else "the default --mesh-out (<out>.obj)",
-                              mesh_out), ("--report", report)]
+                              mesh_out), ("--report", report),
+             ("the camera file (<out>.camera.json)", camera)]
     seen = {}
     if mesh is not None:
         seen[mesh.resolve()] = "the input mesh"
@@ -82,7 +87,7 @@ def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=Non
             raise OutputError(f"{path}: refusing to {what}: every output needs its own file"
                               f"{hint}")
         seen[where] = role
-    return Outputs(out, target, mesh_out, given, report)
+    return Outputs(out, target, mesh_out, given, report, camera)
 
 
 def metadata(result) -> dict:
@@ -91,8 +96,9 @@ def metadata(result) -> dict:
     report = result.report
     meta = {"conventions": report["conventions"], "config": report["config"],
             "parameters": report["parameters"], "versions": report["versions"]}
-    if "texture" in report:
-        meta["texture"] = report["texture"]
+    for section in ("texture", "camera"):
+        if section in report:
+            meta[section] = report[section]
     return meta
 
 
@@ -110,7 +116,7 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
     from aobake.outputs.report import write_report
     from aobake.outputs.texture import prepare_atlas_mesh
 
-    target = "texels" if hasattr(result, "channels") else "vertices"
+    target = result.target  # each result says what made it: no guessing from its attributes
     where = plan(out, target, mesh=mesh, mesh_out=mesh_out, report=report)
     options = WriteOptions(half=half, bit_depth=int(bit_depth), r_only=r_only)
     meta = metadata(result)
@@ -129,6 +135,14 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
             with _naming(where.mesh_out):
                 write_mesh()
             written.append(where.mesh_out)
+        if where.camera is not None:  # a view: its camera and conventions beside the image
+            from aobake.outputs.report import write_report
+
+            with _naming(where.camera):
+                write_report(where.camera, {"camera": meta["camera"],
+                                            "conventions": meta["conventions"],
+                                            "image": where.out.name})
+            written.append(where.camera)
         if where.report is not None:
             full = dict(result.report, outputs=[str(p) for p in written])
             # the outputs before the report (their renames come with the transaction's end)

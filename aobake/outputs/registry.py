@@ -1,8 +1,11 @@
-"""Output formats: (target, file extension) -> writer, the one table the CLI, ``aobake.write``
-and the README's output table read.
+"""Output formats: (result kind, file extension) -> writer, the one table the CLI,
+``aobake.write`` and the README's output table read.
 
-A writer is ``write(path, result, metadata, options)`` with ``result`` a
-BakeResult (per vertex) or TexelResult (lightmap), ``metadata`` the JSON dict
+Two kinds of result (``aobake.results``): ``points`` (BakeResult: per vertex or query
+point) and ``image`` (ImageResult: lightmap texels, TexelResult, and camera pixels,
+ViewResult, share it).  A writer serves one kind, and the targets listed in its
+``targets`` (a lightmap GLB needs the atlas a view does not have).
+A writer is ``write(path, result, metadata, options)`` with ``metadata`` the JSON dict
 every output carries and ``options`` the :class:`WriteOptions`; it writes
 atomically (nothing, complete or partial, is left at ``path`` on failure).  A
 new format is one module with such a function plus one line in ``WRITERS``.
@@ -29,14 +32,22 @@ class WriteOptions:
 
 @dataclass(frozen=True)
 class Writer:
-    """suffix : lower-case extension, target : 'vertices' | 'texels', write : the function,
-    what / contents : the README's output table row."""
+    """suffix : lower-case extension, kind : 'points' | 'image' (the result kind it writes),
+    write : the function, what / contents : the README's output table row, targets : the
+    targets whose results it writes ('vertices' and 'points' make points; 'texels' and
+    'view' make images)."""
 
     suffix: str
-    target: str
+    kind: str
     write: Callable
     what: str
     contents: Callable[[], str]
+    targets: tuple = ()
+
+    @property
+    def target(self) -> str:
+        """The CLI target this format implies (the first of ``targets``)."""
+        return self.targets[0]
 
 
 def _vertex(module_name: str):
@@ -88,18 +99,23 @@ def _exr_contents() -> str:
 
 
 #: every output format, in the README's order
+_POINTS = ("vertices", "points")
+_IMAGES = ("texels", "view")
+
 WRITERS = (
-    Writer(".npz", "vertices", _vertex("npz"), "per vertex", _npz_contents),
-    Writer(".ply", "vertices", _vertex("ply"), "per vertex", _ply_contents),
-    Writer(".glb", "vertices", _vertex("glb"), "per vertex", _glb_contents),
-    Writer(".exr", "texels", _texture, "lightmap", _exr_contents),
-    Writer(".png", "texels", _texture, "lightmap",
-           lambda: "AO in RGB (`--r-only`: R), coverage in alpha, 8/16 bit (`--bit-depth`)"),
-    Writer(".tif", "texels", _texture, "lightmap", lambda: "as `.png`"),
-    Writer(".tiff", "texels", _texture, "lightmap", lambda: "as `.png`"),
-    Writer(".glb", "texels", _texture, "lightmap",
+    Writer(".npz", "points", _vertex("npz"), "per vertex", _npz_contents, _POINTS),
+    Writer(".ply", "points", _vertex("ply"), "per vertex", _ply_contents, _POINTS),
+    Writer(".glb", "points", _vertex("glb"), "per vertex", _glb_contents, _POINTS),
+    Writer(".exr", "image", _texture, "lightmap", _exr_contents, _IMAGES),
+    Writer(".png", "image", _texture, "lightmap",
+           lambda: "AO in RGB (`--r-only`: R), coverage in alpha, 8/16 bit (`--bit-depth`)",
+           _IMAGES),
+    Writer(".tif", "image", _texture, "lightmap", lambda: "as `.png`", _IMAGES),
+    Writer(".tiff", "image", _texture, "lightmap", lambda: "as `.png`", _IMAGES),
+    Writer(".glb", "image", _texture, "lightmap",
            lambda: "the atlas mesh with the AO map as `occlusionTexture` of every input "
-                   "material (each keeps its base colour; one primitive per material)"),
+                   "material (each keeps its base colour; one primitive per material)",
+           ("texels",)),
 )
 
 #: formats the mesh of a new atlas can be written in (``--mesh-out``)
@@ -107,7 +123,8 @@ MESH_OUTPUTS = (".obj", ".glb")
 
 
 def suffixes(target: str) -> tuple:
-    return tuple(w.suffix for w in WRITERS if w.target == target)
+    """The extensions a target's result can be written as."""
+    return tuple(w.suffix for w in WRITERS if target in w.targets)
 
 
 def default_target(path) -> str:
@@ -120,9 +137,12 @@ def writer_for(path, target: str) -> Writer:
     """The writer of ``path``'s (case-insensitive) extension for ``target``; OutputError if none."""
     suffix = Path(path).suffix.lower()
     for writer in WRITERS:
-        if writer.suffix == suffix and writer.target == target:
+        if writer.suffix == suffix and target in writer.targets:
             return writer
-    kind = "a vertex bake" if target == "vertices" else "a lightmap"
+    if target == "view":
+        raise OutputError(f"{path}: unsupported output format {suffix or '(none)'!r} for a "
+                          f"view; use one of {', '.join(suffixes('view'))}")
+    kind = "a vertex bake" if target in _POINTS else "a lightmap"
     raise OutputError(f"{path}: unsupported output format {suffix or '(none)'!r} for {kind} "
                       f"(--target {target}); use one of {', '.join(suffixes(target))}; "
                       f"formats: per vertex {', '.join(suffixes('vertices'))}, lightmap "
@@ -134,6 +154,6 @@ def markdown_table() -> str:
     rows = ["| `--out` | what | contents |", "|---|---|---|"]
     for writer in WRITERS:
         target = " + `--target texels`" if writer.suffix in suffixes("vertices") and \
-            writer.target == "texels" else ""
+            writer.kind == "image" else ""
         rows.append(f"| `{writer.suffix}`{target} | {writer.what} | {writer.contents()} |")
     return "\n".join(rows)

@@ -1,8 +1,11 @@
 """What a target is: where AO is measured, and how per-point estimates become a result.
 
-A target turns a scene into sample points (``sample``), and the traced estimates
+A target turns a scene into sample points (``sample``), and a method's estimates
 at those points into its result (``finish``).  ``aobake.bake.run`` calls them in
-that order, with tracing in between; a target never traces or builds a backend.
+that order, with the method in between.  The scene's occluders are built before
+``sample`` and handed to it as a function returning them (it waits for their build):
+a target that needs first hits (the camera) casts its primary rays through them; one
+that does not never calls it, so the build overlaps its work.
 A new target is one module with such a class plus one line in
 ``aobake.targets.TARGETS``.
 """
@@ -60,8 +63,8 @@ class Target(Protocol):
 
     def rays_per_point(self, config) -> int: ...
 
-    def sample(self, scene, config, threads: int, timings: dict, warnings: list,
+    def sample(self, scene, config, occluders, threads: int, timings: dict, warnings: list,
                phase=None) -> SamplePoints: ...
 
-    def finish(self, scene, config, plan: SamplePoints, values: dict, rays: np.ndarray,
-               timings: dict, warnings: list) -> Finished: ...
+    def finish(self, scene, config, plan: SamplePoints, estimates, timings: dict,
+               warnings: list) -> Finished: ...

@@ -18,7 +18,7 @@ class PointsTarget:
 
     name = "points"
 
-    def __init__(self, points, normals, point_ids=None):
+    def __init__(self, points, normals, point_ids=None, point_sizes=None):
         points = check_rows("points", points)
         normals = check_rows("normals", normals, n=len(points))
         if not (np.isfinite(points).all() and np.isfinite(normals).all()):
@@ -30,17 +30,27 @@ class PointsTarget:
         if ids.shape != (len(points),):
             raise InputError(f"point_ids must be ({len(points)},), got {ids.shape}")
         self.ids = ids
+        sizes = None
+        if point_sizes is not None:
+            sizes = np.asarray(point_sizes, dtype=np.float64)
+            if sizes.shape != (len(points),) or not (np.isfinite(sizes).all() and
+                                                     (sizes >= 0).all()):
+                raise InputError(f"point_sizes must be ({len(points)},) finite and >= 0")
+        self.sizes = sizes
 
     def rays_per_point(self, config) -> int:
         return config.rays
 
-    def sample(self, scene, config, threads, timings, warnings, phase=None) -> SamplePoints:
+    def sample(self, scene, config, occluders, threads, timings, warnings,
+               phase=None) -> SamplePoints:
         # A query point's own triangle is unknown: the scene's median triangle size stands in
         # (robust to a few stray triangles), for the offset rule of aobake.trace.point_offsets.
-        size = float(np.sqrt(2.0 * np.median(scene.areas())))
-        return SamplePoints(self.points, self.normals, self.ids,
-                            sizes=np.full(len(self.points), size))
+        sizes = self.sizes
+        if sizes is None:
+            sizes = np.full(len(self.points), float(np.sqrt(2.0 * np.median(scene.areas()))))
+        return SamplePoints(self.points, self.normals, self.ids, sizes=sizes)
 
-    def finish(self, scene, config, plan, values, rays, timings, warnings) -> Finished:
+    def finish(self, scene, config, plan, estimates, timings, warnings) -> Finished:
+        values, rays = estimates.fields, estimates.rays
         result = BakeResult(self.points, None, self.normals, rays, values)
         return Finished(result, values, rays, len(self.points))

@@ -26,7 +26,8 @@ class VertexTarget:
     def rays_per_point(self, config) -> int:
         return config.rays
 
-    def sample(self, scene, config, threads, timings, warnings, phase=None) -> SamplePoints:
+    def sample(self, scene, config, occluders, threads, timings, warnings,
+               phase=None) -> SamplePoints:
         # Vertices that share position and normal get the same point id, hence the same
         # samples and identical values (no noise seam where a file splits vertices at UV seams).
         keys = np.ascontiguousarray(np.concatenate([scene.vertices, scene.vertex_normals], axis=1))
@@ -37,8 +38,9 @@ class VertexTarget:
                             first.astype(np.int64), sizes=vertex_sizes(scene)[first],
                             state=inverse.reshape(-1))
 
-    def finish(self, scene, config, plan, values, rays, timings, warnings) -> Finished:
+    def finish(self, scene, config, plan, estimates, timings, warnings) -> Finished:
         inverse = plan.state
+        values, rays = estimates.fields, estimates.rays
         traced = int(rays.astype(np.int64).sum())  # before copying to vertices that share samples
         values = {name: array[inverse] for name, array in values.items()}
         rays = rays[inverse]

@@ -47,7 +47,8 @@ class TexelTarget:
     def rays_per_point(self, config) -> int:
         return -(-config.rays // config.texel_samples)
 
-    def sample(self, scene, config, threads, timings, warnings, phase=None) -> SamplePoints:
+    def sample(self, scene, config, occluders, threads, timings, warnings,
+               phase=None) -> SamplePoints:
         width, height = config.resolution
         phases: dict = {}
         compiled = _native.kernels() is not None  # decided once, recorded as decided
@@ -79,9 +80,10 @@ class TexelTarget:
                    "gutters": compiled if config.padding > 0 else None}
         return SamplePoints(points, normals, ids, sizes=sizes, kernels=kernels, state=state)
 
-    def finish(self, scene, config, plan, values, rays, timings, warnings) -> Finished:
+    def finish(self, scene, config, plan, estimates, timings, warnings) -> Finished:
         from aobake.quantities import QUANTITIES
 
+        values, rays = estimates.fields, estimates.rays
         clock = time.perf_counter()
         state = plan.state
         samples = state["samples"]
@@ -139,7 +141,7 @@ class TexelTarget:
                 f"{scene.source}: the lightmap covers {texture['texels_covered']} texels for "
                 f"{pieces} {what} ({per_piece:.1f} each, {texture['texel_density'] or 0:.3g} "
                 f"texels per scene unit): raise --resolution or lower --padding")
-        result = TexelResult(images, covered, state["atlas"], {})
+        result = TexelResult(images, covered, {}, atlas=state["atlas"])
         return Finished(result, values, rays, len(plan.points),
                         report={"texture": texture, "timings": timings},
                         rays_key="rays_per_texel_sample")

@@ -16,10 +16,8 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
 import signal
 import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -29,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from aobake import _native
+from aobake.child import python_child
 from aobake.errors import InputError
 from aobake.vectors import distinct, weld
 
@@ -1101,9 +1100,10 @@ XATLAS_TIMEOUT_BASE_S = 120.0
 XATLAS_TIMEOUT_PER_FACE_S = 2e-3
 
 # The child imports this module and runs the worker; kept as data so tests can
-# swap in a crashing stand-in.  The packages above it are stubs (their __path__ only):
-# their __init__ modules import the whole baker, 0.2 s of the child's start, which is on
-# the bake's critical path.
+# swap in a crashing stand-in.  ``_child`` starts it with aobake.child's prelude, which puts
+# this process's package first on the child's path (not the current directory).  The
+# packages above it are stubs (their __path__ only): their __init__ modules import the whole
+# baker, 0.2 s of the child's start, which is on the bake's critical path.
 _WORKER_CODE = """
 import importlib.util, sys, types
 for name in ("aobake", "aobake.targets", "aobake.targets.texels"):
@@ -1125,15 +1125,16 @@ if line:
 """)
 
 
-def _child_env() -> dict:
-    package_root = str(Path(__file__).resolve().parents[2])
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
+def _child(code: str, args=()) -> tuple[list[str], dict]:
+    """argv and environment of an xatlas child running ``code``: it imports the same aobake
+    as this process (``aobake.child``: not the current directory's, such as a checkout's
+    source tree without compiled kernels when the installed aobake runs from its root)."""
+    argv, env = python_child(code, args)
     # glibc: reuse freed memory rather than fault fresh pages in (see aobake.cli's
     # _keep_freed_memory): the child's own process, so its allocator is ours to tune
     env.setdefault("MALLOC_MMAP_THRESHOLD_", str(32 << 20))
     env.setdefault("MALLOC_TRIM_THRESHOLD_", str(2**31 - 1))
-    return env
+    return argv, env
 
 
 _prestarted_lock = threading.Lock()
@@ -1152,9 +1153,10 @@ def prestart() -> None:
             return
         _reap(_prestarted)
         try:
-            _prestarted = subprocess.Popen([sys.executable, "-c", _WARM_CODE], env=_child_env(),
-                                           stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                           stderr=subprocess.PIPE, text=True)
+            argv, env = _child(_WARM_CODE)
+            _prestarted = subprocess.Popen(argv, env=env, stdin=subprocess.PIPE,
+                                           stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                           text=True)
         except OSError as exc:  # only a head start: the unwrap starts its own child
             _prestarted = None
             log.debug("could not prestart the xatlas child: %s", exc)
@@ -1199,8 +1201,8 @@ def _run_child(src: Path, dst: Path, limit: float) -> subprocess.CompletedProces
             return subprocess.CompletedProcess(proc.args, 0, out, err)
         log.debug("the prestarted xatlas child failed (exit %s): a new one takes the job",
                   proc.returncode)
-    return subprocess.run([sys.executable, "-c", _WORKER_CODE, str(src), str(dst)],
-                          env=_child_env(), capture_output=True, text=True, timeout=limit)
+    argv, env = _child(_WORKER_CODE, (src, dst))
+    return subprocess.run(argv, env=env, capture_output=True, text=True, timeout=limit)
 
 
 def _unwrap_isolated(positions, faces, resolution, padding, texel_density=None,

@@ -1,0 +1,122 @@
+"""``aobake view MESH --out view.exr``: a camera's G-buffer with the method's values per pixel.
+
+The bake options are the main command's own click options (the same flags, defaults,
+help and checks: nothing typed twice); only the camera's options are new here.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from aobake.cli import FiniteRange
+from aobake.config import DEFAULTS
+
+#: main-command options that mean nothing for a camera view (lightmap or vertex only)
+NOT_FOR_VIEWS = {"out", "target", "resolution", "texel_density", "padding", "texel_samples",
+                 "unwrap", "mesh_out", "seams", "bent_space", "denoise", "keep_distances",
+                 "r_only", "mesh", "version"}
+
+
+class _VectorType(click.ParamType):
+    name = "X,Y,Z"
+
+    def convert(self, value, param, ctx):
+        from aobake.camera import parse_vector
+        from aobake.errors import InputError
+
+        try:
+            return parse_vector(value)
+        except InputError as exc:
+            self.fail(str(exc), param, ctx)
+
+
+class _SizeType(click.ParamType):
+    name = "WxH"
+
+    def convert(self, value, param, ctx):
+        from aobake.camera import parse_size
+        from aobake.errors import InputError
+
+        try:
+            return parse_size(value)
+        except InputError as exc:
+            self.fail(str(exc), param, ctx)
+
+
+def _camera_options() -> list:
+    return [
+        click.Argument(["mesh"], type=click.Path(path_type=Path)),
+        click.Option(["--out", "-o", "out"], required=True,
+                     type=click.Path(dir_okay=False, path_type=Path),
+                     help="Output: .exr (G-buffer + AO channels, float32; --half for 16-bit) "
+                          "or .png/.tif (the AO as a picture; coverage in alpha)."),
+        click.Option(["--look-from"], type=_VectorType(), default=None,
+                     help="Eye position X,Y,Z (scene units)."),
+        click.Option(["--look-at"], type=_VectorType(), default=None,
+                     help="Point looked at X,Y,Z (with --look-from)."),
+        click.Option(["--up"], type=_VectorType(), default=None,
+                     help="Up direction X,Y,Z. Default: the --up-axis."),
+        click.Option(["--fov"], type=FiniteRange(0.0, 180.0, min_open=True, max_open=True),
+                     default=40.0, show_default=True, help="Vertical field of view, degrees."),
+        click.Option(["--size"], type=_SizeType(), default="960x540", show_default=True,
+                     help="Image size WxH pixels."),
+        click.Option(["--camera"], default=None,
+                     help="Use the glTF camera node of this name in MESH (a .gltf/.glb); "
+                          "'first' for the first camera."),
+    ]
+
+
+def view_command(main: click.Command) -> click.Command:
+    """The ``view`` command: camera options plus ``main``'s bake options that apply."""
+    shared = [p for p in main.params if p.name not in NOT_FOR_VIEWS]
+    return click.Command(
+        "view", params=_camera_options() + shared, callback=_view,
+        context_settings={"help_option_names": ["-h", "--help"]},
+        help="Render a camera view of MESH: one primary ray per pixel centre (Embree), the "
+             "G-buffer (depth, distance, hardware depths, view-space position and normals, "
+             "ids, coverage) and the method's values (ao, its stderr and interval, rays) "
+             "at each first hit, about the geometric normal facing the eye. Default camera: "
+             "a three-quarter view framing the bounding box. Conventions: "
+             "docs/conventions.md.")
+
+
+def _view(mesh, out, look_from, look_at, up, fov, size, camera, threads, half, bit_depth,
+          report_path, quiet, quantities, method, executor, workers, chunk_points, **config):
+    from aobake.cli import _guarded
+
+    if (look_from is None) != (look_at is None):
+        raise click.UsageError("give --look-from and --look-at together")
+    if camera is not None and look_from is not None:
+        raise click.UsageError("give --camera or --look-from/--look-at, not both")
+    look = None
+    if look_from is not None:
+        look = {"look_from": look_from, "look_at": look_at, "fov": fov}
+        if up is not None:
+            look["up"] = up
+    elif up is not None:
+        raise click.UsageError("--up goes with --look-from/--look-at")
+    gltf = None if camera is None else (mesh, None if camera == "first" else camera)
+    run = dict(threads=threads, method=method, executor=executor, workers=workers,
+               chunk_points=chunk_points)
+    _guarded(quiet, _run, mesh, out, look, gltf, size, fov, run, quiet,
+             dict(config, quantities=quantities or DEFAULTS["quantities"]),
+             dict(report=report_path, half=half, bit_depth=int(bit_depth)))
+
+
+def _run(mesh, out, look, gltf, size, fov, run, quiet, config, files):
+    import aobake
+
+    config = aobake.BakeConfig(**config)
+    aobake.outputs.plan(out, "view", mesh=mesh, report=files["report"],
+                        quantities=config.quantities)
+    result = aobake.bake_view(mesh, config, look=look, gltf=gltf, size=size, fov=fov, **run)
+    written = aobake.write(result, out, mesh=mesh, **files)
+    if not quiet:
+        report = result.report
+        cam = report["camera"]
+        click.echo(f"aobake: view {cam['width']}x{cam['height']}, "
+                   f"{report['pixels_covered']} pixels see the scene, "
+                   f"{report.get('rays_cast', 0)} rays in {report['wall_time_s']:.2f} s "
+                   f"-> {', '.join(map(str, written))}", err=True)

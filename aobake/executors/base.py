@@ -1,0 +1,63 @@
+"""What an executor is: where a method's estimates are computed.
+
+An executor takes the bake's :class:`Job` (everything a worker needs to rebuild the
+method: the scene, the configuration, the method's name, the rays per point and whether
+the compiled kernels run; all picklable) and the sample points, cuts the points into
+:class:`WorkItem` ranges, has each estimated and merges the results by point index
+(``aobake.estimates.merge``).  Every point's estimate depends on that point alone, so
+every executor, worker count and split gives the same bits.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Job:
+    """One bake as a worker rebuilds it.
+
+    scene : ``aobake.scene.Scene`` (as loaded and repaired by the parent), config :
+    BakeConfig, method : ``METHODS`` key, rays_per_point : int (the target's), compiled :
+    bool (run the compiled kernels, as the parent decided), key : str naming this job in a
+    worker's cache (a worker builds the occluders and the method once per job).
+    """
+
+    scene: object
+    config: object
+    method: str
+    rays_per_point: int
+    compiled: bool
+    key: str
+
+
+@dataclass(frozen=True)
+class WorkItem:
+    """Points start..stop-1 of a job: points (k, 3) float64, normals (k, 3) float64, ids
+    (k,) int64, sizes (k,) float64 | None (``SamplePoints`` fields)."""
+
+    key: str
+    start: int
+    stop: int
+    points: np.ndarray
+    normals: np.ndarray
+    ids: np.ndarray
+    sizes: np.ndarray | None
+
+
+def ranges(n: int, per_item: int) -> list:
+    """[(start, stop), ...] cutting 0..n-1 into consecutive ranges of ``per_item`` points."""
+    per_item = max(1, int(per_item))
+    return [(start, min(n, start + per_item)) for start in range(0, n, per_item)]
+
+
+def items(job: Job, plan, per_item: int) -> list:
+    """The work items of ``plan`` (``SamplePoints``), ``per_item`` points each."""
+    out = []
+    for start, stop in ranges(len(plan.points), per_item):
+        sel = slice(start, stop)
+        out.append(WorkItem(job.key, start, stop, plan.points[sel], plan.normals[sel],
+                            plan.ids[sel], None if plan.sizes is None else plan.sizes[sel]))
+    return out

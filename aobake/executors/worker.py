@@ -1,0 +1,61 @@
+"""What runs inside a worker process: the per-worker cache of prepared methods.
+
+This module is importable on purpose: a process pool (and Dask, which ships functions
+defined in ``__main__`` by value) must find :func:`run_item` and its cache by name, so
+the occluders and the method a worker builds for a job are kept across that job's
+items instead of being rebuilt for each.
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+from aobake import _native
+from aobake.estimates import Estimates
+
+#: job key -> (Job, prepared method); a worker holds the jobs it was given
+_CACHE: dict = {}
+
+
+def install(job) -> None:
+    """Pool initializer: remember ``job`` (its method is built on the first item)."""
+    _CACHE[job.key] = (job, None)
+
+
+def prepared(job):
+    """The method of ``job``, built once per worker: occluders, then the method on them."""
+    from aobake import occluders as occluder_stage
+    from aobake.methods import METHODS
+
+    entry = _CACHE.get(job.key)
+    if entry is None or entry[1] is None:
+        with _kernels(job.compiled):
+            built = occluder_stage.build(job.scene, job.config)
+            method = METHODS[job.method].prepare(job.scene, job.config, built,
+                                                 job.rays_per_point, compiled=job.compiled)
+        _CACHE[job.key] = entry = (job, method)
+    return entry[1]
+
+
+def run_item(item, threads: int, chunk_rays: int, job=None) -> tuple[int, int, Estimates]:
+    """Estimate one work item: (start, stop, Estimates of its points).  ``job`` is given
+    when the worker may not have it yet (Dask); a pool's initializer installed it."""
+    from aobake.targets.base import SamplePoints
+
+    if job is not None and job.key not in _CACHE:
+        install(job)
+    job = _CACHE[item.key][0]
+    method = prepared(job)
+    points = SamplePoints(item.points, item.normals, item.ids, sizes=item.sizes)
+    with _kernels(job.compiled):
+        return item.start, item.stop, method.estimate(points, threads, chunk_rays)
+
+
+@contextlib.contextmanager
+def _kernels(compiled: bool):
+    """The parent's choice of kernels, on this thread."""
+    if compiled:
+        yield
+    else:
+        with _native.numpy_only():
+            yield

@@ -1,0 +1,92 @@
+"""The ray-traced method (``--method rays``): the reference every other method is scored by.
+
+Its parts: samplers (``aobake.samplers``: u in [0,1)^2 per point), warps (``aobake.warp``:
+u -> hemisphere direction and pdf), ray generation (``aobake.rays``), backends
+(``aobake.backends``, through the scene's occluders), quantities
+(``aobake.quantities``: estimate + stderr + interval), the tracer that drives them
+over chunks on threads (``aobake.trace``), ``--tolerance``'s two stages
+(``aobake.adaptive``) and ``refit`` (``aobake.refit``: kept distances re-estimated).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from aobake import adaptive
+from aobake.errors import InputError
+from aobake.estimates import Estimates
+from aobake.trace import Tracer
+
+#: the most bytes of kept ray distances a bake may hold (float32: 4 bytes per ray)
+MAX_KEPT_BYTES = 4 << 30
+
+
+class RaysMethod:
+    """Cosine- (or uniformly-) weighted hemisphere rays per point, with honest error bars."""
+
+    name = "rays"
+    casts_rays = True
+
+    def __init__(self, tracer: Tracer):
+        self.tracer = tracer
+        self.config = tracer.config
+
+    @classmethod
+    def prepare(cls, scene, config, occluders, rays_per_point: int,
+                compiled: bool | None = None) -> "RaysMethod":
+        """Once per scene: the sample set, ray generator and query, on ``occluders``.
+        compiled : use the compiled kernels (None: as this thread's ``_native.kernels()``)."""
+        return cls(Tracer(scene, config, occluders, rays=rays_per_point, compiled=compiled))
+
+    @property
+    def compiled(self) -> bool:
+        return self.tracer.kernels is not None
+
+    def check_points(self, n_points: int) -> None:
+        """Refuse --keep-distances up front when the distances would not fit."""
+        if not self.config.keep_distances:
+            return
+        rays = self.tracer.samples.rays
+        need = 4 * n_points * rays
+        if need > MAX_KEPT_BYTES:
+            raise InputError(f"keeping every ray's distance needs {need / 2**30:.1f} GiB "
+                             f"({n_points} points x {rays} rays x 4 bytes); the limit is "
+                             f"{MAX_KEPT_BYTES / 2**30:.0f} GiB: use fewer rays")
+
+    def estimate(self, points, threads: int, chunk_rays: int, progress=None) -> Estimates:
+        """points : ``SamplePoints`` (points, normals, ids, sizes) -> Estimates (fields,
+        rays (n,) int32, extras: ``ray_offset``, ``ray_distances``, with --tolerance
+        ``final_rays`` and ``capped``)."""
+        if self.config.tolerance is None:
+            return self.tracer.estimate(points.points, points.normals, points.ids, threads,
+                                        chunk_rays, progress, sizes=points.sizes)
+        return adaptive.estimate(self.tracer, points.points, points.normals, points.ids,
+                                 threads, chunk_rays, progress, points.sizes)
+
+    def record(self, estimates: Estimates) -> dict:
+        """The report's ``parameters`` (and ``tolerance``) from the merged estimates."""
+        traced = estimates.rays > 0
+        offsets = None
+        if traced.any():
+            used = estimates.extras["ray_offset"][traced]
+            offsets = (float(used.min()), float(np.median(used)), float(used.max()))
+        record = {"parameters": {"method": self.name, **self.tracer.parameters(offsets)}}
+        if self.config.tolerance is not None:
+            record["tolerance"] = adaptive.summary(self.tracer, estimates)
+        return record
+
+    def error_quantities(self) -> list:
+        """The quantities whose (value, stderr) the report's error summary covers."""
+        return self.tracer.quantities
+
+    def kernel_stages(self) -> dict:
+        return self.tracer.kernel_stages()
+
+    def kept(self, estimates: Estimates, mapping: np.ndarray) -> dict:
+        """--keep-distances: the NPZ's ``ray_distances`` (p, R m) float32 and ``ray_point``
+        (n,) int32 (the row of each result point)."""
+        if "ray_distances" not in estimates.extras:
+            return {}
+        distances = estimates.extras["ray_distances"]
+        return {"ray_distances": distances.reshape(len(distances), -1),
+                "ray_point": np.asarray(mapping, dtype=np.int32)}

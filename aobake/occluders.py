@@ -1,0 +1,122 @@
+"""The scene's occluders, built once per bake before any target samples.
+
+scene -> :class:`Occluders`: the local frame every backend works in (rebased on the
+per-axis median of the used vertices, scaled by a power of two so the scene spans
+[-1, 1]), the triangle backend, the optional ground plane and their union.  A target
+may cast primary rays through it (the camera target finds each pixel's first hit); a
+method traces its secondary rays through it.  Built from (scene, config) alone, so a
+worker process rebuilds exactly the same occluders from the same inputs.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from aobake.backends import BACKENDS
+from aobake.backends.plane import PlaneOccluder
+from aobake.backends.union import Union
+from aobake.config import AXES, OFFSET_ULPS
+from aobake.errors import InputError
+
+#: Embree's largest finite ray length (float32), in local units
+_FAR = np.float32(3.0e38)
+
+
+@dataclass
+class Occluders:
+    """What blocks rays, in the backend's local frame.
+
+    center : (3,) float64 the rebase point (scene units), scale : float a power of two
+    (local = (world - center) * scale), step : float local units a ray steps past a back
+    face (``--backfaces ignore``), diagonal : float the scene's bounding-box diagonal,
+    backend : the triangle backend (``BACKENDS[config.backend]``), union : backend plus
+    ground plane (``Union``), backend_name : str, ground : {"axis", "height"} | None.
+    """
+
+    center: np.ndarray
+    scale: float
+    step: float
+    diagonal: float
+    backend: object
+    union: Union
+    backend_name: str
+    ground: dict | None
+
+    def to_local(self, points: np.ndarray) -> np.ndarray:
+        """(n, 3) float64 scene units -> (n, 3) float64 local units."""
+        return (np.asarray(points, dtype=np.float64) - self.center) * self.scale
+
+    def trace(self, query: str, origins, directions, tmax):
+        """``Union.trace`` on local float32 rays: (occluded (n,) bool, distance | None)."""
+        return self.union.trace(query, origins, directions, tmax)
+
+    def first_hits(self, origins: np.ndarray, directions: np.ndarray):
+        """Nearest hit of rays given in scene units.
+
+        origins (n, 3) float64, directions (n, 3) float64 unit.  Returns (t (n,) float64
+        scene units, inf on a miss; prim (n,) int64 the triangle hit, -1 on a miss or where
+        the ground plane is nearer; ground (n,) bool the ground plane is the nearest hit).
+        The distance is Embree's float32 ``tfar`` converted exactly to scene units.
+        """
+        local = self.to_local(origins).astype(np.float32)
+        d32 = np.asarray(directions, dtype=np.float32)
+        t, prim = self.backend.intersect(local, d32, _FAR)
+        t = np.where(prim >= 0, t.astype(np.float64), np.inf)
+        prim = prim.astype(np.int64)
+        ground = np.zeros(len(t), dtype=bool)
+        if self.ground is not None:
+            plane = self.union.occluders[-1]
+            tp = plane.distance(local, d32, _FAR).astype(np.float64)
+            ground = tp < t
+            t = np.where(ground, tp, t)
+            prim = np.where(ground, -1, prim)
+        return t / self.scale, prim, ground
+
+    def record(self) -> dict:
+        """The report's parameters of the frame and occluders."""
+        params = {"backend": self.backend_name, "rebase_center": self.center.tolist(),
+                  "trace_scale": self.scale, "diagonal": self.diagonal}
+        if self.ground is not None:
+            params["ground_plane"] = dict(self.ground)
+        return params
+
+
+def check(scene) -> None:
+    """InputError for a scene nothing can be traced in (checked before any work)."""
+    if not math.isfinite(scene.diagonal) or scene.diagonal <= 0:
+        raise InputError(f"{scene.source}: scene has zero extent")
+
+
+def build(scene, config) -> Occluders:
+    """The occluders of ``scene`` under ``config`` (backend, ground_plane, up_axis)."""
+    check(scene)
+    lo, hi = scene.bounds
+    # The backend's frame: rebased on the per-axis median of the vertices (far-from-origin
+    # scenes; the median, not the bbox centre, so a stray far-away triangle does not move
+    # the bulk of the scene to large float32 coordinates, where its rays would need larger
+    # offsets) and scaled by a power of two so the scene spans [-1, 1] (tiny and huge
+    # scenes).  A power of two scales float32 values and spacings exactly, so this changes
+    # no bit at ordinary scales, and Embree's float32 arithmetic never under- or overflows.
+    center = np.median(scene.vertices[np.unique(scene.faces)], axis=0)
+    reach = float(np.maximum(np.abs(hi - center), np.abs(lo - center)).max())
+    scale = 2.0 ** -math.frexp(reach)[1]
+    # Stepping past a back face (--backfaces ignore): OFFSET_ULPS ulps of the scene's
+    # largest local coordinate, a length any point of the scene can resolve.
+    step = OFFSET_ULPS * float(np.spacing(np.float32(reach * scale)))
+    local = (scene.vertices - center) * scale
+    # Vertices no face uses never reach a ray; zero them so a far-off one cannot overflow
+    # the backend's float32 cast.
+    unused = np.ones(len(local), dtype=bool)
+    unused[scene.faces.ravel()] = False
+    local[unused] = 0.0
+    backend = BACKENDS[config.backend](local, scene.faces, scene.face_normals, step)
+    members, ground = [backend], None
+    if config.ground_plane:
+        axis = AXES.index(config.up_axis)
+        ground = {"axis": config.up_axis, "height": float(lo[axis])}
+        members.append(PlaneOccluder(axis, (ground["height"] - center[axis]) * scale))
+    return Occluders(center, scale, step, scene.diagonal, backend, Union(members),
+                     config.backend, ground)
