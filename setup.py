@@ -1,11 +1,11 @@
 """Build the optional compiled kernel; everything else is in pyproject.toml.
 
-``aobake._kernels`` (aobake/_kernels.c) moves the per-ray part of ray
-generation out of numpy, and the other per-sample loops (aobake/_pack.c: the atlas
-packer's).  It needs only a C compiler and Python's headers.  It
-is optional: if it cannot be built, the install still succeeds and aobake uses
-the numpy formulation, which gives bit-identical rays, only slower (the report
-records which one ran).
+``aobake._kernels`` moves the per-ray part of ray generation out of numpy, and the other
+per-sample loops: one C file per stage (aobake/_kernels.c lists them and holds the module's
+method table; aobake/_kernels.h what they share).  It needs only a C compiler and Python's
+headers.  It is optional: if it cannot be built, the install still succeeds and aobake uses
+the numpy formulation, which gives bit-identical results, only slower (the report records
+which one ran).
 """
 
 import sys
@@ -15,11 +15,14 @@ from setuptools import Extension, setup
 # -ffp-contract=off: no fused multiply-add, so the kernel rounds exactly like numpy.
 # -O3: the ray kernel's stage loops vectorise (measured 25 -> see docs/performance.md ns/ray).
 FLAGS = [] if sys.platform == "win32" else ["-O3", "-ffp-contract=off", "-fno-fast-math"]
+#: aobake._kernels's sources: the module's method table, then one file per stage
+KERNELS = ["_kernels", "_rays", "_counts", "_raster", "_surface", "_seams", "_sparse", "_post",
+           "_sort", "_pack"]
 
 setup(
     ext_modules=[
-        Extension("aobake._kernels", ["aobake/_kernels.c", "aobake/_pack.c"],
-                  depends=["aobake/_buffers.h"], extra_compile_args=FLAGS, optional=True),
+        Extension("aobake._kernels", [f"aobake/{name}.c" for name in KERNELS],
+                  depends=["aobake/_kernels.h"], extra_compile_args=FLAGS, optional=True),
         # xatlas's charting with speed patches (third_party/xatlas/README.md): the same
         # charts as the xatlas package, which stays the fallback.  Flags as that package's
         # release build; -pthread for xatlas's task scheduler; no fused multiply-adds, for the

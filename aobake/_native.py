@@ -1,4 +1,5 @@
-"""The compiled kernels (``aobake/_kernels.c``), loaded once, and which of them a bake ran.
+"""The compiled kernels (``aobake._kernels``: one C file per stage, listed in aobake/_kernels.c),
+loaded once, and which of them a bake ran.
 
 Each kernel has a numpy formulation that gives identical bits (tested); the
 kernel is only faster.  A stage asks :func:`kernels` once per bake and passes

@@ -1,9 +1,9 @@
-/* aobake._kernels, atlas packing: the hot loops of aobake.targets.texels.unwrap, compiled.
+/* aobake._kernels, atlas packing: the hot loops of aobake.targets.texels.packing, compiled.
  *
- * A fresh atlas is packed by aobake itself (unwrap._layout): at each trial scale every
- * chart's texels are marked (unwrap._chart_masks: a conservative rasterisation of its
+ * A fresh atlas is packed by aobake itself (packing._layout): at each trial scale every
+ * chart's texels are marked (packing._chart_masks: a conservative rasterisation of its
  * triangles, grown by `padding` rings) and the grown masks are laid into a strip
- * (unwrap._pack_in_order with unwrap._Packer: skyline drop over four quarter turns, hole
+ * (packing._pack_in_order with packing._Packer: skyline drop over four quarter turns, hole
  * search, exhaustive search, then the skyline / free-run / free-square updates).  In numpy
  * that is ~1.1 s CPU of the bunny's ~3.3 s unwrap at 1024^2 P2 (4 packs, one thread);
  * here ~0.15 s (marks ~9 ms per scale, a pack ~20 ms); the ogre's 826 charts at 1024^2 P8
@@ -17,7 +17,7 @@
  * at the largest square in its range (max(dy, .) >= dy changes nothing past it); the free
  * runs left of a placed chart are cut only where the cut is below HOLE_RUN.
  *
- * Exactness: the numpy formulations in unwrap.py are the reference and this file gives
+ * Exactness: the numpy formulations in packing.py are the reference and this file gives
  * the same bits (tests/test_pack_kernel.py).  The packer is integer arithmetic but for
  * its scores, y + the mean over a turn's marked columns of their one-past-last row, which
  * numpy computes as float64(sum) / count (every partial sum of the integer rows is exact
@@ -30,11 +30,10 @@
  * (a x + b y) + c >= 0 in float64, left to right (setup.py compiles with
  * -ffp-contract=off, so no multiply-add is fused).
  *
- * The packer's constants (HOLE_CAP, HOLE_RUN, HOLE_ROWS, MAX_SEARCHES) come from unwrap.py
- * as arguments, so there is one place that sets them.  Like _kernels.c, no numpy C API:
- * arrays arrive through the buffer protocol.
+ * The packer's constants (HOLE_CAP, HOLE_RUN, HOLE_ROWS, MAX_SEARCHES) come from packing.py
+ * as arguments, so there is one place that sets them.  No numpy C API (_kernels.h).
  */
-#include "_buffers.h"
+#include "_kernels.h"
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -61,11 +60,11 @@ static int check_offsets(const int64_t *offset, const int64_t *shape, Py_ssize_t
     return 0;
 }
 
-/* ---- chart marks (unwrap._chart_masks, unwrap._grow) ------------------------------------ */
+/* ---- chart marks (packing._chart_masks, packing._grow) -------------------------------- */
 
 /* Grow an (h, w) mask by `rings` 8-neighbour rings (a square of side 2 rings + 1) into
  * `out`, through `tmp` (h * w bytes): a boolean dilation, so any order of ORs gives the
- * same marks as unwrap._grow's shifted ORs.  A running count per window keeps it O(h w). */
+ * same marks as packing._grow's shifted ORs.  A running count per window keeps it O(h w). */
 static void grow(const uint8_t *m, Py_ssize_t h, Py_ssize_t w, Py_ssize_t rings,
                  uint8_t *tmp, uint8_t *out)
 {
@@ -102,7 +101,7 @@ static void grow(const uint8_t *m, Py_ssize_t h, Py_ssize_t w, Py_ssize_t rings,
     }
 }
 
-/* One triangle's marks, as unwrap._chart_masks computes them in numpy, operation for
+/* One triangle's marks, as packing._chart_masks computes them in numpy, operation for
  * operation: its corners p (3, 2) in the chart's frame (texel units, x right, y down),
  * the edges d_i = p_{i+1} - p_i (np.roll), twice the signed area, and per edge the
  * function a x + b y + c (positive inside) with c raised by its largest gain over a texel
@@ -139,7 +138,7 @@ static int edge_functions(const double p[3][2], double a[3], double b[3], double
 }
 
 /* chart_marks(xy, faces, face_chart, mask_offset, size, padding, out_covered, out_padded):
- * unwrap._chart_masks from the frame coordinates on.  xy (m, 2) float64: each vertex in
+ * packing._chart_masks from the frame coordinates on.  xy (m, 2) float64: each vertex in
  * its chart's frame; faces (f, 3) int64; face_chart (f,) int64; chart c's mask has
  * size[c] = (columns, rows) ((k, 2) int64) and sits at mask_offset[c] ((k + 1,) int64) in
  * the flat outputs (uint8 0/1): out_covered the texels its triangles meet, out_padded
@@ -249,7 +248,7 @@ done:
     return result;
 }
 
-/* ---- the packer (unwrap._Packer, unwrap._pack_in_order) --------------------------------- */
+/* ---- the packer (packing._Packer, packing._pack_in_order) ----------------------------- */
 
 typedef struct {
     Py_ssize_t width, height;
@@ -266,7 +265,7 @@ typedef struct {
 } Packer;
 
 /* One quarter turn of a chart's mask (np.rot90(mask, k)) as the skyline sees it: its
- * shape and column profile (unwrap._profiles): the marked columns, their first and
+ * shape and column profile (packing._profiles): the marked columns, their first and
  * one-past-last marked rows.  The turned mask itself is made only for the turn placed. */
 typedef struct {
     Py_ssize_t h, w;
@@ -541,7 +540,8 @@ static void place(Packer *p, const Turn *t, const uint8_t *turned, Py_ssize_t y,
 }
 
 /* pack_charts(masks, offsets, shapes, order, width, height, upright, hole_cap, hole_run,
- * hole_rows, max_searches, out_place[, state]) -> (fits, placed, used): unwrap._pack_in_order.
+ * hole_rows, max_searches, out_place[, state]) -> (fits, placed, used):
+ * packing._pack_in_order.
  * masks: the padded masks, flat uint8 (0/1), mask c at offsets[c] ((k + 1,) int64) with
  * shape shapes[c] = (rows, columns) ((k, 2) int64); order (n,) int64 chart indices;
  * out_place (k, 3) int64: per chart (row, column, quarter turns as np.rot90), (0, 0, 0)
@@ -549,7 +549,7 @@ static void place(Packer *p, const Turn *t, const uint8_t *turned, Py_ssize_t y,
  * (`height` when a chart found no room: fits is then False and out_place is partial).
  * state (for tests): None, or writable (occupied uint8 (H, W), sky int32 (W,), free_run
  * int16 (H + cap, W), square int16 (H, W), row_best int16 (H,)) that receive the packer's
- * final state, as unwrap._Packer's (square and row_best all -1 while not made). */
+ * final state, as packing._Packer's (square and row_best all -1 while not made). */
 PyObject *pack_charts(PyObject *self, PyObject *args)
 {
     Py_buffer bm, boff, bshape, border, bout, bst[5];

@@ -42,7 +42,7 @@ CHILD = textwrap.dedent("""
     sys.path.insert(0, sys.argv[1])
     from aobake.scene import load_scene
     from aobake.targets.texels.raster import rasterize
-    from aobake.targets.texels.unwrap import chart_texel_density
+    from aobake.targets.texels.charts import chart_texel_density
     mesh, resolution, padding, how, old = sys.argv[2], sys.argv[3], int(sys.argv[4]), sys.argv[5], sys.argv[6]
     scene = load_scene(mesh)
     W, H = (int(x) for x in (resolution.split("x") * 2)[:2])

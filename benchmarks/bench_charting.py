@@ -3,10 +3,10 @@ with speed patches), on the same meshes and parts, in one run.
 
     python benchmarks/bench_charting.py [--meshes spot,stanford-bunny,ogre] [--repeat 3]
 
-For each mesh (../shared/meshes), ``unwrap._xatlas_charts`` (the parts, xatlas's charting
+For each mesh (../shared/meshes), ``charts.chart_mesh`` (the parts, xatlas's charting
 and its cheap pack, the charts rescaled to their surface area) runs ``--repeat`` times, in
 turn: with the package, with aobake._xatlas placing the charts as the package does, and
-with aobake._xatlas leaving them unplaced (what aobake uses: ``unwrap.xatlas_charts``).  The
+with aobake._xatlas leaving them unplaced (what aobake uses: ``charts.xatlas_charts``).  The
 table gives the fastest run of each, the package's over the unplaced run, and whether the
 charts are the same: placed, the vertices, faces, UVs and charts of the package bit for
 bit; unplaced, the same vertices, faces and charts (its UVs differ by each chart's
@@ -29,19 +29,19 @@ SHARED = ROOT.parent / "shared" / "meshes"
 sys.path.insert(0, str(ROOT))
 
 from aobake.scene import load_scene  # noqa: E402
-from aobake.targets.texels import unwrap  # noqa: E402
+from aobake.targets.texels import charts as charting  # noqa: E402
 
 
 def _charts(vertices, faces, library, placed):
-    real = unwrap.xatlas_charts
-    unwrap.xatlas_charts = lambda meshes, area, tpu, library_=None, placed_=False: real(
+    real = charting.xatlas_charts
+    charting.xatlas_charts = lambda meshes, area, tpu, library_=None, placed_=False: real(
         meshes, area, tpu, library, placed)
     try:
         start = time.perf_counter()
-        result = unwrap._xatlas_charts(vertices, faces, unwrap.CHART_FACES)
+        result = charting.chart_mesh(vertices, faces, charting.CHART_FACES)
         seconds = time.perf_counter() - start
     finally:
-        unwrap.xatlas_charts = real
+        charting.xatlas_charts = real
 
     def digest(arrays):
         return hashlib.sha256(b"".join(np.ascontiguousarray(a).tobytes() for a in arrays)
@@ -56,7 +56,7 @@ def main() -> None:
     parser.add_argument("--meshes", default="spot,stanford-bunny,ogre")
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()
-    if unwrap.charting_library() != "aobake._xatlas":
+    if charting.charting_library() != "aobake._xatlas":
         sys.exit("aobake._xatlas was not built: nothing to compare")
     runs = {"package": ("xatlas", True), "placed": ("aobake._xatlas", True),
             "unplaced": ("aobake._xatlas", False)}

@@ -38,7 +38,8 @@ from aobake.post import dilate  # noqa: E402
 from aobake.scene import load_scene, make_scene  # noqa: E402
 from aobake.targets.texels.raster import rasterize  # noqa: E402
 from aobake.targets.texels.seams import bilinear  # noqa: E402
-from aobake.targets.texels.unwrap import connected_labels, unwrap  # noqa: E402
+from aobake.targets.texels.charts import connected_labels  # noqa: E402
+from aobake.targets.texels.unwrap import unwrap  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "meshes"

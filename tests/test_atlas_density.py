@@ -1,7 +1,7 @@
 """Dense new atlases: coverage, one texel density for every chart, exact padding.
 
 A new atlas is xatlas's charts, scaled to one texel density and packed by aobake
-(``aobake.targets.texels.unwrap._layout``).  Checked on generated meshes, against bounds
+(``aobake.targets.texels.packing._layout``).  Checked on generated meshes, against bounds
 derived for them and against xatlas's own packing of its default charts.
 """
 
@@ -18,9 +18,10 @@ import pytest
 import trimesh
 
 from aobake.bake import bake_texels
-from aobake.targets.texels import unwrap as unwrapping
+from aobake.targets.texels import charts, packing
 from aobake.targets.texels.raster import rasterize
-from aobake.targets.texels.unwrap import chart_texel_density, connected_labels, unwrap
+from aobake.targets.texels.charts import chart_texel_density, connected_labels
+from aobake.targets.texels.unwrap import unwrap
 from aobake.targets.texels.uvcheck import check_uvs
 
 
@@ -184,8 +185,8 @@ def test_coverage_never_below_xatlas_default_at_any_padding(atlases, name, res, 
 def test_chart_cap_grows_with_padding_and_shrinking_resolution():
     """The chart area cap is CHART_FACES at 1024^2, P = 2 (the default bake is charted as
     before) and never less; it follows (((P + 1/2) / 2.5)^2 (1024 / R)^2)^0.75 above."""
-    cap = unwrapping.chart_cap
-    assert cap(1024, 2) == unwrapping.CHART_FACES == cap(2048, 2) == cap(1024, 0)
+    cap = charts.chart_cap
+    assert cap(1024, 2) == charts.CHART_FACES == cap(2048, 2) == cap(1024, 0)
     assert cap(1024, 8) == pytest.approx(500 * (8.5 / 2.5) ** 1.5)
     assert cap(256, 2) == pytest.approx(500 * 16 ** 0.75)
     assert cap(512, 4) > cap(512, 2) > cap(1024, 2)
@@ -194,14 +195,14 @@ def test_chart_cap_grows_with_padding_and_shrinking_resolution():
 def test_pack_tiles_equal_squares_exactly():
     """16 equal 8 x 8 masks tile a 32 x 32 strip without a gap: the skyline drop fills rows."""
     masks = [np.ones((8, 8), bool) for _ in range(16)]
-    place, placed, used = unwrapping._pack(masks, 32, 32)
+    place, placed, used = packing._pack(masks, 32, 32)
     assert place is not None and placed == 32 * 32 and used == 32
     grid = np.zeros((32, 32), int)
     for y, x, k in place:
         grid[y:y + 8, x:x + 8] += 1
     assert np.all(grid == 1)
     # one more does not fit
-    place, _, _ = unwrapping._pack(masks + [np.ones((8, 8), bool)], 32, 32)
+    place, _, _ = packing._pack(masks + [np.ones((8, 8), bool)], 32, 32)
     assert place is None
 
 
@@ -210,7 +211,7 @@ def test_pack_fills_holes_with_small_charts():
     ring = np.ones((12, 12), bool)
     ring[3:9, 3:9] = False
     masks = [ring] * 4 + [np.ones((6, 6), bool)] * 4
-    place, _, used = unwrapping._pack(masks, 24, 24)
+    place, _, used = packing._pack(masks, 24, 24)
     assert place is not None and used == 24
     occupied = np.zeros((24, 24), int)
     for (y, x, k), m in zip(place, masks):
@@ -299,15 +300,15 @@ def test_charts_that_fill_the_image_with_padding_alone_get_one_texel_each():
                          [("torus", 256, 2), ("torus", 256, 1), ("box", 256, 2)])
 def test_the_better_of_the_two_layouts_is_kept(name, resolution, padding):
     """A new atlas lays out the charts as xatlas turned them and their mirror images
-    (``_better_layout``): it keeps the one that covers more texels, the first on a tie,
+    (``packing.better_layout``): it keeps the one that covers more texels, the first on a tie,
     whatever the threads' timing."""
     mesh = MESHES[name]()
-    vm, faces, uv, face_chart, _ = unwrapping._xatlas_charts(np.asarray(mesh.vertices),
-                                                             np.asarray(mesh.faces))
-    args = (faces, face_chart, resolution, padding, False, unwrapping._packing_kernels(None))
-    given = unwrapping._layout(uv, *args)
-    mirrored = unwrapping._layout(np.ascontiguousarray(uv[:, ::-1]), *args)
-    better = unwrapping._better_layout(uv, *args)
+    vm, faces, uv, face_chart, _ = charts.chart_mesh(np.asarray(mesh.vertices),
+                                                     np.asarray(mesh.faces))
+    args = (faces, face_chart, resolution, padding, False, packing.packing_kernels(None))
+    given = packing._layout(uv, *args)
+    mirrored = packing._layout(np.ascontiguousarray(uv[:, ::-1]), *args)
+    better = packing.better_layout(uv, *args)
     coverage = [layout[3]["coverage"] for layout in (given, mirrored)]
     assert better[3]["coverage"] == max(coverage)
     expected = mirrored if coverage[1] > coverage[0] else given

@@ -21,12 +21,13 @@ REPORT = "import json, sys, aobake; print(json.dumps([aobake.__file__, sys.argv[
 @pytest.fixture
 def shadowing_dir(tmp_path):
     """A directory holding another package named aobake, unusable as this one: each of its
-    modules on the unwrap's import path raises (the unwrap's child imports
-    ``aobake.targets.texels.unwrap`` without running the packages' ``__init__``)."""
+    modules on the unwrap's import path raises (the unwrap's child imports ``aobake.child``
+    and ``aobake.targets.texels.unwrap`` without running the packages' ``__init__``)."""
     fake = tmp_path / "aobake" / "targets" / "texels"
     fake.mkdir(parents=True)
-    for module in (fake.parent.parent / "__init__.py", fake.parent / "__init__.py",
-                   fake / "__init__.py", fake / "unwrap.py"):
+    for module in (fake.parent.parent / "__init__.py", fake.parent.parent / "child.py",
+                   fake.parent / "__init__.py", fake / "__init__.py", fake / "unwrap.py",
+                   fake / "charts.py", fake / "packing.py"):
         module.write_text("raise ImportError('the aobake of the current directory')\n")
     return tmp_path
 
@@ -69,12 +70,12 @@ def test_unwrap_from_a_directory_holding_another_aobake(shadowing_dir, monkeypat
     try:
         if prestarted:
             unwrapping.prestart()
-            assert unwrapping._prestarted is not None
+            assert child.waiting(unwrapping.WORKER) is not None
         try:
             result = unwrapping.unwrap(mesh.vertices, mesh.faces, 32, 1)
         except InputError as exc:
             pytest.fail(f"the child imported the wrong aobake: {exc}")
         assert result.charts > 0
-        assert unwrapping._prestarted is None  # taken (when prestarted) and gone
+        assert child.waiting(unwrapping.WORKER) is None  # taken (when prestarted) and gone
     finally:
         unwrapping.discard_prestarted()

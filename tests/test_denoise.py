@@ -172,7 +172,7 @@ def test_cli_writes_the_channels_to_exr(torus, tmp_path):
 def test_uv_soup_still_has_its_charts():
     # One vt per corner (no shared UV indices): charts come from UVs at the same place, so
     # a plane of 2 x 8 x 8 triangles is one chart, not 128.
-    from aobake.targets.texels.unwrap import uv_islands
+    from aobake.targets.texels.charts import uv_islands
 
     n = 8
     g = np.linspace(0, 1, n + 1)

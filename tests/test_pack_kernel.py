@@ -1,7 +1,7 @@
 """The compiled atlas packer (aobake/_pack.c) gives the numpy reference's atlas, bit for bit.
 
-``unwrap._chart_masks`` (the charts' texel marks, grown by the padding) and
-``unwrap._pack_in_order`` (the whole packing loop) each have a numpy formulation, the
+``packing._chart_masks`` (the charts' texel marks, grown by the padding) and
+``packing._pack_in_order`` (the whole packing loop) each have a numpy formulation, the
 reference, and a compiled one.  Checked here: the same masks, the same placements and
 turns, the same sequence of packs in the scale search, and bit-identical UVs, on charts of
 generated meshes (xatlas runs in a child process, as everywhere in the tests) and on random
@@ -23,7 +23,7 @@ import trimesh
 
 from aobake import _native
 from aobake.errors import InputError
-from aobake.targets.texels import unwrap
+from aobake.targets.texels import charts, packing, unwrap
 
 
 def _pieces(count=20, seed=3):
@@ -52,14 +52,14 @@ MESHES = {
 CHILD = textwrap.dedent("""
     import sys
     import numpy as np
-    from aobake.targets.texels import unwrap
+    from aobake.targets.texels import charts, unwrap
     src, dst = sys.argv[1], sys.argv[2]
     out = {}
     with np.load(src) as d:
         names = [str(n) for n in d["names"]]
         for name in names:
             v, f = d[name + "/v"], d[name + "/f"]
-            vm, faces, uv, fc, unit = unwrap._xatlas_charts(v, f)
+            vm, faces, uv, fc, unit = charts.chart_mesh(v, f)
             out.update({name + "/faces": faces, name + "/uv": uv, name + "/fc": fc})
         for i, (name, w, h, p, density) in enumerate(zip(d["atlas_mesh"], d["atlas_w"],
                                                           d["atlas_h"], d["atlas_p"],
@@ -130,12 +130,12 @@ def test_chart_masks_are_the_same(charted, kernel, name):
     a few texels per chart to many, for every padding."""
     uv, faces, fc = _charts(charted, name)
     n = int(fc.max()) + 1
-    area = float(unwrap._uv_face_areas(uv, faces).sum())
+    area = float(charts.uv_face_areas(uv, faces).sum())
     for padding in (0, 1, 2, 4, 8):
         for side in (7.0, 40.0, 150.0):  # the surface as a square of this many texels
             scale = side / np.sqrt(area)
-            reference = unwrap._chart_masks(uv, faces, fc, n, scale, padding)
-            got = unwrap._chart_masks(uv, faces, fc, n, scale, padding, kernel)
+            reference = packing._chart_masks(uv, faces, fc, n, scale, padding)
+            got = packing._chart_masks(uv, faces, fc, n, scale, padding, kernel)
             assert reference[0].tobytes() == got[0].tobytes()
             _same_masks(reference[1], got[1])
             _same_masks(reference[2], got[2])
@@ -144,14 +144,14 @@ def test_chart_masks_are_the_same(charted, kernel, name):
 def _spy_packs(monkeypatch):
     """Record every _pack's outcome (fits, texels placed, rows used) in a list."""
     packs = []
-    original = unwrap._pack
+    original = packing._pack
 
     def spy(padded, width, height, kernels=None):
         got = original(padded, width, height, kernels)
         packs.append((got[0] is not None, got[1], got[2]))
         return got
 
-    monkeypatch.setattr(unwrap, "_pack", spy)
+    monkeypatch.setattr(packing, "_pack", spy)
     return packs
 
 
@@ -179,7 +179,7 @@ def test_layouts_are_the_same(charted, kernel, monkeypatch, name):
     failures = 0
     for R, P in ((128, 2), (96, 0), (64, 4), (160, 8), (32, 1), (24, 2)):
         (reference, packs_ref), (got, packs_got) = _layout_both(
-            kernel, monkeypatch, unwrap._layout, uv, faces, fc, R, P, R == 64)
+            kernel, monkeypatch, packing._layout, uv, faces, fc, R, P, R == 64)
         assert packs_ref == packs_got, (R, P)
         failures += sum(not fits for fits, _, _ in packs_ref)
         if isinstance(reference, str):
@@ -199,10 +199,10 @@ def test_layouts_at_a_density_are_the_same(charted, kernel, monkeypatch, name):
     """``_layout_at_density`` (the strip grown until the charts fit): the same packs and
     the same atlas."""
     uv, faces, fc = _charts(charted, name)
-    area = float(unwrap._uv_face_areas(uv, faces).sum())
+    area = float(charts.uv_face_areas(uv, faces).sum())
     for side, P in ((30.0, 1), (90.0, 2), (50.0, 8)):
         (reference, packs_ref), (got, packs_got) = _layout_both(
-            kernel, monkeypatch, unwrap._layout_at_density, uv, faces, fc,
+            kernel, monkeypatch, packing.layout_at_density, uv, faces, fc,
             side / np.sqrt(area), P, False)
         assert packs_ref == packs_got
         assert reference[0].tobytes() == got[0].tobytes()
@@ -252,13 +252,13 @@ def _both_packs(kernel, masks, width, height, order, upright):
     """One pack by numpy and by the kernel: the same result, and the packers end in the
     same state (occupancy, skyline, free runs, free squares and whether they were made),
     so what is not decisive here cannot diverge later either."""
-    reference, packer = unwrap._pack_numpy(masks, width, height, order, upright)
+    reference, packer = packing._pack_numpy(masks, width, height, order, upright)
     state = (np.zeros((height, width), np.uint8), np.zeros(width, np.int32),
-             np.zeros((height + unwrap.HOLE_CAP, width), np.int16),
+             np.zeros((height + packing.HOLE_CAP, width), np.int16),
              np.zeros((height, width), np.int16), np.zeros(height, np.int16))
-    got = unwrap._pack_compiled(kernel, masks, width, height, order, upright, state)
+    got = packing._pack_compiled(kernel, masks, width, height, order, upright, state)
     assert reference == got, (width, height, upright)
-    assert unwrap._pack_in_order(masks, width, height, order, upright, kernel) == got
+    assert packing._pack_in_order(masks, width, height, order, upright, kernel) == got
     np.testing.assert_array_equal(state[0].view(bool), packer.occupied)
     np.testing.assert_array_equal(state[1], packer.sky)
     np.testing.assert_array_equal(state[2], packer.free_run)
@@ -275,12 +275,12 @@ def test_chart_masks_pack_the_same(charted, kernel, name):
     """The generated meshes' masks, in every order, in a roomy and a tight strip."""
     uv, faces, fc = _charts(charted, name)
     n = int(fc.max()) + 1
-    area = float(unwrap._uv_face_areas(uv, faces).sum())
+    area = float(charts.uv_face_areas(uv, faces).sum())
     for side, padding, strip in ((60.0, 2, 80), (75.0, 1, 80), (40.0, 4, 64)):
-        _, _, padded = unwrap._chart_masks(uv, faces, fc, n, side / np.sqrt(area), padding,
-                                           kernel)
-        for how, upright in unwrap.ORDERS:
-            _both_packs(kernel, padded, strip, strip, unwrap._order(padded, how), upright)
+        _, _, padded = packing._chart_masks(uv, faces, fc, n, side / np.sqrt(area), padding,
+                                            kernel)
+        for how, upright in packing.ORDERS:
+            _both_packs(kernel, padded, strip, strip, packing._order(padded, how), upright)
 
 
 def test_random_mask_sets_pack_the_same(kernel):
@@ -293,8 +293,8 @@ def test_random_mask_sets_pack_the_same(kernel):
         width = int(rng.integers(8, 120 if trial % 3 else 320))
         height = int(rng.integers(8, 160))
         masks = [_random_mask(rng, width) for _ in range(int(rng.integers(1, 25)))]
-        for how, upright in unwrap.ORDERS:
-            place, _, _ = _both_packs(kernel, masks, width, height, unwrap._order(masks, how),
+        for how, upright in packing.ORDERS:
+            place, _, _ = _both_packs(kernel, masks, width, height, packing._order(masks, how),
                                       upright)
             fits += place is not None
             fails += place is None
@@ -328,7 +328,7 @@ def test_small_charts_fill_holes_and_search_everywhere_the_same(kernel):
         small = [m if m.any() else np.ones((1, 1), bool) for m in small]
         masks = rings + small
         _both_packs(kernel, masks, width, height, np.arange(len(masks)), False)
-        _both_packs(kernel, masks, width, height, unwrap._order(masks, "texels"), True)
+        _both_packs(kernel, masks, width, height, packing._order(masks, "texels"), True)
 
 
 def test_exhaustive_search_limit_is_the_same(kernel):
@@ -345,7 +345,7 @@ def test_exhaustive_search_limit_is_the_same(kernel):
     masks = [frame] + [np.ones((40, 40), bool)] * 30
     place, placed, used = _both_packs(kernel, masks, 252, 252, np.arange(len(masks)), False)
     assert place is None and used == 252
-    assert placed == int(frame.sum()) + unwrap.MAX_SEARCHES * 1600
+    assert placed == int(frame.sum()) + packing.MAX_SEARCHES * 1600
 
 
 def test_hole_search_stops_after_hole_rows(kernel):
@@ -354,7 +354,7 @@ def test_hole_search_stops_after_hole_rows(kernel):
     either way up; a pocket that holds it lies below them, so the chart drops onto the
     skyline instead.  (A packer trying one row more would take the pocket.)"""
     comb = np.ones((280, 40), bool)
-    for i in range(unwrap.HOLE_ROWS // 2):  # 2 rows per pocket with a free 6 x 6 square
+    for i in range(packing.HOLE_ROWS // 2):  # 2 rows per pocket with a free 6 x 6 square
         comb[1 + 8 * i:8 + 8 * i, 2:9] = False
     comb[265:272, 20:29] = False  # 9 wide, 7 tall: holds the chart lying down
     chart = np.ones((6, 8), bool)
@@ -371,8 +371,8 @@ def test_pack_keeps_the_fewest_rows_the_same(kernel):
     for trial in range(10):
         width = int(rng.integers(16, 80))
         masks = [_random_mask(rng, width) for _ in range(int(rng.integers(1, 12)))]
-        assert unwrap._pack(masks, width, 3 * width) == unwrap._pack(masks, width, 3 * width,
-                                                                       kernel)
+        assert packing._pack(masks, width, 3 * width) == packing._pack(masks, width, 3 * width,
+                                                                         kernel)
 
 
 def test_pack_kernel_refuses_bad_buffers(kernel):
@@ -380,7 +380,7 @@ def test_pack_kernel_refuses_bad_buffers(kernel):
     masks = np.ones(12, np.uint8)
     offsets, shapes = np.array([0, 12], np.int64), np.array([[3, 4]], np.int64)
     out = np.zeros((1, 3), np.int64)
-    constants = (unwrap.HOLE_CAP, unwrap.HOLE_RUN, unwrap.HOLE_ROWS, unwrap.MAX_SEARCHES)
+    constants = (packing.HOLE_CAP, packing.HOLE_RUN, packing.HOLE_ROWS, packing.MAX_SEARCHES)
     assert kernel.pack_charts(masks, offsets, shapes, np.array([0]), 8, 8, False, *constants,
                               out) == (True, 12, 3)
     with pytest.raises(ValueError, match="order"):

@@ -17,7 +17,8 @@ import trimesh
 from aobake.bake import bake_texels
 from aobake.config import BakeConfig
 from aobake.errors import InputError
-from aobake.targets.texels.unwrap import chart_texel_density, unwrap
+from aobake.targets.texels.charts import chart_texel_density
+from aobake.targets.texels.unwrap import unwrap
 from conftest import run_cli
 
 

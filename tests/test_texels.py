@@ -13,9 +13,11 @@ from scipy.spatial import Delaunay
 
 from aobake import post, tangents
 from aobake.errors import InputError
+from aobake import child as children
+from aobake.targets.texels import charts
 from aobake.targets.texels import raster as texels
 from aobake.targets.texels import unwrap as unwrapping
-from aobake.targets.texels.gather import splat, splat_count
+from aobake.targets.texels.splat import splat, splat_count
 from aobake.targets.texels.raster import rasterize
 from aobake.targets.texels.surface import surface_points
 from aobake.targets.texels.uvcheck import check_uvs
@@ -315,13 +317,13 @@ def test_unwrap_into_a_non_square_image():
 
 
 def test_unwrap_large_mesh_in_parts():
-    """Above unwrap.PART_FACES triangles the mesh is charted in spatial parts with capped
+    """Above charts.PART_FACES triangles the mesh is charted in spatial parts with capped
     chart areas: still one valid, padded, deterministic atlas that uses the image."""
     mesh = trimesh.creation.torus(major_radius=1.0, minor_radius=0.35, major_sections=180,
                                   minor_sections=130)
     rng = np.random.default_rng(5)
     vertices = mesh.vertices + rng.normal(scale=2e-3, size=mesh.vertices.shape)  # not too regular
-    assert len(mesh.faces) > 2 * unwrapping.PART_FACES
+    assert len(mesh.faces) > 2 * charts.PART_FACES
     res, pad = 512, 2
     un = unwrap(vertices, mesh.faces, res, pad)
     s = assert_valid_atlas(vertices, mesh.faces, un, res, pad)
@@ -382,8 +384,14 @@ def test_unwrap_is_deterministic():
         np.testing.assert_array_equal(x, y)
 
 
+def _stand_in(monkeypatch, **code):
+    """The unwrap's child code swapped for a stand-in: ``code`` (a new child's) and/or
+    ``warm`` (a prestarted child's)."""
+    monkeypatch.setattr(unwrapping, "WORKER", unwrapping.WORKER._replace(**code))
+
+
 def test_unwrap_timeout_retries_then_fails(monkeypatch):
-    monkeypatch.setattr(unwrapping, "_WORKER_CODE", "import time; time.sleep(30)")
+    _stand_in(monkeypatch, code="import time; time.sleep(30)")
     monkeypatch.setattr(unwrapping, "XATLAS_TIMEOUT_BASE_S", 0.5)
     monkeypatch.setattr(unwrapping, "XATLAS_TIMEOUT_PER_FACE_S", 0.0)
     mesh = trimesh.creation.box()
@@ -392,7 +400,7 @@ def test_unwrap_timeout_retries_then_fails(monkeypatch):
 
 
 def test_unwrap_crash_becomes_input_error(monkeypatch):
-    monkeypatch.setattr(unwrapping, "_WORKER_CODE", "import os, signal; os.kill(os.getpid(), signal.SIGSEGV)")
+    _stand_in(monkeypatch, code="import os, signal; os.kill(os.getpid(), signal.SIGSEGV)")
     mesh = trimesh.creation.box()
     with pytest.raises(InputError, match="SIGSEGV"):
         unwrap(mesh.vertices, mesh.faces, 32, 1)
@@ -404,10 +412,10 @@ def test_prestarted_child_takes_the_unwrap():
     mesh = trimesh.creation.box()
     fresh = unwrap(mesh.vertices, mesh.faces, 64, 1)
     unwrapping.prestart()
-    child = unwrapping._prestarted
+    child = children.waiting(unwrapping.WORKER)
     assert child is not None and child.poll() is None
     warm = unwrap(mesh.vertices, mesh.faces, 64, 1)
-    assert unwrapping._prestarted is None and child.poll() is not None
+    assert children.waiting(unwrapping.WORKER) is None and child.poll() is not None
     assert warm.uv.tobytes() == fresh.uv.tobytes() and (warm.faces == fresh.faces).all()
 
 
@@ -416,22 +424,22 @@ def test_prestarted_child_discarded_or_failing(monkeypatch):
     job to a new one (its failure says nothing about the mesh), and when that one crashes
     too, the crash is reported; an exception while the child works ends it."""
     unwrapping.prestart()
-    child = unwrapping._prestarted
+    child = children.waiting(unwrapping.WORKER)
     unwrapping.discard_prestarted()
-    assert child.poll() is not None and unwrapping._prestarted is None
+    assert child.poll() is not None and children.waiting(unwrapping.WORKER) is None
     unwrapping.discard_prestarted()  # nothing to end: no error
     mesh = trimesh.creation.box()
     crash = "import os, signal, sys; sys.stdin.readline(); os.kill(os.getpid(), signal.SIGSEGV)"
-    monkeypatch.setattr(unwrapping, "_WARM_CODE", crash)  # crashes once given its job
+    _stand_in(monkeypatch, warm=crash)  # crashes once given its job
     unwrapping.prestart()
     assert unwrap(mesh.vertices, mesh.faces, 32, 1).charts > 0  # a new child did it
-    monkeypatch.setattr(unwrapping, "_WORKER_CODE", "import os, signal; os.kill(os.getpid(), signal.SIGSEGV)")
+    _stand_in(monkeypatch, code="import os, signal; os.kill(os.getpid(), signal.SIGSEGV)")
     unwrapping.prestart()
     with pytest.raises(InputError, match="SIGSEGV"):
         unwrap(mesh.vertices, mesh.faces, 32, 1)
-    monkeypatch.setattr(unwrapping, "_WARM_CODE", "import sys, time; sys.stdin.readline(); time.sleep(60)")
+    _stand_in(monkeypatch, warm="import sys, time; sys.stdin.readline(); time.sleep(60)")
     unwrapping.prestart()
-    child = unwrapping._prestarted
+    child = children.waiting(unwrapping.WORKER)
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from aobake.targets.texels import unwrap
+from aobake.targets.texels import charts
 
-built = pytest.mark.skipif(unwrap.charting_library() != "aobake._xatlas",
+built = pytest.mark.skipif(charts.charting_library() != "aobake._xatlas",
                            reason="aobake._xatlas was not built (needs a C++ compiler)")
 
 
@@ -46,26 +46,26 @@ def each_mesh(test):
 
 @each_mesh
 def test_built_xatlas_charts_exactly_like_the_package(meshes, cap):
-    ours = unwrap.xatlas_charts(meshes, cap, 4.0, library="aobake._xatlas", placed=True)
-    theirs = unwrap.xatlas_charts(meshes, cap, 4.0, library="xatlas")
+    ours = charts.xatlas_charts(meshes, cap, 4.0, library="aobake._xatlas", placed=True)
+    theirs = charts.xatlas_charts(meshes, cap, 4.0, library="xatlas")
     assert ours[:2] == theirs[:2]
     assert len(ours[2]) == len(theirs[2]) == len(meshes)
-    charts = 0
+    n_charts = 0
     for (vm, fi, uv), (vm2, fi2, uv2), (_, faces) in zip(ours[2], theirs[2], meshes):
         assert vm.dtype == vm2.dtype and fi.dtype == fi2.dtype and uv.dtype == uv2.dtype
         np.testing.assert_array_equal(vm, vm2)
         np.testing.assert_array_equal(fi, fi2)
         np.testing.assert_array_equal(uv.view(np.uint32), uv2.view(np.uint32))  # bits
         assert fi.shape == faces.shape
-        charts += unwrap.connected_labels(len(vm), fi.astype(np.int64)).max() + 1
-    assert charts > 10  # a real charting, not one chart per mesh
+        n_charts += charts.connected_labels(len(vm), fi.astype(np.int64)).max() + 1
+    assert n_charts > 10  # a real charting, not one chart per mesh
 
 
 def _placement_errors(placed, unplaced, faces):
     """Per chart of ``faces`` (m, 3) int64: the largest deviation of ``placed`` (k, 2)
     float64 texels from ``unplaced`` (k, 2) (or it with its axes swapped, whichever fits)
     plus one whole-texel translation."""
-    chart = unwrap.connected_labels(len(placed), faces)
+    chart = charts.connected_labels(len(placed), faces)
     vertex_chart = np.full(len(placed), -1)
     vertex_chart[faces.reshape(-1)] = np.repeat(chart, 3)
     out = []
@@ -81,8 +81,8 @@ def _placement_errors(placed, unplaced, faces):
 
 @each_mesh
 def test_unplaced_charts_are_the_placed_ones_translated(meshes, cap):
-    placed = unwrap.xatlas_charts(meshes, cap, 4.0, library="aobake._xatlas", placed=True)
-    unplaced = unwrap.xatlas_charts(meshes, cap, 4.0, library="aobake._xatlas")
+    placed = charts.xatlas_charts(meshes, cap, 4.0, library="aobake._xatlas", placed=True)
+    unplaced = charts.xatlas_charts(meshes, cap, 4.0, library="aobake._xatlas")
     width, height = placed[:2]
     assert unplaced[:2] == (1, 1) and width > 1 and height > 1
     # The placed UVs are float32(float32(x + t) / W) (xatlas's sum, the binding's division),
@@ -104,7 +104,7 @@ def test_built_xatlas_rejects_what_the_package_rejects():
     bad[0, 0] = len(v) + 5  # an index out of range
     for library in ("aobake._xatlas", "xatlas"):
         with pytest.raises((ValueError, RuntimeError), match="Adding mesh failed"):
-            unwrap.xatlas_charts([(v, bad)], 0.0, 4.0, library=library)
+            charts.xatlas_charts([(v, bad)], 0.0, 4.0, library=library)
     from aobake import _xatlas
 
     with pytest.raises(ValueError, match="expected"):

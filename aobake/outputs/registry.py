@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Callable
 
 from aobake.errors import OutputError
+from aobake.outputs.texture import write_texture
 from aobake.quantities import FIELDS
 
 
@@ -64,8 +65,6 @@ def _vertex(module_name: str):
 
 
 def _texture(path, result, metadata, options):
-    from aobake.outputs.texture import write_texture
-
     write_texture(path, result, metadata, half=options.half, bit_depth=options.bit_depth,
                   r_only=options.r_only)
 

@@ -78,10 +78,8 @@ def write_texture(path, result, metadata: dict, *, half=False, bit_depth=8, r_on
     elif suffix == ".glb":
         _write_glb(path, result, _map(result)[0], metadata)
     else:
-        from aobake.outputs.registry import suffixes
-
         raise OutputError(f"{path}: unsupported lightmap format {suffix!r}; "
-                          f"use one of {', '.join(suffixes('texels'))}")
+                          f"use one of {', '.join(('.exr', *image.LDR_SUFFIXES, '.glb'))}")
 
 
 def write_atlas_mesh(path, result, metadata: dict) -> None:

@@ -20,6 +20,8 @@ from aobake.results import TexelResult
 from aobake.samplers import sample_set
 from aobake.targets.base import Finished, SamplePoints
 from aobake.targets.texels.atlas import check_texture_budget, make_atlas, split_corners
+from aobake.targets.texels.charts import chart_texel_density
+from aobake.targets.texels.denoise import CREASE_ANGLE, RANGE_K, SIGMA_TEXELS
 from aobake.targets.texels.gather import channels as gather_channels
 from aobake.targets.texels.seams import SeamMesh
 from aobake.targets.texels.surface import surface_points
@@ -151,12 +153,9 @@ def _denoise_stats(images, covered, quantities) -> dict:
     """What ``--denoise`` did: its parameters and, per scalar quantity, the mean stderr
     over the covered texels before and after (the noise left; the bias it adds is measured
     in benchmarks/bench_denoise.py, docs/lightmaps.md)."""
-    from aobake.targets.texels import denoise
-
     stats = {"method": "joint bilateral on the surface (same chart, world distance, "
                        "normals, value step in noise units)",
-             "sigma_texels": denoise.SIGMA_TEXELS, "crease_angle": denoise.CREASE_ANGLE,
-             "range_k": denoise.RANGE_K}
+             "sigma_texels": SIGMA_TEXELS, "crease_angle": CREASE_ANGLE, "range_k": RANGE_K}
     for q in quantities:
         if q.texel == "direction" or not covered.any():
             continue
@@ -172,8 +171,6 @@ def _chart_density(scene, uv, faces_uv, width, height):
     """Texel density of the UV islands (charts): sqrt(an island's UV area in texels / its
     surface area), texels per scene unit; 5th, 50th and 95th percentile over the islands
     and ``spread`` = p95 / p5 (1 = every chart at the same density)."""
-    from aobake.targets.texels.unwrap import chart_texel_density
-
     density = chart_texel_density(uv, faces_uv, scene.vertices, scene.faces, width, height)
     if not len(density):
         return None

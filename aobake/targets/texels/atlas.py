@@ -13,13 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from aobake.errors import InputError
+from aobake.targets.texels.packing import MAX_RESOLUTION
 from aobake.targets.texels.raster import rasterize
 from aobake.targets.texels.unwrap import discard_prestarted
 from aobake.targets.texels.unwrap import unwrap as xatlas_unwrap
 from aobake.targets.texels.uvcheck import check_uvs, wrap_uvs
 
-#: largest image side accepted
-MAX_RESOLUTION = 16384
 #: rough bytes held per texel sample (sample record, point, normal, estimates): for the memory check
 _BYTES_PER_SAMPLE = 320
 

@@ -35,6 +35,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from aobake.targets.texels.charts import uv_islands
+from aobake.targets.texels.splat import splat
+from aobake.vectors import normalize
+
 #: spatial kernel sigma in texels (the window reaches 2 sigma)
 SIGMA_TEXELS = 2.0
 #: normals further apart than this (degrees) never mix: the crease a filter must not cross
@@ -144,7 +148,7 @@ def _filter(a, s2, guide, reach, sigma_world, cos_crease, rank):
 
 def texel_charts(samples, face_chart) -> np.ndarray:
     """(H, W) int64 UV island of each covered texel (the smallest among its samples' faces;
-    -1 elsewhere).  samples : ``TexelSamples``, face_chart : (f,) int64 (``unwrap.uv_islands``)."""
+    -1 elsewhere).  samples : ``TexelSamples``, face_chart : (f,) int64 (``charts.uv_islands``)."""
     n = samples.width * samples.height
     chart = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
     np.minimum.at(chart, samples.texel, face_chart[samples.face])
@@ -157,10 +161,6 @@ def make_guide(samples, points, normals, uv, faces_uv, face_area, covered, rays)
     normals (s, 3) float64 their positions and unit shading normals, uv (t, 2) and
     faces_uv (f, 3) the bake UVs, face_area (f,) float64 surface areas, covered (H, W)
     bool, rays (H, W) float64."""
-    from aobake.targets.texels.gather import splat
-    from aobake.targets.texels.unwrap import uv_islands
-    from aobake.vectors import normalize
-
     position = splat(samples, points)
     normal = normalize(splat(samples, normals))[0]
     face_chart = uv_islands(uv, faces_uv)

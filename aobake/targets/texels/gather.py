@@ -13,65 +13,17 @@ agree across the seams (``aobake.targets.texels.seams``).
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 
 import numpy as np
 
 from aobake import stats
 from aobake.post import dilate, push_pull
+from aobake.targets.texels.denoise import denoise as filter_texels
+from aobake.targets.texels.denoise import make_guide
 from aobake.targets.texels.raster import TexelSamples
+from aobake.targets.texels.seams import Pending, SeamChannel, erase_seams
+from aobake.targets.texels.splat import splat, subset, texel_counts
 from aobake.vectors import normalize
-
-
-def splat_count(samples: TexelSamples, width: int | None = None, height: int | None = None) -> np.ndarray:
-    """(height, width) int64 number of samples in each texel."""
-    width, height = _size(samples, width, height)
-    return np.bincount(samples.texel, minlength=width * height).reshape(height, width)
-
-
-def splat(samples: TexelSamples, values, width: int | None = None, height: int | None = None) -> np.ndarray:
-    """Average per-sample values into texels.
-
-    values : (s,) or (s, c) float.  Returns (height, width, c) float64, the mean
-    of the samples in each texel (c = 1 for 1-D values); texels without samples
-    are 0 (use ``splat_count`` or ``samples.coverage`` as the mask).
-    """
-    width, height = _size(samples, width, height)
-    values = np.asarray(values, dtype=np.float64)
-    if values.ndim == 1:
-        values = values[:, None]
-    if values.ndim != 2 or values.shape[0] != samples.n_samples:
-        raise ValueError(f"values must be ({samples.n_samples},) or ({samples.n_samples}, c), got {values.shape}")
-    n = width * height
-    count = np.bincount(samples.texel, minlength=n).astype(np.float64)
-    out = np.empty((n, values.shape[1]))
-    for ch in range(values.shape[1]):
-        out[:, ch] = np.bincount(samples.texel, weights=values[:, ch], minlength=n)
-    np.divide(out, count[:, None], out=out, where=count[:, None] > 0)
-    return out.reshape(height, width, values.shape[1])
-
-
-def _size(samples: TexelSamples, width, height) -> tuple[int, int]:
-    width = samples.width if width is None else int(width)
-    height = samples.height if height is None else int(height)
-    if (width, height) != (samples.width, samples.height):
-        raise ValueError(
-            f"size {width}x{height} does not match the samples' {samples.width}x{samples.height}"
-        )
-    return width, height
-
-
-def subset(samples: TexelSamples, keep: np.ndarray) -> TexelSamples:
-    """The samples where ``keep`` (s,) bool is True (coverage and sharing unchanged)."""
-    return replace(samples, texel=samples.texel[keep], face=samples.face[keep],
-                   bary=samples.bary[keep], sample=samples.sample[keep],
-                   is_fallback=samples.is_fallback[keep])
-
-
-def texel_counts(samples: TexelSamples) -> np.ndarray:
-    """(H, W) int64 the samples in each texel."""
-    return np.bincount(samples.texel, minlength=samples.width * samples.height).reshape(
-        samples.height, samples.width)
 
 
 def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, padding: int,
@@ -114,8 +66,6 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
     covered = count > 0
     pending_system = None
     if seams is not None:
-        from aobake.targets.texels.seams import Pending
-
         # the pattern, its last step, on the bake's threads: the splatting is over by then
         pending_system = Pending(seams, covered, padding, threads)
     rays_img = np.bincount(sub.texel, weights=rays[traced].astype(np.float64),
@@ -155,8 +105,6 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
                                                   count, dof, confidence)
             out[q.interval[0].exr[0]], out[q.interval[1].exr[0]] = low, high
             intervals.append((q, n, dof_t))
-    from aobake.targets.texels.seams import SeamChannel
-
     erase = [SeamChannel.of(q) for q in quantities]
     if denoise is not None:
         clock = time.perf_counter()
@@ -169,8 +117,6 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
             timings["denoise_s"] = time.perf_counter() - clock
     erased = None
     if seams is not None:
-        from aobake.targets.texels.seams import erase_seams
-
         clock = time.perf_counter()
         prepared = pending_system.take()
         erased = erase_seams(out, erase, seams, covered, padding,
@@ -213,9 +159,6 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
 def _denoised(out, quantities, sub, traced, covered, rays_img, denoise) -> list:
     """Add the denoised channels of the scalar quantities to ``out``; their names, value
     then stderr for each quantity."""
-    from aobake.targets.texels.denoise import denoise as filter_texels
-    from aobake.targets.texels.denoise import make_guide
-
     points, normals, uv, faces_uv, face_area = denoise
     guide = make_guide(sub, points[traced], normals[traced], uv, faces_uv, face_area, covered,
                        rays_img)

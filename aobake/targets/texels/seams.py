@@ -32,9 +32,9 @@ such piece integrates (L_A - L_B)^2 exactly.  The normal equations (sparse, symm
 positive definite, over the covered texels the seams read) are assembled once as a CSR
 matrix (``seam_pattern``, made with the system, then ``seam_values``: each
 group of points' 8 x 8 block, read through the dilation into the covered unknowns) and
-solved by Jacobi-preconditioned conjugate gradients on it
-(``seam_csr_cg``), both in aobake/_kernels.c, or in numpy with the same operations in the
-same order (``_assemble_numpy``, ``_cg_numpy``: the same bits).  Bunny 1024^2 on 2 threads:
+solved by Jacobi-preconditioned conjugate gradients on it (``aobake.sparse.cg``), both
+compiled (aobake/_seams.c, aobake/_sparse.c), or in numpy with the same operations in the
+same order (``_assemble_numpy``, ``sparse.cg_numpy``: the same bits).  Bunny 1024^2 on 2 threads:
 the pattern ~0.12 s (on the seam system's thread), the values ~0.16 s, 130 iterations
 ~0.3 s (2.6 ms each); applying the operator as the points
 every iteration (the fill, the points' differences, their sums per group, their scatter and
@@ -67,11 +67,10 @@ import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import NamedTuple
-
 import numpy as np
 
 from aobake import _native
+from aobake.sparse import Csr, cg
 from aobake.vectors import distinct, weld
 
 log = logging.getLogger(__name__)
@@ -482,13 +481,7 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
         before.append(s.differences(b))
         bc = np.ascontiguousarray(b[covered])
         rhs = w[covered] * bc
-        if kernels is not None:
-            xc = np.empty_like(bc)
-            it, left = kernels.seam_csr_cg(matrix.indptr, matrix.indices, matrix.data, diag,
-                                           rhs, bc, xc, float(tolerance), int(max_iterations),
-                                           int(threads))
-        else:
-            xc, it, left = _cg_numpy(matrix, diag, rhs, bc, tolerance, max_iterations)
+        xc, it, left = cg(matrix, diag, rhs, bc, tolerance, max_iterations, kernels, threads)
         x = np.zeros_like(b)
         x[covered] = xc
         info["iterations"] = max(info["iterations"], it)
@@ -521,30 +514,16 @@ def system_pattern(system: SeamSystem, kernels, threads: int = 1) -> tuple:
     return np.frombuffer(indptr, np.int64), np.frombuffer(indices, np.int32)
 
 
-class Csr(NamedTuple):
-    """The solve's normal matrix A = W + P^T S P over the covered unknowns (numbered in
-    texel order, gutter ones skipped): indptr (n + 1,) int64, indices (nnz,) int32
-    ascending in each row, every diagonal stored, data (nnz,) float64."""
-
-    indptr: np.ndarray
-    indices: np.ndarray
-    data: np.ndarray
-
-    def diagonal(self) -> np.ndarray:
-        rows = np.repeat(np.arange(len(self.indptr) - 1), np.diff(self.indptr))
-        return np.ascontiguousarray(self.data[rows == self.indices])
-
-
-# The solve's arithmetic is written so that the compiled kernel can repeat it operation for
+# The assembly is written so that the compiled kernel can repeat it operation for
 # operation: element-wise steps, and every sum in a fixed order (bincount adds in index
-# order from 0.0; a dot product is a cumsum), never einsum or BLAS, whose order of
-# summation depends on the CPU.
+# order from 0.0), never einsum or BLAS, whose order of summation depends on the CPU.
 
 
 def _assemble_numpy(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_weight, w
                     ) -> Csr:
-    """A = W + P^T S P as ``Csr``: the arithmetic of ``seam_pattern`` and ``seam_values``
-    (aobake/_kernels.c).
+    """The solve's normal matrix A = W + P^T S P over the covered unknowns (numbered in
+    texel order, gutter ones skipped) as ``Csr``, every diagonal stored: the arithmetic of
+    ``seam_pattern`` and ``seam_values`` (aobake/_seams.c).
 
     S P: each group g's 8 x 8 block, the sum over its points p in order of (lam_p c_pk) c_pl,
     read through the map of each slot's texel t (t itself with weight 1 when covered, else
@@ -601,54 +580,6 @@ def _assemble_numpy(coef, lam, starts, slots, gutter, fill_to, fill_from, fill_w
     indptr = np.zeros(nc + 1, dtype=np.int64)
     np.cumsum(np.bincount(row, minlength=nc), out=indptr[1:])
     return Csr(indptr, col.astype(np.int32), data)
-
-
-def _csr_apply(matrix: Csr, x: np.ndarray, ranks: list) -> np.ndarray:
-    """(n,) A x, each row summed in column order from 0.0 (the kernel's order): ``ranks``
-    from ``_ranks``."""
-    out = np.zeros(len(matrix.indptr) - 1)
-    for rows, at in ranks:
-        out[rows] += matrix.data[at] * x[matrix.indices[at]]
-    return out
-
-
-def _ranks(matrix: Csr) -> list:
-    """Per rank r, (the rows with more than r entries, the position of their r-th)."""
-    length = np.diff(matrix.indptr)
-    out = []
-    for r in range(int(length.max(initial=0))):
-        rows = np.nonzero(length > r)[0]
-        out.append((rows, matrix.indptr[rows] + r))
-    return out
-
-
-def _dot(a: np.ndarray, b: np.ndarray) -> float:
-    """a . b summed in index order (the kernel's order)."""
-    return float(np.cumsum(a * b)[-1]) if len(a) else 0.0
-
-
-def _cg_numpy(matrix: Csr, diag, rhs, b, tolerance, max_iterations
-              ) -> tuple[np.ndarray, int, float]:
-    """Jacobi-preconditioned conjugate gradients on A x = rhs from x = b, until
-    max |r / diag| <= tolerance (value units) or max_iterations: (x (n,), iterations, the
-    last max |r / diag|)."""
-    ranks = _ranks(matrix)
-    x = b.copy()
-    r = rhs - _csr_apply(matrix, x, ranks)  # minus the seam term's gradient at the bake
-    z = r / diag
-    p = z.copy()
-    rz = _dot(r, z)
-    it = 0
-    while np.max(np.abs(z), initial=0.0) > tolerance and it < max_iterations:
-        q = _csr_apply(matrix, p, ranks)
-        alpha = rz / _dot(p, q)
-        x += alpha * p
-        r -= alpha * q
-        z = r / diag
-        rz, rz_old = _dot(r, z), rz
-        p = z + (rz / rz_old) * p
-        it += 1
-    return x, it, float(np.max(np.abs(z), initial=0.0))
 
 
 # --- the lightmap's channels -----------------------------------------------------------

@@ -1,0 +1,63 @@
+/* aobake._kernels: what its C files share.  One extension module, one C file per stage,
+ * each mirroring the Python module whose numpy formulation is its reference (the file's
+ * own comment says which); _kernels.c holds the module's method table.
+ *
+ * No numpy C API: arrays arrive through the buffer protocol, so the build needs only a C
+ * compiler and Python's headers.  setup.py compiles every file with -ffp-contract=off, so
+ * no multiply-add is fused (numpy never fuses).
+ */
+#ifndef AOBAKE_KERNELS_H
+#define AOBAKE_KERNELS_H
+
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <stdint.h>
+
+/* Check a buffer: C-contiguous, given item size, exactly `count` items. */
+static inline int check(Py_buffer *b, const char *name, Py_ssize_t itemsize, Py_ssize_t count)
+{
+    if (!PyBuffer_IsContiguous(b, 'C')) {
+        PyErr_Format(PyExc_ValueError, "%s must be C-contiguous", name);
+        return -1;
+    }
+    if (b->itemsize != itemsize || b->len != itemsize * count) {
+        PyErr_Format(PyExc_ValueError, "%s: expected %zd items of %zd bytes, got %zd bytes",
+                     name, count, itemsize, b->len);
+        return -1;
+    }
+    return 0;
+}
+
+/* splitmix64 finaliser, as aobake.rng.mix (wrapping uint64 arithmetic). */
+static inline uint64_t mix(uint64_t x)
+{
+    x ^= x >> 30;
+    x *= 0xBF58476D1CE4E5B9ULL;
+    x ^= x >> 27;
+    x *= 0x94D049BB133111EBULL;
+    return x ^ (x >> 31);
+}
+
+/* At most this many threads in a kernel that splits its rows among threads (the seam
+ * system's assembly and the conjugate gradients). */
+#define MAX_THREADS 16
+
+/* _sparse.c: checks a CSR pattern of n rows (see there); -1 with an exception set. */
+int aobake_check_csr(const int64_t *indptr, const int32_t *indices, Py_ssize_t n,
+                     Py_ssize_t nnz, int nonempty);
+
+/* The module's functions (the method table in _kernels.c), by file. */
+PyObject *fill_rays(PyObject *self, PyObject *args);        /* _rays.c */
+PyObject *row_counts(PyObject *self, PyObject *args);       /* _counts.c */
+PyObject *raster_rows(PyObject *self, PyObject *args);      /* _raster.c */
+PyObject *surface_interp(PyObject *self, PyObject *args);   /* _surface.c */
+PyObject *surface_shading(PyObject *self, PyObject *args);  /* _surface.c */
+PyObject *seam_pattern(PyObject *self, PyObject *args);     /* _seams.c */
+PyObject *seam_values(PyObject *self, PyObject *args);      /* _seams.c */
+PyObject *seam_csr_cg(PyObject *self, PyObject *args);      /* _sparse.c */
+PyObject *dilate_rings(PyObject *self, PyObject *args);     /* _post.c */
+PyObject *radix_argsort(PyObject *self, PyObject *args);    /* _sort.c */
+PyObject *chart_marks(PyObject *self, PyObject *args);      /* _pack.c */
+PyObject *pack_charts(PyObject *self, PyObject *args);      /* _pack.c */
+
+#endif
