@@ -11,21 +11,17 @@ no traceback), 2 invalid usage (click's own errors).
 from __future__ import annotations
 
 import logging
-import math
 import os
 import sys
 from pathlib import Path
 
 import click
 
-from aobake.config import (CHOICES, DEFAULTS, MAX_CONFIDENCE, MAX_RAYS, parse_distance,
-                           parse_resolution)
+from aobake.cli_options import DistanceType, FiniteRange, TauType, given, settings  # noqa: F401
 from aobake.errors import AobakeError
 from aobake.executors import EXECUTORS
 from aobake.methods import METHODS
 from aobake.outputs.registry import MESH_OUTPUTS, suffixes
-from aobake.quantities import QUANTITIES
-from aobake.samplers.base import MAX_REPLICATES, MIN_REPLICATES
 from aobake.targets import CLI_TARGETS
 
 EPILOG = """\b
@@ -37,66 +33,6 @@ Conventions (also written into every output's metadata):
   Every value comes with its standard error (*_stderr).  --weighting uniform bakes
   the libigl/xNormal convention instead: (1/2pi) int V dw, the open solid angle.
 """
-
-
-class DistanceType(click.ParamType):
-    """A number in scene units, 'inf', or 'P%' of the bounding-box diagonal."""
-
-    name = "distance"
-
-    def convert(self, value, param, ctx):
-        try:
-            return parse_distance(value)
-        except ValueError as exc:
-            self.fail(str(exc), param, ctx)
-
-
-class FiniteRange(click.FloatRange):
-    """click's FloatRange, refusing NaN and infinity: a NaN passes every comparison click
-    makes, and would reach the library as a value (exit 1 instead of a usage error)."""
-
-    def convert(self, value, param, ctx):
-        number = super().convert(value, param, ctx)
-        if not math.isfinite(number):
-            self.fail(f"{value!r} is not a finite number", param, ctx)
-        return number
-
-
-class TauType(click.ParamType):
-    name = "tau"
-
-    def convert(self, value, param, ctx):
-        try:
-            tau = float(value)
-        except ValueError:
-            self.fail(f"{value!r} is not a number", param, ctx)
-        if math.isnan(tau) or tau < 0:
-            self.fail(f"tau must be >= 0 (or inf), got {value}", param, ctx)
-        return tau
-
-
-class ResolutionType(click.ParamType):
-    """N or WxH texels (a usage error, exit 2, when it is not)."""
-
-    name = "resolution"
-
-    def convert(self, value, param, ctx):
-        try:
-            parse_resolution(value)
-        except ValueError as exc:
-            self.fail(str(exc), param, ctx)
-        return value
-
-
-class QuantityType(click.Choice):
-    """A registry quantity; ``bent-normal`` is accepted for ``bent_normal``."""
-
-    def convert(self, value, param, ctx):
-        return super().convert(str(value).replace("-", "_"), param, ctx)
-
-
-def _choice(name):
-    return click.Choice(sorted(CHOICES[name]))
 
 
 def _progress_bar(quiet: bool):
@@ -198,6 +134,37 @@ def _keep_freed_memory() -> None:
         pass
 
 
+def _with(options):
+    """Decorate a command with click options made elsewhere (``cli_options.settings``)."""
+    def decorate(function):
+        # as click's own decorators do: parameters gather on the function, last first
+        params = function.__dict__.setdefault("__click_params__", [])
+        params.extend(reversed(options))
+        return function
+    return decorate
+
+
+#: the options of where and how fast a bake runs (never its numbers); ``aobake view`` too
+RUN_OPTIONS = [
+    click.Option(["--threads"], default=None, type=click.IntRange(min=1),
+                 help="Worker threads. Default: all cores."),
+    click.Option(["--method"], default="rays", show_default=True,
+                 type=click.Choice(sorted(METHODS)),
+                 help="How values are estimated: rays (ray-traced, with error bars: the "
+                      "reference)."),
+    click.Option(["--executor"], default="threads", show_default=True,
+                 type=click.Choice(sorted(EXECUTORS)),
+                 help="Where the points are estimated: threads (this process) or processes (a "
+                      "local pool of --workers processes). The same bits either way."),
+    click.Option(["--workers"], default=None, type=click.IntRange(min=1),
+                 help="--executor processes: worker processes. Default: --threads (all "
+                      "cores)."),
+    click.Option(["--chunk-points"], default=None, type=click.IntRange(min=1),
+                 help="Points per work item (default: a few items per worker). The same bits "
+                      "for any value."),
+]
+
+
 @click.command(cls=_WithSubcommands, epilog=EPILOG,
                context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("mesh", type=click.Path(path_type=Path))
@@ -207,109 +174,7 @@ def _keep_freed_memory() -> None:
 @click.option("--target", type=click.Choice(CLI_TARGETS), default=None,
               help="Bake per vertex or per lightmap texel. Default: vertices for "
                    f"{_VERTEX}, texels otherwise.")
-@click.option("--quantity", "-q", "quantities", multiple=True, type=QuantityType(list(QUANTITIES)),
-              help="What to bake (repeatable). Default: ao.")
-@click.option("--rays", default=DEFAULTS["rays"], show_default=True,
-              type=click.IntRange(min=1, max=MAX_RAYS),
-              help="Rays per vertex, or per texel (split over --texel-samples); at most 2^24. "
-                   "stratified rounds up to a multiple of 8 replicates, sobol to 8 x 2^k. "
-                   "Above 65536 a point's rays stream in pieces: memory does not grow.")
-@click.option("--max-distance", default="inf", show_default=True, type=DistanceType(),
-              help="Occluder search distance: scene units, 'inf', or 'P%' of the bounding-box "
-                   "diagonal. Default inf: AO as defined, with no cut-off.")
-@click.option("--tau", type=TauType(), default=DEFAULTS["tau"],
-              help="Obscurance decay per scene unit in rho(L) = 1 - exp(-tau L). "
-                   "Default: 10 / bounding-box diagonal.")
-@click.option("--seed", default=DEFAULTS["seed"], show_default=True,
-              type=click.IntRange(0, 2**63 - 1),
-              help="Same inputs + seed = bit-identical outputs, for any --threads.")
-@click.option("--sampler", default=DEFAULTS["sampler"], show_default=True, type=_choice("sampler"),
-              help="random: i.i.d.; stratified: --replicates jittered grids; sobol: "
-                   "--replicates Owen-scrambled Sobol nets. Every point randomised on its own; "
-                   "all unbiased.")
-@click.option("--replicates", default=DEFAULTS["replicates"], show_default=True,
-              type=click.IntRange(min=MIN_REPLICATES, max=MAX_REPLICATES),
-              help="stratified/sobol: independent replicates per point, whose spread is the "
-                   "stderr (R - 1 degrees of freedom). Fewer: a more accurate value for the "
-                   "rays, a less steady stderr and wider intervals (docs/accuracy.md).")
-@click.option("--weighting", default=DEFAULTS["weighting"], show_default=True,
-              type=_choice("weighting"),
-              help="What AO averages over: cosine ((1/pi) int V cos, the default) or "
-                   "uniform ((1/2pi) int V: libigl's and xNormal's convention, a different "
-                   "number).")
-@click.option("--normals", default=DEFAULTS["normals"], show_default=True,
-              type=click.Choice(CHOICES["normals"]),
-              help="Vertex normals: the file's (angle-weighted where it has none), or computed.")
-@click.option("--fix-normals", default=DEFAULTS["fix_normals"], show_default=True,
-              type=click.Choice(CHOICES["fix_normals"]),
-              help="Faces wound against their neighbours and components pointing inward: "
-                   "warn with counts, fix (flip them; computed normals follow), or off.")
-@click.option("--ground-plane", is_flag=True, default=DEFAULTS["ground_plane"],
-              help="Add an infinite solid ground plane at the scene's lowest point along --up-axis.")
-@click.option("--up-axis", default=DEFAULTS["up_axis"], show_default=True,
-              type=click.Choice(CHOICES["up_axis"]), help="Up axis for --ground-plane.")
-@click.option("--backfaces", default=DEFAULTS["backfaces"], show_default=True,
-              type=click.Choice(CHOICES["backfaces"]),
-              help="ignore: rays pass through back faces (costs closest-hit queries).")
-@click.option("--ray-offset", default=DEFAULTS["ray_offset"], show_default=True,
-              type=FiniteRange(0, 0.1, min_open=True, max_open=True),
-              help="Ray origin offset along the normal, as a fraction of the point's own "
-                   "triangle size (at least 64 float32 ulps of its coordinates).")
-@click.option("--backend", default=DEFAULTS["backend"], show_default=True,
-              type=click.Choice(CHOICES["backend"]),
-              help="Tracing backend: embree, or reference (float64 numpy, every ray against "
-                   "every triangle: slow, for validating on small scenes).")
-@click.option("--confidence", default=DEFAULTS["confidence"], show_default=True,
-              type=FiniteRange(0.5, MAX_CONFIDENCE),
-              help="Level of the *_ci_low / *_ci_high interval every ao and obscurance value "
-                   "carries.")
-@click.option("--tolerance", default=None, type=FiniteRange(0.0, 0.5, max_open=True),
-              help="Ask for an accuracy instead of a ray count: every ao/obscurance value "
-                   "within E of the truth at --confidence. --rays is then a pilot; each point "
-                   "casts fresh rays chosen from it (up to --max-rays). The report counts the "
-                   "points that met E.")
-@click.option("--max-rays", default=DEFAULTS["max_rays"], show_default=True,
-              type=click.IntRange(min=1, max=MAX_RAYS),
-              help="--tolerance: the most rays a point's final stage may cast.")
-@click.option("--keep-distances", is_flag=True, default=False,
-              help="NPZ: keep every ray's hit distance (4 bytes per ray), so that 'aobake "
-                   "refit' recomputes ao/obscurance for another --max-distance (up to this "
-                   "one) or --tau without tracing.")
-@click.option("--denoise", is_flag=True, default=False,
-              help="Lightmaps (EXR): add ao_denoised / ao_denoised_stderr (and obscurance's) "
-                   "beside the raw channels: a surface-guided filter that keeps creases, "
-                   "charts and seams (docs/lightmaps.md).")
-@click.option("--threads", default=None, type=click.IntRange(min=1),
-              help="Worker threads. Default: all cores.")
-@click.option("--method", "method", default="rays", show_default=True,
-              type=click.Choice(sorted(METHODS)),
-              help="How values are estimated: rays (ray-traced, with error bars: the reference).")
-@click.option("--executor", default="threads", show_default=True,
-              type=click.Choice(sorted(EXECUTORS)),
-              help="Where the points are estimated: threads (this process) or processes (a "
-                   "local pool of --workers processes). The same bits either way.")
-@click.option("--workers", default=None, type=click.IntRange(min=1),
-              help="--executor processes: worker processes. Default: --threads (all cores).")
-@click.option("--chunk-points", default=None, type=click.IntRange(min=1),
-              help="Points per work item (default: a few items per worker). The same bits "
-                   "for any value.")
-@click.option("--resolution", default=None, show_default=str(DEFAULTS["resolution"][0]),
-              type=ResolutionType(), help="Lightmap size: N (square) or WxH.")
-@click.option("--texel-density", default=None, type=FiniteRange(min=0.0, min_open=True),
-              help="Instead of --resolution: texels per scene unit along the surface. A new "
-                   "atlas puts every chart at exactly this density in the smallest square "
-                   "image that holds them (own UVs: the smallest square reaching it on "
-                   "average).")
-@click.option("--padding", default=DEFAULTS["padding"], show_default=True,
-              type=click.IntRange(min=0),
-              help="Texels of dilation into the gutters (seamless bilinear/mip lookups).")
-@click.option("--texel-samples", default=DEFAULTS["texel_samples"], show_default=True,
-              type=click.IntRange(min=1),
-              help="Surface positions per texel, jittered over the covered part (antialiased "
-                   "edges). --rays is per texel, split over these.")
-@click.option("--unwrap/--no-unwrap", default=None,
-              help="Always make a new xatlas atlas / never (fail without usable UVs). "
-                   "Default: the mesh's own UVs when valid for baking, else a new atlas.")
+@_with(settings() + RUN_OPTIONS)
 @click.option("--mesh-out", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help=f"Where to write the mesh with its new atlas ({' or '.join(MESH_OUTPUTS)}). "
                    "Default: <out>.obj beside --out whenever a new atlas was made.")
@@ -318,33 +183,22 @@ def _keep_freed_memory() -> None:
               help="PNG/TIFF integer depth: value = round(clip(x, 0, 1) * (2^bits - 1)).")
 @click.option("--r-only", is_flag=True,
               help="PNG/TIFF: AO in R only (glTF occlusion convention) instead of R, G and B.")
-@click.option("--seams", default=DEFAULTS["seams"], show_default=True,
-              type=click.Choice(CHOICES["seams"]),
-              help="Lightmaps: erase (make bilinear lookups agree across UV seams by a "
-                   "least-squares change of the texels they read) or off.")
-@click.option("--bent-space", default=DEFAULTS["bent_space"], show_default=True,
-              type=click.Choice(CHOICES["bent_space"]),
-              help="Lightmap bent normals in object space or tangent space (MikkTSpace-style "
-                   "frames of the atlas UVs).")
 @click.option("--report", "report_path", type=click.Path(dir_okay=False, path_type=Path),
               help="Write the JSON report (configuration, parameters, statistics) here.")
 @click.option("--quiet", is_flag=True, help="No progress bar or warnings.")
 @click.version_option(package_name="aobake")
 def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, report_path, quiet,
-         unwrap, quantities, method, executor, workers, chunk_points, **config):
+         method, executor, workers, chunk_points, **config):
     """Bake ambient occlusion of MESH (OBJ, PLY, STL, OFF, GLB/glTF) per vertex or into a
     UV lightmap, written to --out."""
-    if config["resolution"] is not None and config["texel_density"] is not None:
+    source = click.get_current_context().get_parameter_source("resolution")
+    if source == click.core.ParameterSource.COMMANDLINE and config["texel_density"] is not None:
         raise click.UsageError("give --resolution or --texel-density, not both")
-    if config["resolution"] is None:
-        config["resolution"] = DEFAULTS["resolution"]
-    if config["texel_density"] is None:
-        del config["texel_density"]
-    run = dict(threads=threads, method=method, executor=executor, workers=workers,
-               chunk_points=chunk_points)
-    _guarded(quiet, _run, mesh, out, target, run, quiet,
-             dict(config, quantities=quantities or DEFAULTS["quantities"],
-                  unwrap={None: "auto", True: "always", False: "never"}[unwrap]),
+    from aobake.cli_view import _method_for
+
+    run = dict(threads=threads, method=_method_for(method, config), executor=executor,
+               workers=workers, chunk_points=chunk_points)
+    _guarded(quiet, _run, mesh, out, target, run, quiet, given(config),
              dict(mesh_out=mesh_out, report=report_path, half=half, bit_depth=int(bit_depth),
                   r_only=r_only))
 
@@ -511,9 +365,12 @@ def _run(mesh, out, target, run, quiet, config, files):
                        f"{t['max_rays']} rays; {t['rays_total']} rays, "
                        f"{t['saving_vs_fixed'] or 0:.1f}x fewer than a fixed count for the "
                        "same worst case", err=True)
-        click.echo(f"aobake: {report['points']} {what}, {report['rays_cast']} rays "
-                   f"in {report['wall_time_s']:.2f} s ({report['rays_per_second'] / 1e6:.2f} Mrays/s) "
-                   f"-> {', '.join(map(str, written))}", err=True)
+        cost = (f"{report['rays_cast']} rays in {report['wall_time_s']:.2f} s "
+                f"({report['rays_per_second'] / 1e6:.2f} Mrays/s)" if "rays_cast" in report
+                else f"method {report['parameters']['method']}, no rays, in "
+                     f"{report['wall_time_s']:.2f} s")
+        click.echo(f"aobake: {report['points']} {what}, {cost} -> "
+                   f"{', '.join(map(str, written))}", err=True)
         texture = report.get("texture")
         if texture:
             density = texture.get("chart_density") or {}

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import click
 
-from aobake.cli import DistanceType, TauType, _route_python_warnings
+from aobake.cli import _route_python_warnings
+from aobake.cli_options import DistanceType, TauType
 from aobake.errors import AobakeError
 
 
@@ -18,9 +19,9 @@ from aobake.errors import AobakeError
 @click.option("--out", "-o", "out", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Where to write the refitted bake (any per-vertex format; .npz keeps the "
                    "distances for another refit).")
-@click.option("--tau", default=None, type=TauType(),
+@click.option("--tau", default=None, type=TauType,
               help="New obscurance decay per scene unit (adds obscurance if it was not baked).")
-@click.option("--max-distance", default=None, type=DistanceType(),
+@click.option("--max-distance", default=None, type=DistanceType,
               help="New max distance (scene units or P%), at most the baked one.")
 @click.option("--quantity", "-q", "quantities", multiple=True,
               type=click.Choice(["ao", "obscurance"]),

@@ -1,7 +1,8 @@
 """``aobake view MESH --out view.exr``: a camera's G-buffer with the method's values per pixel.
 
-The bake options are the main command's own click options (the same flags, defaults,
-help and checks: nothing typed twice); only the camera's options are new here.
+The bake options are generated from the settings' specs like the main command's (the
+same flags, defaults, help and checks: nothing typed twice), less the lightmap target's;
+only the camera's options are new here.
 """
 
 from __future__ import annotations
@@ -10,13 +11,10 @@ from pathlib import Path
 
 import click
 
-from aobake.cli import FiniteRange
-from aobake.config import DEFAULTS
+from aobake.cli_options import FiniteRange, given, settings
 
-#: main-command options that mean nothing for a camera view (lightmap or vertex only)
-NOT_FOR_VIEWS = {"out", "target", "resolution", "texel_density", "padding", "texel_samples",
-                 "unwrap", "mesh_out", "seams", "bent_space", "denoise", "keep_distances",
-                 "r_only", "mesh", "version"}
+#: settings that mean nothing for a camera view (kept distances are an NPZ's)
+NOT_FOR_VIEWS = ("keep_distances",)
 
 
 class _VectorType(click.ParamType):
@@ -69,10 +67,15 @@ def _camera_options() -> list:
 
 
 def view_command(main: click.Command) -> click.Command:
-    """The ``view`` command: camera options plus ``main``'s bake options that apply."""
-    shared = [p for p in main.params if p.name not in NOT_FOR_VIEWS]
+    """The ``view`` command: camera options, the common and the methods' settings, the run
+    options and ``main``'s image-output options."""
+    from aobake.cli import RUN_OPTIONS
+
+    outputs = [p for p in main.params if p.name in ("half", "bit_depth", "report_path",
+                                                    "quiet")]
+    bake = settings(sections=("common", "rays", "file"), exclude=NOT_FOR_VIEWS)
     return click.Command(
-        "view", params=_camera_options() + shared, callback=_view,
+        "view", params=_camera_options() + bake + RUN_OPTIONS + outputs, callback=_view,
         context_settings={"help_option_names": ["-h", "--help"]},
         help="Render a camera view of MESH: one primary ray per pixel centre (Embree), the "
              "G-buffer (depth, distance, hardware depths, view-space position and normals, "
@@ -98,11 +101,23 @@ def _view(mesh, out, look_from, look_at, up, fov, size, camera, threads, half, b
     elif up is not None:
         raise click.UsageError("--up goes with --look-from/--look-at")
     gltf = None if camera is None else (mesh, None if camera == "first" else camera)
+    method = _method_for(method, config)
     run = dict(threads=threads, method=method, executor=executor, workers=workers,
                chunk_points=chunk_points)
     _guarded(quiet, _run, mesh, out, look, gltf, size, fov, run, quiet,
-             dict(config, quantities=quantities or DEFAULTS["quantities"]),
+             given(dict(config, quantities=quantities)),
              dict(report=report_path, half=half, bit_depth=int(bit_depth)))
+
+
+def _method_for(method: str, config: dict) -> str:
+    """--ao-from FILE means --method file (the default method otherwise)."""
+    if config.get("ao_from") is None:
+        return method
+    source = click.get_current_context().get_parameter_source("method")
+    if source == click.core.ParameterSource.COMMANDLINE and method != "file":
+        raise click.UsageError(f"--ao-from reads a bake: it goes with --method file, not "
+                               f"--method {method}")
+    return "file"
 
 
 def _run(mesh, out, look, gltf, size, fov, run, quiet, config, files):
@@ -116,7 +131,8 @@ def _run(mesh, out, look, gltf, size, fov, run, quiet, config, files):
     if not quiet:
         report = result.report
         cam = report["camera"]
+        cost = (f"{report['rays_cast']} rays" if "rays_cast" in report
+                 else f"method {report['parameters']['method']}, no rays")
         click.echo(f"aobake: view {cam['width']}x{cam['height']}, "
-                   f"{report['pixels_covered']} pixels see the scene, "
-                   f"{report.get('rays_cast', 0)} rays in {report['wall_time_s']:.2f} s "
-                   f"-> {', '.join(map(str, written))}", err=True)
+                   f"{report['pixels_covered']} pixels see the scene, {cost} in "
+                   f"{report['wall_time_s']:.2f} s -> {', '.join(map(str, written))}", err=True)

@@ -18,7 +18,7 @@ import numpy as np
 from aobake.backends import BACKENDS
 from aobake.backends.plane import PlaneOccluder
 from aobake.backends.union import Union
-from aobake.config import AXES, OFFSET_ULPS
+from aobake.constants import AXES, OFFSET_ULPS
 from aobake.errors import InputError
 
 #: Embree's largest finite ray length (float32), in local units

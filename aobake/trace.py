@@ -21,7 +21,7 @@ import numpy as np
 
 from aobake import _native
 from aobake.backends.union import query_name
-from aobake.config import OFFSET_ULPS, BakeConfig
+from aobake.constants import OFFSET_ULPS
 from aobake.estimates import Estimates
 from aobake.quantities import QUANTITIES, Traced
 from aobake.rays import RayGenerator
@@ -134,7 +134,7 @@ class Tracer:
     rays over the texel's samples).
     """
 
-    def __init__(self, scene, config: BakeConfig, occluders, rays: int | None = None,
+    def __init__(self, scene, config, occluders, rays: int | None = None,
                  stage: int = 0, compiled: bool | None = None):
         """occluders : ``aobake.occluders.Occluders`` of ``scene`` (built once per bake),
         rays : rays per point (default ``config.rays``), stage : the key stream (0; 1 for

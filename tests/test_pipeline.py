@@ -65,7 +65,8 @@ def test_config_round_trips_through_a_report_with_every_field_changed():
                          backend="reference", confidence=0.9, tolerance=0.03, max_rays=1000,
                          resolution="48x32", padding=3,
                          texel_samples=9,
-                         unwrap="always", bent_space="tangent", seams="off", denoise=True)
+                         unwrap="always", bent_space="tangent", seams="off", denoise=True,
+                         ao_from="bake.npz")
     # keep_distances cannot go with a tolerance: the second config changes it
     kept = replace(changed, tolerance=None, keep_distances=True)
     # a texel density replaces the resolution: the third config sets it

@@ -36,7 +36,8 @@ class Job:
 @dataclass(frozen=True)
 class WorkItem:
     """Points start..stop-1 of a job: points (k, 3) float64, normals (k, 3) float64, ids
-    (k,) int64, sizes (k,) float64 | None (``SamplePoints`` fields)."""
+    (k,) int64, sizes (k,) float64 | None, faces (k,) int64 | None, bary (k, 3) float64 |
+    None (``SamplePoints`` fields)."""
 
     key: str
     start: int
@@ -45,6 +46,15 @@ class WorkItem:
     normals: np.ndarray
     ids: np.ndarray
     sizes: np.ndarray | None
+    faces: np.ndarray | None = None
+    bary: np.ndarray | None = None
+
+    def sample_points(self):
+        """The item's points as ``SamplePoints``."""
+        from aobake.targets.base import SamplePoints
+
+        return SamplePoints(self.points, self.normals, self.ids, sizes=self.sizes,
+                            faces=self.faces, bary=self.bary)
 
 
 def ranges(n: int, per_item: int) -> list:
@@ -58,6 +68,10 @@ def items(job: Job, plan, per_item: int) -> list:
     out = []
     for start, stop in ranges(len(plan.points), per_item):
         sel = slice(start, stop)
+        def part(array):
+            return None if array is None else array[sel]
+
         out.append(WorkItem(job.key, start, stop, plan.points[sel], plan.normals[sel],
-                            plan.ids[sel], None if plan.sizes is None else plan.sizes[sel]))
+                            plan.ids[sel], part(plan.sizes), part(plan.faces),
+                            part(plan.bary)))
     return out

@@ -37,10 +37,7 @@ class ThreadsExecutor:
         # An explicit split runs item by item here too (the same bits: tested).
         parts, done = [], 0
         for item in items(job, plan, self.chunk_points):
-            from aobake.targets.base import SamplePoints
-
-            part = method.estimate(SamplePoints(item.points, item.normals, item.ids,
-                                                sizes=item.sizes), threads, chunk_rays)
+            part = method.estimate(item.sample_points(), threads, chunk_rays)
             parts.append((np.arange(item.start, item.stop), part))
             done += item.stop - item.start
             if progress:

@@ -40,15 +40,13 @@ def prepared(job):
 def run_item(item, threads: int, chunk_rays: int, job=None) -> tuple[int, int, Estimates]:
     """Estimate one work item: (start, stop, Estimates of its points).  ``job`` is given
     when the worker may not have it yet (Dask); a pool's initializer installed it."""
-    from aobake.targets.base import SamplePoints
-
     if job is not None and job.key not in _CACHE:
         install(job)
     job = _CACHE[item.key][0]
     method = prepared(job)
-    points = SamplePoints(item.points, item.normals, item.ids, sizes=item.sizes)
     with _kernels(job.compiled):
-        return item.start, item.stop, method.estimate(points, threads, chunk_rays)
+        return item.start, item.stop, method.estimate(item.sample_points(), threads,
+                                                      chunk_rays)
 
 
 @contextlib.contextmanager

@@ -7,9 +7,10 @@ error bars) is the reference; an approximation is one more module with a class h
 """
 
 from aobake.methods.base import Estimates, Method, merge
+from aobake.methods.file import FileMethod
 from aobake.methods.rays import RaysMethod
 
 #: method name -> class
-METHODS = {"rays": RaysMethod}
+METHODS = {"rays": RaysMethod, "file": FileMethod}
 
 __all__ = ["Estimates", "METHODS", "Method", "RaysMethod", "merge"]

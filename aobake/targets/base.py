@@ -27,7 +27,10 @@ class SamplePoints:
     point's rays are a pure function of (seed, id, sample id): equal ids get equal
     rays), sizes : (n,) float64 the size of each point's own triangles (sqrt of twice their
     mean area; sets the ray offset) or None when unknown, kernels : stage -> compiled? for
-    the compiled stages the target ran, state : whatever ``finish`` needs back.
+    the compiled stages the target ran, state : whatever ``finish`` needs back, faces :
+    (n,) int64 the triangle each point lies on (-1: none) and bary : (n, 3) float64 its
+    barycentric coordinates there, or None when the target does not know them (vertices,
+    query points): a method that interpolates on the surface (``file``) needs them.
     """
 
     points: np.ndarray
@@ -36,6 +39,8 @@ class SamplePoints:
     sizes: np.ndarray | None = None
     kernels: dict = field(default_factory=dict)
     state: object = None
+    faces: np.ndarray | None = None
+    bary: np.ndarray | None = None
 
 
 @dataclass

@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from aobake import camera as cameras
-from aobake.config import AXES
+from aobake.constants import AXES
 from aobake.errors import InputError
 from aobake.quantities import FIELDS
 from aobake.results import ViewResult
@@ -133,8 +133,13 @@ class CameraTarget:
         sizes[mesh] = np.sqrt(2.0 * areas[prim[index][mesh]])
         state = dict(camera=cam, index=index, t=t, prim=prim, ground=ground, ng=ng, ns=ns,
                      points=points)
+        faces = prim[index].copy()  # -1 on the ground plane
+        barycentric = np.zeros((len(index), 3))
+        if bary is not None:
+            barycentric[mesh] = bary
         timings["primary_s"] = time.perf_counter() - clock
-        return SamplePoints(points, ng, index.astype(np.int64), sizes=sizes, state=state)
+        return SamplePoints(points, ng, index.astype(np.int64), sizes=sizes, state=state,
+                            faces=faces, bary=barycentric)
 
     def finish(self, scene, config, plan, estimates, timings, warnings) -> Finished:
         state = plan.state

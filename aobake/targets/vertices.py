@@ -6,6 +6,7 @@ import numpy as np
 
 from aobake.results import BakeResult
 from aobake.targets.base import Finished, SamplePoints
+from aobake.vectors import defined
 
 
 def vertex_sizes(scene) -> np.ndarray:
@@ -40,13 +41,16 @@ class VertexTarget:
 
     def finish(self, scene, config, plan, estimates, timings, warnings) -> Finished:
         inverse = plan.state
-        values, rays = estimates.fields, estimates.rays
-        traced = int(rays.astype(np.int64).sum())  # before copying to vertices that share samples
-        values = {name: array[inverse] for name, array in values.items()}
-        rays = rays[inverse]
-        unsampled = int(np.count_nonzero(rays == 0))
+        values = {name: array[inverse] for name, array in estimates.fields.items()}
+        unsampled = int(np.count_nonzero(~defined(scene.vertex_normals)))
         if unsampled:
             warnings.append(f"{unsampled} vertices have no defined normal (unreferenced or only on "
                             "zero-area faces): not sampled, no-information values")
+        if estimates.rays is None:  # a method that casts no rays (an approximation, a file)
+            result = BakeResult(scene.vertices, scene.faces, scene.vertex_normals, None, values)
+            return Finished(result, values, None, len(scene.vertices))
+        # rays traced before copying to vertices that share samples
+        traced = int(estimates.rays.astype(np.int64).sum())
+        rays = estimates.rays[inverse]
         result = BakeResult(scene.vertices, scene.faces, scene.vertex_normals, rays, values)
         return Finished(result, values, rays, len(scene.vertices), cast=traced)

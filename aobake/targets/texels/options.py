@@ -1,0 +1,82 @@
+"""The lightmap target's options (``--target texels``): the image, its atlas, and what is
+done to the texels after tracing."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from aobake.errors import InputError
+from aobake.options import setting
+
+UNWRAP = ("auto", "always", "never")
+BENT_SPACES = ("object", "tangent")
+SEAMS = ("erase", "off")
+DEFAULT_RESOLUTION = (1024, 1024)
+
+
+def parse_resolution(value) -> tuple[int, int]:
+    """'N' or 'WxH' (or an int / pair) -> (width, height); InputError on nonsense."""
+    import numpy as np
+
+    if isinstance(value, str):
+        parts = value.lower().split("x")
+        if len(parts) not in (1, 2) or not all(p.strip().isdigit() for p in parts):
+            raise InputError(f"resolution must be N or WxH, got {value!r}")
+        dims = [int(p) for p in parts]
+    elif isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        dims = [int(value)]
+    else:
+        try:
+            dims = [int(v) for v in value]
+        except (TypeError, ValueError):
+            raise InputError(f"resolution must be N or WxH, got {value!r}") from None
+    if len(dims) not in (1, 2):
+        raise InputError(f"resolution must be N or WxH, got {value!r}")
+    width, height = (dims[0], dims[0]) if len(dims) == 1 else dims
+    if width < 1 or height < 1:
+        raise InputError(f"resolution must be at least 1x1, got {width}x{height}")
+    return width, height
+
+
+@dataclass(frozen=True)
+class LightmapOptions:
+    """The lightmap target's settings (ignored by the other targets)."""
+
+    resolution: tuple = setting(
+        DEFAULT_RESOLUTION, "parsed", "Lightmap size: N (square) or WxH.", section="texels",
+        parse=parse_resolution, show_default="1024")
+    texel_density: float | None = setting(
+        None, "float", "Instead of --resolution: texels per scene unit along the surface. A "
+        "new atlas puts every chart at exactly this density in the smallest square image "
+        "that holds them (own UVs: the smallest square reaching it on average).",
+        section="texels", optional=True, low=0.0, low_open=True,
+        words="a positive number (texels per scene unit)")
+    padding: int = setting(
+        2, "int", "Texels of dilation into the gutters (seamless bilinear/mip lookups).",
+        section="texels", low=0, high=1 << 20)
+    texel_samples: int = setting(
+        4, "int", "Surface positions per texel, jittered over the covered part (antialiased "
+        "edges). --rays is per texel, split over these.", section="texels", low=1,
+        high=1 << 20)
+    unwrap: str = setting(
+        "auto", "choice", "Always make a new xatlas atlas / never (fail without usable UVs). "
+        "Default: the mesh's own UVs when valid for baking, else a new atlas.",
+        section="texels", choices=UNWRAP, flags=("--unwrap/--no-unwrap",))
+    bent_space: str = setting(
+        "object", "choice", "Lightmap bent normals in object space or tangent space "
+        "(MikkTSpace-style frames of the atlas UVs).", section="texels", choices=BENT_SPACES)
+    seams: str = setting(
+        "erase", "choice", "Lightmaps: erase (make bilinear lookups agree across UV seams by "
+        "a least-squares change of the texels they read) or off.", section="texels",
+        choices=SEAMS)
+    denoise: bool = setting(
+        False, "flag", "Lightmaps (EXR): add ao_denoised / ao_denoised_stderr (and "
+        "obscurance's) beside the raw channels: a surface-guided filter that keeps creases, "
+        "charts and seams (docs/lightmaps.md).", section="texels")
+
+    def check_lightmap(self) -> None:
+        """The checks between this record's fields."""
+        # the image size follows from a density: a resolution too would be two answers to
+        # one question
+        if self.texel_density is not None and self.resolution != DEFAULT_RESOLUTION:
+            raise InputError("give a resolution or a texel density, not both")
