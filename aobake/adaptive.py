@@ -164,7 +164,8 @@ def estimate(tracer, points, normals, ids, threads, chunk_rays, progress, sizes)
         out, final_rays[traced] = pilot, pilot_rays[traced]
         extras = {name: first.extras[name] for name in extras}
     extras.update(final_rays=final_rays, capped=capped)
-    return Estimates(out, rays, extras)
+    # points end with different counts: the fewest degrees of freedom a final stage can have
+    return Estimates(out, rays, extras, min_final_dof(config))
 
 
 def summary(tracer, estimates) -> dict:
@@ -189,9 +190,11 @@ def summary(tracer, estimates) -> dict:
                   "(aobake.adaptive); the pilot's rays are not in the estimate",
         "max_rays": max_rays,
         "pilot_rays_per_point": tracer.samples.rays,
+        # Three disjoint counts of the traced points: met E; else capped (even --max-rays
+        # was predicted too few); else missed (the pilot under-estimated the spread).
         "points_met": int(np.count_nonzero(met)),
         "points_missed": int(np.count_nonzero(~met & ~capped & (rays > 0))),
-        "points_capped": int(np.count_nonzero(capped)),
+        "points_capped": int(np.count_nonzero(~met & capped & (rays > 0))),
         "worst_reach": worst,
         "rays_total": int(rays.astype(np.int64).sum()),
         "final_rays": {"min": int(final_rays[traced].min()) if len(traced) else 0,

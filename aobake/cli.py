@@ -342,14 +342,16 @@ def _run(mesh, out, target, run, quiet, config, files):
     progress, finish = _progress_bar(quiet)
     if where.target == "texels":
         progress = _prefetching(progress)
-    bake = aobake.bake if where.target == "vertices" else aobake.bake_texels
+    from aobake.targets import TARGETS
+
+    target = TARGETS[where.target]()  # the CLI's targets need nothing beyond the config
     unwrapping = None
     if where.target == "texels" and config.unwrap != "never":
         from aobake.targets.texels import unwrap as unwrapping
 
         unwrapping.prestart()  # its start overlaps the loading; ended if own UVs are baked
     try:
-        result = bake(mesh, config, progress=progress, **run)
+        result = aobake.run(config, mesh, target, progress=progress, **run)
     finally:
         finish()
         if unwrapping is not None:
@@ -360,11 +362,13 @@ def _run(mesh, out, target, run, quiet, config, files):
         what = "vertices" if where.target == "vertices" else "texel samples"
         if "tolerance" in report:
             t = report["tolerance"]
+            saving = t["saving_vs_fixed"] or 0.0
+            versus = (f"{saving:.1f}x fewer than" if saving >= 1 else
+                      f"{1 / saving:.1f}x more than" if saving > 0 else "against")
             click.echo(f"aobake: tolerance {t['tolerance']:g}: {t['points_met']} points met "
                        f"it, {t['points_missed']} missed, {t['points_capped']} capped at "
-                       f"{t['max_rays']} rays; {t['rays_total']} rays, "
-                       f"{t['saving_vs_fixed'] or 0:.1f}x fewer than a fixed count for the "
-                       "same worst case", err=True)
+                       f"{t['max_rays']} rays; {t['rays_total']} rays, {versus} a fixed "
+                       "count for the same worst case", err=True)
         cost = (f"{report['rays_cast']} rays in {report['wall_time_s']:.2f} s "
                 f"({report['rays_per_second'] / 1e6:.2f} Mrays/s)" if "rays_cast" in report
                 else f"method {report['parameters']['method']}, no rays, in "

@@ -131,6 +131,10 @@ class BakeConfig(LightmapOptions, FileOptions, RaysOptions, CommonOptions):
         check_settings(self)
         self.check_rays()
         self.check_lightmap()
+        if self.tolerance is not None and not {"ao", "obscurance"} & set(self.quantities):
+            # bent normals have no interval: a tolerance would be "met" by nothing baked
+            raise InputError("tolerance bounds the intervals of ao and obscurance; bake at "
+                             f"least one of them (got {', '.join(self.quantities)})")
         if self.denoise and not {"ao", "obscurance"} & set(self.quantities):
             raise InputError("denoise filters ao and obscurance; bake at least one of them "
                              f"(got {', '.join(self.quantities)})")

@@ -23,12 +23,15 @@ class Estimates:
     reports no ``rays`` field and no stderr: it is deterministic),
     extras : name -> (n, ...) per-point arrays the method's record is made from (the ray
     offset used, kept ray distances, ``--tolerance``'s final counts); merged by index like
-    the fields.
+    the fields,
+    dof : the degrees of freedom of a point's stderr (the fewest any point has: a target
+    that pools points' errors, a lightmap's texel, needs it), or None without a stderr.
     """
 
     fields: dict
     rays: np.ndarray | None
     extras: dict = field(default_factory=dict)
+    dof: int | None = None
 
     def __len__(self) -> int:
         first = next(iter(self.fields.values()), None)
@@ -68,4 +71,7 @@ def merge(parts, n: int) -> Estimates:
             rays[index] = part.rays
     if not (seen == 1).all():
         raise ValueError("merge: the parts must cover every point exactly once")
-    return Estimates(fields, rays, extras)
+    dofs = {part.dof for _, part in parts}
+    if len(dofs) != 1:  # a property of the method's settings, not of the points
+        raise ValueError(f"merge: the parts disagree on their degrees of freedom {dofs}")
+    return Estimates(fields, rays, extras, first.dof)

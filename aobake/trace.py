@@ -162,6 +162,11 @@ class Tracer:
                                                           for q in self.quantities)
         self.query = query_name(self.need_distance, config.backfaces)
 
+    @property
+    def dof(self) -> int:
+        """Degrees of freedom of a point's stderr: n - 1 rays (i.i.d.) or R - 1 replicates."""
+        return self.samples.rays - 1 if self.samples.iid else self.samples.groups - 1
+
     def with_rays(self, rays: int, stage: int) -> "Tracer":
         """The same occluders and settings casting ``rays`` per point from key stream
         ``stage`` (``--tolerance``'s final stage)."""
@@ -299,7 +304,7 @@ class Tracer:
                     self.config.ray_offset)
             self._stream(points, normals, ids, sizes, order, out, distances, threads, progress)
             offsets /= self.scale
-            return Estimates(out, rays, extras)
+            return Estimates(out, rays, extras, self.dof)
 
         def work(i):
             sel = order[i * per_chunk:(i + 1) * per_chunk]
@@ -326,7 +331,7 @@ class Tracer:
 
         run_chunks(n_chunks, work, land, threads or default_threads(), tick)
         offsets /= self.scale  # scene units (a power of two: exact)
-        return Estimates(out, rays, extras)
+        return Estimates(out, rays, extras, self.dof)
 
     def _stream(self, points, normals, ids, sizes, order, out, distances, threads,
                 progress) -> None:

@@ -149,3 +149,27 @@ def test_tolerance_bakes_are_reproducible_whatever_the_threads(sampler):
                            threads=2)
     for name, array in a.fields().items():
         np.testing.assert_array_equal(array, b.fields()[name], err_msg=name)
+
+
+def test_met_missed_and_capped_are_disjoint_and_add_up():
+    """Every traced point is in exactly one of the three counts (a capped point that met E
+    anyway is met), on points and on a lightmap's samples."""
+    mesh, points, _ = scene(0.5)
+    res = aobake.bake_points(mesh, points[:30], up(30), rays=8, tolerance=0.02, max_rays=64)
+    t = res.report["tolerance"]
+    assert t["points_met"] + t["points_missed"] + t["points_capped"] == 30
+    assert t["points_capped"] > 0  # 64 rays cannot reach 0.02 at AO 0.5
+
+
+def test_a_tolerance_that_bounds_nothing_baked_is_refused():
+    with pytest.raises(aobake.InputError, match="ao and obscurance"):
+        aobake.BakeConfig(tolerance=0.05, quantities=("bent_normal",))
+
+
+def test_the_summary_line_says_more_when_the_tolerance_cast_more(tmp_path, box_ply):
+    from conftest import run_cli
+
+    result = run_cli(box_ply, "--out", tmp_path / "ao.npz", "--rays", "4096",
+                     "--tolerance", "0.2", "--max-rays", "8")
+    assert result.exit_code == 0, result.output
+    assert "more than a fixed count" in result.output and "0.0x" not in result.output

@@ -196,3 +196,46 @@ def test_camera_inside_a_closed_mesh_warns(tmp_path, box_ply, caplog):
         result = aobake.bake_view(str(box_ply), camera=cam, rays=4)
     assert any("inside a closed mesh" in w for w in result.report["warnings"])
     assert result.covered.all()
+
+
+def _with_camera(glb: bytes, camera: dict, node: dict) -> bytes:
+    """A GLB with one more camera and a root node holding it (JSON chunk rewritten)."""
+    import struct
+
+    length = struct.unpack_from("<I", glb, 12)[0]
+    doc = json.loads(glb[20:20 + length])
+    rest = glb[20 + length:]
+    doc.setdefault("cameras", []).append(camera)
+    doc["nodes"].append(dict(node, camera=len(doc["cameras"]) - 1))
+    doc["scenes"][doc.get("scene", 0)]["nodes"].append(len(doc["nodes"]) - 1)
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + rest
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
+
+
+def test_cli_view_through_a_gltf_camera_node(tmp_path):
+    """A camera node 3 units above a floor, looking down its -Z: every pixel reads depth 3."""
+    import trimesh
+
+    floor = quad([0.0, 0.0, 0.0], 20.0, 20.0)
+    glb = trimesh.Scene(floor).export(file_type="glb")
+    path = tmp_path / "scene.glb"
+    path.write_bytes(_with_camera(glb, {"type": "perspective", "name": "overhead",
+                                        "perspective": {"yfov": 0.8, "znear": 0.1,
+                                                        "zfar": 100.0}},
+                                  {"translation": [0.5, -0.25, 3.0]}))
+    out = tmp_path / "v.exr"
+    result = run_cli("view", path, "--camera", "overhead", "--out", out, "--size", "24x16",
+                     "--rays", "4", "--quiet")
+    assert result.exit_code == 0, result.output
+    from readers import read_image
+
+    pixels, names, _ = read_image(out)
+    depth = pixels[..., names.index("depth")]
+    np.testing.assert_allclose(depth, 3.0, rtol=F32)
+    side = json.loads((tmp_path / "v.camera.json").read_text())["camera"]
+    assert side["name"] == "overhead" and side["near"] == 0.1 and side["far"] == 100.0
+    np.testing.assert_allclose(side["eye"], [0.5, -0.25, 3.0])
+    missing = run_cli("view", path, "--camera", "nope", "--out", tmp_path / "w.exr")
+    assert missing.exit_code == 1 and "overhead" in missing.output

@@ -17,7 +17,6 @@ import numpy as np
 from aobake import _native
 from aobake.errors import InputError
 from aobake.results import TexelResult
-from aobake.samplers import sample_set
 from aobake.targets.base import Finished, SamplePoints
 from aobake.targets.texels.atlas import check_texture_budget, make_atlas, split_corners
 from aobake.targets.texels.charts import chart_texel_density
@@ -95,13 +94,8 @@ class TexelTarget:
                 return _to_tangent(scene, state["uv"], state["faces_uv"], sub,
                                    plan.normals[traced], bent)
         quantities = [QUANTITIES[name] for name in config.quantities]
-        # Degrees of freedom of one sample's stderr: n - 1 rays (i.i.d.) or R - 1 replicates.
-        sampling = sample_set(config.sampler, self.rays_per_point(config), config.replicates)
-        dof = sampling.rays - 1 if sampling.iid else sampling.groups - 1
-        if config.tolerance is not None:  # samples end with different counts: the fewest
-            from aobake.adaptive import min_final_dof
-
-            dof = min_final_dof(config)
+        # Degrees of freedom of one sample's stderr, as the method says (the fewest).
+        dof = estimates.dof
         seam_info: dict = {}
         denoise = None
         if config.denoise:  # guided by the surface: points, normals, charts, texel spacing
