@@ -7,10 +7,11 @@ error bars) is the reference; an approximation is one more module with a class h
 """
 
 from aobake.methods.base import Estimates, Method, merge
+from aobake.methods.discs import DiscsMethod
 from aobake.methods.file import FileMethod
 from aobake.methods.rays import RaysMethod
 
 #: method name -> class
-METHODS = {"rays": RaysMethod, "file": FileMethod}
+METHODS = {"rays": RaysMethod, "discs": DiscsMethod, "file": FileMethod}
 
 __all__ = ["Estimates", "METHODS", "Method", "RaysMethod", "merge"]

@@ -1,0 +1,389 @@
+"""Bunnell's dynamic ambient occlusion (``--method discs``; GPU Gems 2, ch. 14, 2005).
+
+The mesh is replaced by oriented discs, one per vertex (the chapter's elements):
+position = the vertex, normal = the normalised sum of the unit normals of the faces
+around it, area = the sum of a third of each of those faces' areas.  A receiver (any
+sample point with a normal: a vertex, a texel sample, a pixel's first hit, a query point)
+is darkened by every disc without any visibility test:
+
+    shadow(E -> R) = (1 - 1 / sqrt(A / (pi d^2) + 1)) * sat(n_E . v) * sat(k n_R . v)
+
+with v the unit vector from the receiver to the element, d their distance, sat = clamp to
+[0, 1] (the chapter's ``occlusion.cg``).  The first factor is exactly the fraction of the
+hemisphere's solid angle, Omega / (2 pi), that a disc of area A subtends on its axis (the
+uniform-weighted, not the cosine-weighted, measure).  Signs, as in the Cg code
+(``v = emitterPosition - receiverPosition``): ``n_E . v > 0`` when the receiver is behind
+the element, so shadows are cast from an element's back face (light is emitted and
+reflected from the front); on a closed mesh every occluder is counted once, by its far
+side.  An open sheet shadows only receivers that see its back.  ``k`` is 4 in the listing
+printed in the book and 3 in the CD's shader; the default is the book's.
+
+Because no visibility is tested, overlapping occluders are counted twice and pass 1,
+``A_1 = sat(1 - sum shadow)``, is too dark.  Pass j weights each element's shadow by that
+element's own accessibility from pass j - 1 (the CD's ``ambientOcclusionPass2PS`` reads the
+*next* element's value, its index having already advanced: not copied here), which is too
+light; the result is ``weight * A_P + (1 - weight) * A_(P-1)`` of the last two of P passes
+(the CD: 0.6 pass 2 + 0.4 pass 1).  A receiver that is not an element gathers the elements'
+pass values, computed once when the method is prepared.
+
+Elements farther than the configured max distance (centre to receiver) contribute
+nothing.  A receiver with a zero normal gets the no-information answer of
+``aobake.quantities.ao`` (0.5).  The value is deterministic: no stderr, no rays.
+
+The hierarchy (``aobake.methods.discs_tree``) makes a receiver's cost O(log n): a node
+stands in for its elements (summed area, area-weighted position and normal, area-weighted
+pass values) wherever the receiver is at least ``kappa`` times the node's equivalent-disc
+radius sqrt(A / pi) away.  ``traversal="brute"`` sums every element (O(n) per receiver).
+
+All arithmetic runs in a local frame: positions rebased on the elements' per-axis median
+and scaled by a power of two (exact), so the numbers do not depend on where the mesh sits
+or on its scale; every shadow term is invariant under that scaling.
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass, fields
+
+import numpy as np
+
+from aobake.errors import InputError
+from aobake.estimates import Estimates
+from aobake.methods import discs_tree
+from aobake.options import check as check_settings
+from aobake.options import setting
+from aobake.vectors import defined
+
+#: how a receiver reaches the elements: through the hierarchy, or every element
+TRAVERSALS = ("hierarchy", "brute")
+
+#: the default kappa: the smallest of 1, 2, 4, 8 whose AO on the Stanford bunny is as far
+#: from the ray-traced truth as brute force's (RMSE 0.0376 against brute force's 0.0372;
+#: 0.0458 at kappa = 2; 0.0373 at 8 for 3.6 times the time; docs/discs.md)
+DEFAULT_KAPPA = 4.0
+
+#: the most passes: each costs one gather per element at prepare time, and the iteration
+#: settles fast (on the bunny passes 3 to 8 have the same mean, 0.8903 to 0.8905)
+MAX_PASSES = 16
+
+#: the no-information value of ``aobake.quantities.ao`` (the midpoint: nothing is known)
+NO_INFORMATION_AO = 0.5
+
+#: the hierarchy's stated accuracy at the default kappa: RMSE against brute force at most
+#: this (measured at kappa = 4: 0.015 and 0.019 on generated tori, 0.016 on the Stanford
+#: bunny's vertices; docs/discs.md), tested in tests/test_discs.py
+HIERARCHY_RMSE = 0.025
+
+#: receivers per work chunk (a thread's unit of work): the hierarchy holds a few hundred
+#: (receiver, node) pairs per receiver at a time (``terms_per_point`` in the record), its
+#: front cut to the pair budget (``chunk_rays``); brute force takes budget // n receivers
+#: at a time within a chunk.  256 to 4096 run at the same speed on the bunny.
+RECEIVERS_PER_CHUNK = 1024
+
+#: the pair budget of the elements' own passes at prepare time (the tracer's default chunk)
+PREPARE_PAIRS = 131072
+
+
+@dataclass(frozen=True)
+class DiscsOptions:
+    """The ``discs`` method's settings (each field's help is its documentation).
+
+    Made by ``aobake.options.setting`` like every section's record, so that adding this
+    record to ``BakeConfig``'s bases gives ``--discs-kappa`` and the rest, their checks and
+    their report keys; until then ``DiscsMethod.options`` (a class-level default) or
+    ``prepare(..., options=)`` sets them, and :meth:`of` reads them from a config that has
+    them.
+    """
+
+    discs_k: float = setting(
+        4.0, "float", "--method discs: the receiver term's gain in sat(k n_R . v): 4 in the "
+        "book's printed listing, 3 in the CD's shader.", section="discs", low=0.0,
+        low_open=True, high=1e6, label="discs_k")
+    discs_passes: int = setting(
+        2, "int", "--method discs: shadow passes; pass j weights each element's shadow by its "
+        "own pass j-1 accessibility (1: the over-dark first pass alone).", section="discs",
+        low=1, high=MAX_PASSES)
+    discs_weight: float = setting(
+        0.6, "float", "--method discs: the result is weight x the last pass + (1 - weight) x "
+        "the one before (the CD: 0.6).", section="discs", low=0.0, high=1.0)
+    discs_kappa: float = setting(
+        DEFAULT_KAPPA, "float", "--method discs: open a hierarchy node where the point is "
+        "closer than kappa x the node's equivalent-disc radius sqrt(A/pi) (the CD: 2, the "
+        "lecture: about 4). Larger: nearer brute force, slower.", section="discs", low=0.0,
+        low_open=True, high=1e6)
+    discs_traversal: str = setting(
+        "hierarchy", "choice", "--method discs: hierarchy (O(log n) per point) or brute (every "
+        "element: O(n) per point).", section="discs", choices=TRAVERSALS)
+
+    def __post_init__(self):
+        check_settings(self)
+
+    @classmethod
+    def of(cls, config, default: "DiscsOptions | None" = None) -> "DiscsOptions":
+        """The settings a config carries (once ``BakeConfig`` composes this record), else
+        ``default`` (else the defaults)."""
+        names = [f.name for f in fields(cls)]
+        if all(hasattr(config, name) for name in names):
+            return cls(**{name: getattr(config, name) for name in names})
+        return default if default is not None else cls()
+
+
+def chapter_shadow(area, distance, cos_e, cos_r, k: float = 4.0):
+    """The chapter's shadow of one disc (arrays broadcast): area A, distance d > 0, cos_e =
+    n_E . v, cos_r = n_R . v (v unit, receiver -> element) -> (1 - 1/sqrt(A/(pi d^2) + 1))
+    sat(cos_e) sat(k cos_r), in [0, 1): 0 = casts nothing.  On axis (cos_e = cos_r = 1) it is
+    Omega / (2 pi), Omega the solid angle of a disc of radius sqrt(A / pi) at distance d;
+    far away it falls as A / (2 pi d^2)."""
+    area, distance = np.asarray(area, np.float64), np.asarray(distance, np.float64)
+    x = area / (math.pi * distance * distance)
+    s = np.sqrt(1.0 + x)
+    return x / (s * (s + 1.0)) * np.clip(cos_e, 0.0, 1.0) * np.clip(k * np.asarray(cos_r), 0.0, 1.0)
+
+
+def lecture_shadow(area, distance, cos_e, cos_r):
+    """The form printed in the lecture, ``1 - r cos(theta_E) max(1, 4 cos(theta_R)) /
+    sqrt(A/pi + r^2)``: kept for the record, not used.  It does not vanish with distance:
+    as r -> infinity it tends to ``1 - cos(theta_E) max(1, 4 cos(theta_R))``, a constant
+    (tests/test_discs.py shows it), so summing it over a mesh's elements diverges."""
+    area, distance = np.asarray(area, np.float64), np.asarray(distance, np.float64)
+    return 1.0 - distance * np.asarray(cos_e) * np.maximum(1.0, 4.0 * np.asarray(cos_r)) \
+        / np.sqrt(area / math.pi + distance * distance)
+
+
+def combine(passes: np.ndarray, weight: float) -> np.ndarray:
+    """passes (n, P) float64 accessibilities of passes 1..P -> (n,) the result:
+    ``weight * pass P + (1 - weight) * pass P-1`` (pass 1 itself when P = 1)."""
+    if passes.shape[1] == 1:
+        return passes[:, 0].copy()
+    return weight * passes[:, -1] + (1.0 - weight) * passes[:, -2]
+
+
+def elements(scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The chapter's discs of ``scene``, one per vertex that some face of non-zero area uses
+    and whose face normals do not cancel: (position (e, 3), normal (e, 3) unit, area (e,))
+    float64 in scene units.  area = sum over the vertex's faces of (face area / 3) (so the
+    elements' areas sum to the mesh's), normal = normalised sum of those faces' unit normals."""
+    faces = np.asarray(scene.faces, dtype=np.int64)
+    n = len(scene.vertices)
+    corners = faces.ravel()
+    area = np.bincount(corners, weights=np.repeat(scene.areas() / 3.0, 3), minlength=n)
+    face_normals = np.repeat(np.asarray(scene.face_normals, dtype=np.float64), 3, axis=0)
+    summed = np.stack([np.bincount(corners, weights=face_normals[:, axis], minlength=n)
+                       for axis in range(3)], axis=1)
+    length = np.sqrt(discs_tree._dot(summed, summed))
+    keep = (area > 0) & (length > 0)
+    normal = summed[keep] / length[keep, None]
+    return np.asarray(scene.vertices, dtype=np.float64)[keep], normal, area[keep]
+
+
+class DiscsMethod:
+    """Bunnell's disc AO: one deterministic value per point (``ao``), no rays, no stderr.
+
+    Build with :meth:`prepare` (from a scene and a BakeConfig; the registry's entry point)
+    or :meth:`from_elements` (explicit discs).  ``options`` (a :class:`DiscsOptions`) is a
+    class-level default until the CLI passes its own.
+    """
+
+    name = "discs"
+    casts_rays = False
+    options = DiscsOptions()
+
+    def __init__(self, position: np.ndarray, normal: np.ndarray, area: np.ndarray,
+                 options: DiscsOptions, max_distance: float, threads: int | None = None):
+        """position (e, 3), normal (e, 3) unit, area (e,) > 0 float64 in scene units;
+        max_distance in scene units (inf: no limit).  Builds the frame, the hierarchy and
+        the elements' pass values (passes 1..P-1) once."""
+        self.options = options
+        self.max_distance = float(max_distance)
+        self.n_elements = len(position)
+        # The local frame: rebased on the per-axis median, scaled by a power of two (exact)
+        # so the elements span [-1, 1]; A / d^2 and the cosines do not change.
+        self.center = np.median(position, axis=0)
+        reach = float(np.abs(position - self.center).max())
+        self.scale = 2.0 ** -math.frexp(reach)[1] if reach > 0 else 1.0
+        self.position = (position - self.center) * self.scale
+        self.normal = normal
+        self.area = area * (self.scale * self.scale)
+        self.local_max_distance = self.max_distance * self.scale
+        self.tree = (discs_tree.build(self.position, self.normal, self.area)
+                     if options.discs_traversal == "hierarchy" else None)
+        # Passes 1..P-1 at the elements: what a receiver's pass j weights each shadow by.
+        # The receivers here are the elements themselves (their own normals).
+        threads = threads or _default_threads()
+        accessible = np.ones((self.n_elements, 1))  # "pass 0": every element casts fully
+        computed = []
+        for _ in range(options.discs_passes - 1):
+            sums, _terms = self._gather(self._weights(accessible), self.position, self.normal,
+                                        threads, PREPARE_PAIRS)
+            accessible = np.clip(1.0 - sums, 0.0, 1.0)
+            computed.append(accessible[:, 0])
+        self.element_passes = (np.stack(computed, axis=1) if computed
+                               else np.zeros((self.n_elements, 0)))
+        self._all = self._weights(np.concatenate([np.ones((self.n_elements, 1)),
+                                                  self.element_passes], axis=1))
+
+    @classmethod
+    def prepare(cls, scene, config, occluders, rays_per_point: int,
+                compiled: bool | None = None, options: DiscsOptions | None = None
+                ) -> "DiscsMethod":
+        """Once per scene: the elements, their hierarchy and their pass values.  Reads
+        ``config.quantities`` (``ao`` only) and ``config.max_distance``; ``occluders``,
+        ``rays_per_point`` and ``compiled`` are not used (no rays are cast).  Refuses what it
+        cannot honour: other quantities, a ground plane, ``tolerance`` and
+        ``keep_distances`` (both about rays)."""
+        if tuple(config.quantities) != ("ao",):
+            raise InputError(f"--method discs estimates ao only, got quantities "
+                             f"{', '.join(config.quantities)}")
+        if getattr(config, "ground_plane", False):
+            raise InputError("--method discs has no ground plane (its elements are the mesh's "
+                             "vertices)")
+        if getattr(config, "tolerance", None) is not None:
+            raise InputError("--tolerance sets a ray count: --method discs casts no rays")
+        if getattr(config, "keep_distances", False):
+            raise InputError("--keep-distances keeps ray distances: --method discs casts no "
+                             "rays")
+        position, normal, area = elements(scene)
+        if len(position) == 0:
+            raise InputError(f"{scene.source}: no faces with area: --method discs has no "
+                             "elements")
+        max_distance = config.resolve_max_distance(scene.diagonal)
+        if options is None:  # the config's settings once it carries them, else the class's
+            options = DiscsOptions.of(config, cls.options)
+        return cls(position, normal, area, options, max_distance)
+
+    @classmethod
+    def from_elements(cls, position, normal, area, options: DiscsOptions | None = None,
+                      max_distance: float = math.inf, threads: int | None = None
+                      ) -> "DiscsMethod":
+        """Explicit discs: position (e, 3), normal (e, 3) (normalised here), area (e,) float64;
+        discs of zero area or normal are dropped."""
+        position = np.asarray(position, dtype=np.float64).reshape(-1, 3)
+        normal = np.asarray(normal, dtype=np.float64).reshape(-1, 3)
+        area = np.asarray(area, dtype=np.float64).reshape(-1)
+        if not (len(position) == len(normal) == len(area)):
+            raise InputError(f"discs: position {position.shape}, normal {normal.shape} and "
+                             f"area {area.shape} must have one row per element")
+        if not (np.isfinite(position).all() and np.isfinite(normal).all()
+                and np.isfinite(area).all() and (area >= 0).all()):
+            raise InputError("discs: positions, normals and areas must be finite, areas >= 0")
+        length = np.sqrt(discs_tree._dot(normal, normal))
+        keep = (area > 0) & (length > 0)
+        if not keep.any():
+            raise InputError("discs: no element has an area and a normal")
+        if not (max_distance >= 0):
+            raise InputError(f"discs: max_distance must be >= 0, got {max_distance!r}")
+        return cls(position[keep], normal[keep] / length[keep, None], area[keep],
+                   options or cls.options, max_distance, threads)
+
+    def _weights(self, per_element: np.ndarray):
+        """Per-element weight columns (e, w) -> what the traversal reads: per level for the
+        hierarchy (area-weighted means at the nodes), as is for brute force."""
+        if self.tree is None:
+            return per_element
+        return self.tree.node_values(per_element)
+
+    def _gather(self, weights, receivers: np.ndarray, normals: np.ndarray, threads: int,
+                budget: int, advance=None) -> tuple[np.ndarray, np.ndarray]:
+        """Shadow sums (c, w) and terms (c,) at receivers (c, 3) in the local frame, in
+        chunks on ``threads`` threads (results land by index); ``advance(k)`` as k more
+        receivers are done."""
+        c = len(receivers)
+        # Work chunks of RECEIVERS_PER_CHUNK receivers; inside one, brute force takes
+        # budget // n receivers at a time (many small calls cost 3x more: measured).
+        per = RECEIVERS_PER_CHUNK
+        ranges = [(s, min(c, s + per)) for s in range(0, c, per)]
+        columns = weights[0].shape[1] if self.tree is not None else weights.shape[1]
+        sums, terms = np.zeros((c, columns)), np.zeros(c, dtype=np.int64)
+        opt = self.options
+
+        def run(bounds):
+            lo, hi = bounds
+            if self.tree is not None:
+                return discs_tree.gather_tree(self.tree, weights, receivers[lo:hi],
+                                              normals[lo:hi], opt.discs_k, opt.discs_kappa,
+                                              self.local_max_distance, budget)
+            return discs_tree.gather_brute(self.position, self.normal, self.area, weights,
+                                           receivers[lo:hi], normals[lo:hi], opt.discs_k,
+                                           self.local_max_distance, budget)
+
+        if threads <= 1 or len(ranges) <= 1:
+            results = map(run, ranges)
+        else:
+            pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="aobake-discs")
+            results = pool.map(run, ranges)
+        try:
+            for (lo, hi), (s, t) in zip(ranges, results):
+                sums[lo:hi], terms[lo:hi] = s, t
+                if advance is not None:
+                    advance(hi - lo)
+        finally:
+            if threads > 1 and len(ranges) > 1:
+                pool.shutdown(wait=True, cancel_futures=True)
+        return sums, terms
+
+    def estimate(self, points, threads: int, chunk_rays: int, progress=None) -> Estimates:
+        """points : ``SamplePoints`` (points (n, 3), normals (n, 3) unit, zero = no
+        information) -> Estimates(fields {"ao": (n,) float64 in [0, 1]: 1 = open}, rays None,
+        extras {"discs_passes": (n, P) float64 each pass's accessibility (NaN where the normal
+        is zero), "discs_terms": (n,) int64 disc terms summed per point}).  chunk_rays : the
+        most (receiver, element) pairs a thread holds at once."""
+        p = np.asarray(points.points, dtype=np.float64)
+        nrm = np.asarray(points.normals, dtype=np.float64)
+        n = len(p)
+        P = self.options.discs_passes
+        sampled = defined(nrm) if n else np.zeros(0, dtype=bool)
+        passes = np.full((n, P), np.nan)
+        terms = np.zeros(n, dtype=np.int64)
+        ao = np.full(n, NO_INFORMATION_AO)
+        index = np.flatnonzero(sampled)
+        if len(index):
+            receivers = (p[index] - self.center) * self.scale
+            done = [0]
+
+            def advance(k):
+                done[0] += k
+                if progress is not None:
+                    progress(done[0], len(index))
+
+            sums, t = self._gather(self._all, receivers, nrm[index], max(1, int(threads)),
+                                   max(1, int(chunk_rays)), advance)
+            passes[index] = np.clip(1.0 - sums, 0.0, 1.0)
+            terms[index] = t
+            ao[index] = combine(passes[index], self.options.discs_weight)
+        return Estimates({"ao": ao}, None, {"discs_passes": passes, "discs_terms": terms})
+
+    def record(self, estimates: Estimates) -> dict:
+        """The report's ``parameters``: every option, the max distance (scene units), the
+        elements and the hierarchy's depth, each pass's mean at the elements and at the
+        sampled points (pass 1's over-darkening and its correction), terms per point."""
+        passes = estimates.extras["discs_passes"]
+        sampled = ~np.isnan(passes[:, 0]) if len(passes) else np.zeros(0, dtype=bool)
+        means = [float(passes[sampled, j].mean()) if sampled.any() else None
+                 for j in range(passes.shape[1])]
+        terms = estimates.extras["discs_terms"][sampled]
+        parameters = {"method": self.name, **asdict(self.options),
+                      "max_distance": self.max_distance,
+                      "elements": int(self.n_elements),
+                      "tree_depth": None if self.tree is None else int(self.tree.depth),
+                      "points_sampled": int(np.count_nonzero(sampled)),
+                      "pass_means": means,
+                      "element_pass_means": [float(m) for m in self.element_passes.mean(axis=0)],
+                      "terms_per_point": float(terms.mean()) if len(terms) else None}
+        if self.tree is None:
+            parameters["discs_kappa"] = None  # not used by brute force
+        return {"parameters": parameters}
+
+    def error_quantities(self) -> list:
+        """None: an approximation has no error bar (its error is what ``aobake compare``
+        measures against the ray-traced truth)."""
+        return []
+
+    def kernel_stages(self) -> dict:
+        return {}
+
+
+def _default_threads() -> int:
+    from aobake.trace import default_threads
+
+    return default_threads()
