@@ -111,6 +111,9 @@ class CommonOptions:
         "--up-axis.")
     up_axis: str = setting("y", "choice", "Up axis for --ground-plane (and a view's default "
                            "camera).", choices=AXES)
+    albedo: float = setting(
+        0.5, "float", "-q indirect: the albedo rho of every surface (two-sided Lambertian) "
+        "under a uniform white sky.", low=0.0, high=1.0)
     backend: str = setting(
         "embree", "choice", "Tracing backend: embree, or reference (float64 numpy, every ray "
         "against every triangle: slow, for validating on small scenes).",
@@ -135,6 +138,9 @@ class BakeConfig(LightmapOptions, FileOptions, RaysOptions, CommonOptions):
             # bent normals have no interval: a tolerance would be "met" by nothing baked
             raise InputError("tolerance bounds the intervals of ao and obscurance; bake at "
                              f"least one of them (got {', '.join(self.quantities)})")
+        if "indirect" in self.quantities and self.backfaces == "ignore":
+            raise InputError("indirect light reflects off every face it hits; it cannot be "
+                             "combined with backfaces='ignore'")
         if self.denoise and not {"ao", "obscurance"} & set(self.quantities):
             raise InputError("denoise filters ao and obscurance; bake at least one of them "
                              f"(got {', '.join(self.quantities)})")

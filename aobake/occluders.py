@@ -53,6 +53,24 @@ class Occluders:
         """``Union.trace`` on local float32 rays: (occluded (n,) bool, distance | None)."""
         return self.union.trace(query, origins, directions, tmax)
 
+    def nearest(self, origins: np.ndarray, directions: np.ndarray, tmax):
+        """Nearest hit of local float32 rays: origins (n, 3), directions (n, 3) unit, tmax
+        (scalar or (n,) float32 local units).  Returns (t (n,) float32 local, inf on a miss;
+        prim (n,) int64 the triangle hit, -1 on a miss or on the ground plane; ground (n,)
+        bool the ground plane is the nearest hit)."""
+        limit = np.minimum(np.asarray(tmax, dtype=np.float32), _FAR)
+        t, prim = self.backend.intersect(origins, directions, limit)
+        t = np.where(prim >= 0, t, np.float32(np.inf)).astype(np.float32)
+        prim = prim.astype(np.int64)
+        ground = np.zeros(len(t), dtype=bool)
+        if self.ground is not None:
+            plane = self.union.occluders[-1]
+            tp = plane.distance(origins, directions, limit)
+            ground = tp < t
+            t = np.where(ground, tp, t)
+            prim = np.where(ground, -1, prim)
+        return t, prim, ground
+
     def first_hits(self, origins: np.ndarray, directions: np.ndarray):
         """Nearest hit of rays given in scene units.
 
@@ -62,18 +80,8 @@ class Occluders:
         The distance is Embree's float32 ``tfar`` converted exactly to scene units.
         """
         local = self.to_local(origins).astype(np.float32)
-        d32 = np.asarray(directions, dtype=np.float32)
-        t, prim = self.backend.intersect(local, d32, _FAR)
-        t = np.where(prim >= 0, t.astype(np.float64), np.inf)
-        prim = prim.astype(np.int64)
-        ground = np.zeros(len(t), dtype=bool)
-        if self.ground is not None:
-            plane = self.union.occluders[-1]
-            tp = plane.distance(local, d32, _FAR).astype(np.float64)
-            ground = tp < t
-            t = np.where(ground, tp, t)
-            prim = np.where(ground, -1, prim)
-        return t / self.scale, prim, ground
+        t, prim, ground = self.nearest(local, np.asarray(directions, dtype=np.float32), _FAR)
+        return t.astype(np.float64) / self.scale, prim, ground
 
     def record(self) -> dict:
         """The report's parameters of the frame and occluders."""

@@ -22,6 +22,10 @@ import numpy as np
 from aobake import _native
 from aobake.backends.union import query_name
 from aobake.constants import OFFSET_ULPS
+from aobake.offsets import point_offsets  # noqa: F401  (aobake.trace.point_offsets)
+from aobake.paths import STREAM_BOUNCE, path_values
+from aobake.rng import hash_key
+from aobake.samplers.base import replicate_keys, sample_hashes
 from aobake.estimates import Estimates
 from aobake.quantities import QUANTITIES, Traced
 from aobake.rays import RayGenerator
@@ -76,27 +80,6 @@ def run_chunks(
             for future in pending:
                 future.cancel()
             raise
-
-
-def point_offsets(local: np.ndarray, sizes: np.ndarray | None, fraction: float) -> np.ndarray:
-    """(n,) float64 origin offsets along the normal, in the tracer's local units.
-
-    local : (n, 3) float64 points in the backend's frame (rebased, scaled by a power of two),
-    sizes : (n,) float64 the size of each point's own triangles in the same units (None:
-    unknown: the floor alone), fraction : ray_offset.  The offset is ``fraction * size``,
-    at least OFFSET_ULPS float32 ulps of the point's largest local coordinate plus its
-    triangle size: Embree's float32 hit distances carry the rounding of the triangle's
-    vertex coordinates, which reach that far even where the point sits at the origin.
-    """
-    # Column by column: a max over the short last axis of (n, 3) is ~3x slower (exact either way).
-    magnitude = np.maximum(np.maximum(np.abs(local[:, 0]), np.abs(local[:, 1])),
-                           np.abs(local[:, 2]))
-    if sizes is not None:
-        magnitude = magnitude + sizes
-    floor = OFFSET_ULPS * np.spacing(magnitude.astype(np.float32)).astype(np.float64)
-    if sizes is None:
-        return floor
-    return np.maximum(floor, fraction * sizes)
 
 
 def _spread_bits(q: np.ndarray) -> np.ndarray:
@@ -161,6 +144,9 @@ class Tracer:
         self.need_distance = config.keep_distances or any(q.needs_distance
                                                           for q in self.quantities)
         self.query = query_name(self.need_distance, config.backfaces)
+        # -q indirect: every ray's path beyond its first hit, from a key stream of its own
+        self.need_paths = any(q.needs_paths for q in self.quantities)
+        self._bounce_key = hash_key(config.seed, STREAM_BOUNCE + 16 * stage)
 
     @property
     def dof(self) -> int:
@@ -230,11 +216,18 @@ class Tracer:
         occluded, distance = self.occluders.trace(self.query, rays.origins,
                                                   rays.directions.reshape(-1, 3), tmax)
         shape = (k, groups, m)
+        path = None
+        if self.need_paths:
+            keys = replicate_keys(self._bounce_key, ids, groups)
+            hashes = sample_hashes(keys, j0, m).reshape(-1)
+            path = path_values(self.occluders, self.scene, hashes, rays.origins,
+                               rays.directions.reshape(-1, 3), tmax, self.config.albedo,
+                               self.config.bounces, self.config.ray_offset).reshape(shape)
         return Traced(rays.directions, occluded.reshape(shape),
                       None if distance is None else distance.reshape(shape),
                       # distances stay in local units: tau per local unit
                       normals, self.samples.iid, self.tau / self.scale, self.kernels,
-                      self.config.confidence, self.max_distance)
+                      self.config.confidence, self.max_distance, path, self.config.albedo)
 
     def estimate_chunk(self, points: np.ndarray, normals: np.ndarray, ids: np.ndarray,
                        sizes: np.ndarray | None = None) -> dict:

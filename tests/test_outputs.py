@@ -63,7 +63,7 @@ def make_fields(mesh, seed=0):
         "bent_normal_stderr": 0.1 * rng.random(n),
         "rays": rng.integers(1, 1 << 20, n),
     }
-    for name in ("ao", "obscurance"):
+    for name in ("ao", "obscurance", "indirect"):
         value, se = rng.random(n), 0.05 * rng.random(n)
         fields.update({name: value, f"{name}_stderr": se, f"{name}_ci_low": value - 2 * se,
                        f"{name}_ci_high": value + 2 * se})
@@ -155,6 +155,8 @@ def test_ply_own_parse(tmp_path, mesh):
         ["float", "obscurance_ci_low"], ["float", "obscurance_ci_high"],
         ["float", "bent_normal_x"], ["float", "bent_normal_y"], ["float", "bent_normal_z"],
         ["float", "bent_normal_stderr"],
+        ["float", "indirect"], ["float", "indirect_stderr"],
+        ["float", "indirect_ci_low"], ["float", "indirect_ci_high"],
         ["int", "rays"],
         ["uchar", "red"], ["uchar", "green"], ["uchar", "blue"],
         ["list", "uchar", "int", "vertex_indices"],
@@ -268,7 +270,8 @@ def test_glb_round_trip(tmp_path, mesh):
     assert set(primitive["attributes"]) == {
         "POSITION", "NORMAL", "COLOR_0", "_AO", "_AO_STDERR", "_AO_CI_LOW", "_AO_CI_HIGH",
         "_OBSCURANCE", "_OBSCURANCE_STDERR", "_OBSCURANCE_CI_LOW", "_OBSCURANCE_CI_HIGH",
-        "_BENT_NORMAL", "_BENT_NORMAL_STDERR", "_RAYS",
+        "_BENT_NORMAL", "_BENT_NORMAL_STDERR", "_INDIRECT", "_INDIRECT_STDERR",
+        "_INDIRECT_CI_LOW", "_INDIRECT_CI_HIGH", "_RAYS",
     }  # fmt: skip
     assert gltf["scenes"][gltf["scene"]]["nodes"] == [0]
     assert gltf["nodes"][0]["mesh"] == 0

@@ -70,6 +70,10 @@ class RaysOptions:
     max_rays: int = setting(
         65536, "int", "--tolerance: the most rays a point's final stage may cast.",
         section="rays", low=1, high=MAX_RAYS, too_high=_TOO_MANY)
+    bounces: int = setting(
+        1, "int", "-q indirect: reflections a path may take before it reaches the sky (its "
+        "sample is albedo^k after k); 1 is one bounce of indirect light.", section="rays",
+        low=1, high=64)
     keep_distances: bool = setting(
         False, "flag", "NPZ: keep every ray's hit distance (4 bytes per ray), so that "
         "'aobake refit' recomputes ao/obscurance for another --max-distance (up to this "

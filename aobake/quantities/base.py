@@ -47,7 +47,9 @@ class Traced:
     normals : (k, 3) float64 unit, iid : bool (samples.iid), tau : float per unit of the distances (the tracer's local frame),
     kernels : the compiled module or None (numpy formulations),
     confidence : the two-sided level of the intervals (0.95),
-    max_distance : the max distance in scene units (0: every ray misses by definition).
+    max_distance : the max distance in scene units (0: every ray misses by definition),
+    path : (k, R, m) float64 each ray's path sample (``aobake.paths``: albedo^k when it
+    escapes after k bounces, else 0) | None (when no quantity needs paths), albedo : rho.
     """
 
     directions: np.ndarray
@@ -59,6 +61,8 @@ class Traced:
     kernels: object = None
     confidence: float = 0.95
     max_distance: float = float("inf")
+    path: np.ndarray | None = None
+    albedo: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -80,6 +84,7 @@ class Quantity:
     texel : "scalar" (texel = mean of its samples) | "direction" (normalised mean,
         optionally in tangent space)
     needs_distance : True when it needs closest-hit distances (dearer queries)
+    needs_paths : True when it needs each ray's path beyond its first hit (``aobake.paths``)
     kernels : the compiled stages its estimator uses (for the report)
     summary : (value, error) over sampled points -> report dict
     """
@@ -94,6 +99,7 @@ class Quantity:
     conventions: dict
     texel: str = "scalar"
     needs_distance: bool = False
+    needs_paths: bool = False
     kernels: tuple = ()
     summary: Callable | None = field(default=None)
     interval: tuple = ()
