@@ -151,7 +151,9 @@ RUN_OPTIONS = [
     click.Option(["--method"], default="rays", show_default=True,
                  type=click.Choice(sorted(METHODS)),
                  help="How values are estimated: rays (ray-traced, with error bars: the "
-                      "reference)."),
+                      "reference); discs (Bunnell's disc approximation); hemicube "
+                      "(rasterised hemicubes, OpenGL); file (a per-vertex bake's values, "
+                      "--ao-from)."),
     click.Option(["--executor"], default="threads", show_default=True,
                  type=click.Choice(sorted(EXECUTORS)),
                  help="Where the points are estimated: threads (this process) or processes (a "

@@ -84,12 +84,11 @@ def option(name: str, spec) -> click.Option:
                         show_default=shown, multiple=spec.multiple, help=spec.help)
 
 
-def settings(sections=None, exclude=()) -> list:
-    """The click options of every setting (of ``sections`` only, when given), in the
-    config's field order."""
+def settings(skip_sections=(), exclude=()) -> list:
+    """The click options of every setting, in the config's field order, but those of
+    ``skip_sections`` and the names in ``exclude``."""
     return [option(name, spec) for name, spec in SPECS.items()
-            if spec.cli and name not in exclude and (sections is None or
-                                                     spec.section in sections)]
+            if spec.cli and name not in exclude and spec.section not in skip_sections]
 
 
 #: what a switch flag's True / False mean

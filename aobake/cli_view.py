@@ -67,13 +67,13 @@ def _camera_options() -> list:
 
 
 def view_command(main: click.Command) -> click.Command:
-    """The ``view`` command: camera options, the common and the methods' settings, the run
-    options and ``main``'s image-output options."""
+    """The ``view`` command: camera options, every setting but the lightmap target's, the
+    run options and ``main``'s image-output options."""
     from aobake.cli import RUN_OPTIONS
 
     outputs = [p for p in main.params if p.name in ("half", "bit_depth", "report_path",
                                                     "quiet")]
-    bake = settings(sections=("common", "rays", "file"), exclude=NOT_FOR_VIEWS)
+    bake = settings(skip_sections=("texels",), exclude=NOT_FOR_VIEWS)
     return click.Command(
         "view", params=_camera_options() + bake + RUN_OPTIONS + outputs, callback=_view,
         context_settings={"help_option_names": ["-h", "--help"]},

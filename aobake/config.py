@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass, fields
 from aobake.backends import BACKENDS
 from aobake.constants import AXES, OFFSET_ULPS  # noqa: F401  (re-exported)
 from aobake.errors import InputError
+from aobake.methods.discs import DiscsOptions
 from aobake.methods.file import FileOptions
 from aobake.methods.rays_options import (BACKFACES, DEFAULT_RAY_OFFSET, MAX_CONFIDENCE,  # noqa: F401
                                          MAX_RAYS, RaysOptions)
@@ -121,10 +122,10 @@ class CommonOptions:
 
 
 @dataclass(frozen=True)
-class BakeConfig(LightmapOptions, FileOptions, RaysOptions, CommonOptions):
+class BakeConfig(LightmapOptions, DiscsOptions, FileOptions, RaysOptions, CommonOptions):
     """Everything that decides a bake's numbers (threads, executors and chunking do not): the
-    common settings, the ray-traced method's, the file method's and the lightmap target's,
-    in that order (each
+    common settings, the ray-traced method's, the file method's, the disc method's and the
+    lightmap target's, in that order (each
     section's record documents its fields; ``python -c "from aobake.config import
     BakeConfig; help(BakeConfig)"`` or ``aobake --help`` shows them).  The one source of
     every default: the CLI reads them from here.

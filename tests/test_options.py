@@ -79,9 +79,11 @@ def test_a_bad_value_is_refused_by_the_library_and_the_command_line(tmp_path, bo
 
 def test_reports_of_the_previous_release_still_rebake():
     config = BakeConfig.from_dict(PREVIOUS_RELEASE)
-    # the settings added since (the file method's, indirect light's) take their defaults
-    assert config.to_dict() == dict(PREVIOUS_RELEASE, max_distance=float("inf"), ao_from=None,
-                                    albedo=0.5, bounces=1)
+    # the settings added since (the file and disc methods', indirect light's) take their
+    # defaults
+    added = {name: DEFAULTS[name] for name in set(DEFAULTS) - set(PREVIOUS_RELEASE)}
+    assert set(added) >= {"ao_from", "albedo", "bounces", "discs_kappa"}
+    assert config.to_dict() == dict(PREVIOUS_RELEASE, max_distance=float("inf"), **added)
     with pytest.raises(aobake.InputError, match="unknown configuration keys"):
         BakeConfig.from_dict(dict(PREVIOUS_RELEASE, rayz=3))
 

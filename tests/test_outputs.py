@@ -658,3 +658,24 @@ def test_outputs_get_ordinary_file_permissions(tmp_path):
         assert (target.stat().st_mode & 0o777) == 0o644
     finally:
         os.umask(umask)
+
+
+def test_query_points_write_as_point_sets(tmp_path):
+    """bake_points results (no faces; with kept distances too) write to NPZ and PLY as
+    point sets and read back; GLB, a mesh format, is refused with the reason."""
+    import trimesh
+
+    import aobake
+    from aobake.compare import read
+
+    points = np.array([[0.0, 0.0, 0.6], [0.1, 0.0, 0.6], [0.0, 0.2, 0.6]])
+    res = aobake.bake_points(trimesh.creation.box(), points, np.tile([0.0, 0.0, 1.0], (3, 1)),
+                             rays=8, keep_distances=True)
+    for suffix in (".npz", ".ply"):
+        aobake.write(res, tmp_path / f"p{suffix}")
+        back = read(tmp_path / f"p{suffix}")
+        np.testing.assert_allclose(back.value, res.ao, rtol=1e-6)
+        np.testing.assert_allclose(back.positions, points)
+    with pytest.raises(aobake.OutputError, match="no faces"):
+        aobake.write(res, tmp_path / "p.glb")
+    assert not (tmp_path / "p.glb").exists()

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 from aobake.errors import OutputError
 from aobake.outputs.texture import write_texture
 from aobake.quantities import FIELDS
@@ -56,11 +58,16 @@ def _vertex(module_name: str):
         import importlib
 
         module = importlib.import_module(f"aobake.outputs.{module_name}")
+        # query points (bake_points) have no faces: written as a point set
+        faces = result.faces if result.faces is not None else np.zeros((0, 3), np.int64)
+        if result.faces is None and module_name == "glb":
+            raise OutputError(f"{path}: query points have no faces, and a .glb mesh needs "
+                              "them: write .npz or .ply (a point set)")
         if module_name == "npz":  # the one format that holds kept ray distances
-            module.write(path, result.positions, result.faces, result.fields(), metadata,
+            module.write(path, result.positions, faces, result.fields(), metadata,
                          kept=getattr(result, "kept", None))
         else:
-            module.write(path, result.positions, result.faces, result.fields(), metadata)
+            module.write(path, result.positions, faces, result.fields(), metadata)
     return write
 
 

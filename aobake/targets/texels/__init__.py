@@ -22,8 +22,10 @@ from aobake.targets.texels.atlas import check_texture_budget, make_atlas, split_
 from aobake.targets.texels.charts import chart_texel_density
 from aobake.targets.texels.denoise import CREASE_ANGLE, RANGE_K, SIGMA_TEXELS
 from aobake.targets.texels.gather import channels as gather_channels
+from aobake.targets.texels.gather import plain_channels
 from aobake.targets.texels.seams import SeamMesh
 from aobake.targets.texels.surface import surface_points
+from aobake.vectors import defined
 
 
 #: fewer covered texels per chart (new atlas) or per face (own UVs) than this draws a warning
@@ -79,7 +81,8 @@ class TexelTarget:
         kernels = {"rasterizer": compiled, "atlas_packing": atlas.packing_compiled,  # None: own UVs
                    "seam_solve": None if config.seams == "off" else compiled,
                    "gutters": compiled if config.padding > 0 else None}
-        return SamplePoints(points, normals, ids, sizes=sizes, kernels=kernels, state=state)
+        return SamplePoints(points, normals, ids, sizes=sizes, kernels=kernels, state=state,
+                            faces=samples.face, bary=samples.bary)
 
     def finish(self, scene, config, plan, estimates, timings, warnings) -> Finished:
         from aobake.quantities import QUANTITIES
@@ -101,12 +104,22 @@ class TexelTarget:
         if config.denoise:  # guided by the surface: points, normals, charts, texel spacing
             denoise = (plan.points, plan.normals, state["uv"], state["faces_uv"],
                        scene.areas())
-        images, covered, filled = gather_channels(quantities, samples, values, rays,
-                                                  config.padding, to_tangent, dof,
-                                                  config.confidence, state["seams"],
-                                                  timings, seam_info, denoise,
-                                                  compiled=state["compiled"],
-                                                  threads=state["threads"])
+        if rays is None:  # a method that casts no rays: values only, no error to carry
+            if config.denoise:
+                raise InputError("--denoise filters by the noise of ray-traced values; the "
+                                 "method cast no rays")
+            images, covered, filled = plain_channels(samples, values, defined(plan.normals),
+                                                     config.padding, state["seams"], timings,
+                                                     seam_info, compiled=state["compiled"],
+                                                     threads=state["threads"])
+            quantities = [q for q in quantities if q.value.name in values]
+        else:
+            images, covered, filled = gather_channels(quantities, samples, values, rays,
+                                                      config.padding, to_tangent, dof,
+                                                      config.confidence, state["seams"],
+                                                      timings, seam_info, denoise,
+                                                      compiled=state["compiled"],
+                                                      threads=state["threads"])
         timings["splat_dilate_s"] = time.perf_counter() - clock
         shared = int(np.count_nonzero(samples.shared >= 2))
         if shared:
@@ -211,7 +224,7 @@ def _texture_stats(channels, covered, filled, shared, width, height, padding, k,
                       "u = (c + 0.5) / W, v = 1 - (r + 0.5) / H",
     }
     for name in ("ao", "obscurance"):
-        if name in channels and covered.any():
+        if name + "_stderr" in channels and covered.any():
             se = channels[name + "_stderr"][covered]
             stats[name + "_stderr"] = {"mean": float(se.mean()), "p50": float(np.median(se)),
                                        "p95": float(np.percentile(se, 95)), "max": float(se.max())}

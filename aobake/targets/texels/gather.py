@@ -156,6 +156,45 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
             covered, filled)
 
 
+def plain_channels(samples: TexelSamples, values: dict, sampled: np.ndarray, padding: int,
+                   seams=None, timings: dict | None = None, seam_info: dict | None = None,
+                   compiled: bool | None = None, threads: int = 1
+                   ) -> tuple[dict, np.ndarray, np.ndarray]:
+    """Texel channels of a method that casts no rays and has no stderr (an approximation,
+    a file's values): each scalar field's texel mean, seam-erased with equal weights (no
+    error to weigh the texels by) and gutter-filled like ``channels``, plus ``coverage``.
+
+    values : field name -> (s,) float64 per sample, sampled : (s,) bool the samples with a
+    normal (the rest are left out of the texel means).  Returns as ``channels``.
+    """
+    width, height = samples.width, samples.height
+    sub = samples if sampled.all() else subset(samples, sampled)
+    count = texel_counts(sub)
+    covered = count > 0
+    out = {name: splat(sub, value[sampled])[..., 0] for name, value in values.items()
+           if value.ndim == 1}
+    names = list(out)
+    if seams is not None and names:
+        clock = time.perf_counter()
+        # the data term's weight: one for every texel (the same error everywhere)
+        out["_weight"] = np.ones((height, width))
+        erased = erase_seams(out, [SeamChannel((name,), "_weight") for name in names], seams,
+                             covered, padding, directions=True, compiled=compiled,
+                             threads=threads)
+        del out["_weight"]
+        if timings is not None:
+            timings["seams_s"] = time.perf_counter() - clock
+        if seam_info is not None and erased is not None:
+            seam_info.update(erased.info)
+    stack = np.stack([out[n] for n in names], axis=-1)
+    stack, filled = dilate(stack, covered, padding, compiled=compiled)
+    stack = push_pull(stack, filled, np.float32)
+    out = {name: stack[..., i] for i, name in enumerate(names)}
+    out["coverage"] = samples.coverage.astype(np.float64) * covered
+    return ({name: np.ascontiguousarray(image, dtype=np.float32) for name, image in out.items()},
+            covered, filled)
+
+
 def _denoised(out, quantities, sub, traced, covered, rays_img, denoise) -> list:
     """Add the denoised channels of the scalar quantities to ``out``; their names, value
     then stderr for each quantity."""
