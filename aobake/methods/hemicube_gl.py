@@ -1,0 +1,301 @@
+"""The hemicube's rasteriser: OpenGL through moderngl on a headless EGL context, run in a
+child process (``aobake.child``), never in the baker's own: a driver can take its process
+down.  One context per child; its function ``render(inputs) -> outputs`` takes and returns
+arrays (see :func:`render`).  Imports numpy, moderngl and ``hemicube_cells`` only.
+
+Per point, one instanced draw of the mesh: instance f = 0..4 is the hemicube's face f
+(``hemicube_cells``: the front face and the four half side faces), laid out in the point's
+3R x R tile of one framebuffer; a batch of points fills the framebuffer's tiles, then the
+tiles are read back together.
+
+What a pixel says: whether the ray through its centre from the eye (the point moved along its
+normal by the ray offset, as the ray-traced method's origins) meets a triangle within the
+max distance.  GL samples coverage at pixel centres, so a pixel is the one ray through its
+centre:
+- near plane at the ray offset (nothing nearer than it along a face's axis is seen), no far
+  plane (an infinite perspective: z_clip = w - 2 near, w = depth along the axis);
+- the far limit is a sphere: a fragment whose hit distance along its pixel's ray exceeds the
+  max distance is discarded.  The distance is not interpolated: it is the pixel ray's
+  intersection with the fragment's triangle plane (gl_PrimitiveID -> that triangle's first
+  corner and normal, from a float texture), so it depends only on the pixel and the triangle;
+- no face culling by default: back faces occlude, as rays do (``--backfaces occlude``);
+  ``backfaces = ignore`` culls the faces seen from behind, as rays pass through them;
+- depth test on ('<=': a pixel keeps its nearest fragment); the colour is 1 for "blocked".
+
+Every point's pixels are the same bits wherever its tile lies, so any split of the points
+gives the same values.  Everything up to clipping is computed in the tile's own clip space,
+the same for every tile: the face's offset within the tile and the clip planes that cut a
+face to its rectangle (gl_ClipDistance) are constants.  The tile is placed by the viewport
+alone, at integer coordinates in [S, 2S) (S a power of two, the framebuffer 2S across): the
+viewport transform then adds an integer to window coordinates that all lie in one binade, so
+the sum is exact, and the rasteriser's fixed-point snapping and integer edge functions move
+with it by whole pixels.  (Tiles placed by offsets in a shared clip space would not be: the
+perspective divide of a different sum rounds differently.)
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+from aobake.methods import hemicube_cells
+
+#: the framebuffer: tiles lie in [S + MARGIN, 2S - MARGIN) on both axes, S a power of two at
+#: least MIN_HALF (a 2S x 2S framebuffer of which only the tiles are cleared and read)
+MIN_HALF = 1024
+MARGIN = 1
+#: texels per row of the triangle texture (two RGBA32F texels per triangle)
+TEXTURE_WIDTH = 4096
+
+VERTEX_SHADER = """
+#version 410
+in vec3 in_position;
+uniform vec3 eye;
+uniform mat3 frame;   // columns t, b, n: the point's frame
+uniform float near;
+out float gl_ClipDistance[4];
+flat out int face;
+
+void main() {
+    // (t, b, n) coordinates of the vertex seen from the eye
+    vec3 q = (in_position - eye) * frame;
+    int f = gl_InstanceID;
+    vec3 v;         // face coordinates: (right, up, forward), as hemicube_cells.face_frames
+    float ax, ay, ylo;
+    if (f == 0)      { v = vec3( q.x,  q.y,  q.z); ax = -2.0 / 3.0; ay =  0.0; ylo = -1.0; }
+    else if (f == 1) { v = vec3( q.y,  q.z,  q.x); ax =  0.0;       ay = -1.0; ylo =  0.0; }
+    else if (f == 2) { v = vec3(-q.y,  q.z, -q.x); ax =  0.0;       ay =  0.0; ylo =  0.0; }
+    else if (f == 3) { v = vec3(-q.x,  q.z,  q.y); ax =  2.0 / 3.0; ay = -1.0; ylo =  0.0; }
+    else             { v = vec3( q.x,  q.z, -q.y); ax =  2.0 / 3.0; ay =  0.0; ylo =  0.0; }
+    float w = v.z;
+    // the face's rectangle: x in [-1, 1], y in [ylo, 1] (a side face above the horizon)
+    gl_ClipDistance[0] = w + v.x;
+    gl_ClipDistance[1] = w - v.x;
+    gl_ClipDistance[2] = w - v.y;
+    gl_ClipDistance[3] = v.y - ylo * w;
+    // into the tile: a third of its width per face column, a side face's upper half into
+    // its half of the tile's height; near plane at w = near, no far plane
+    gl_Position = vec4(ax * w + v.x / 3.0, ay * w + v.y, w - 2.0 * near, w);
+    face = f;
+}
+"""
+
+FRAGMENT_SHADER = """
+#version 410
+uniform vec3 eye;
+uniform mat3 frame;
+uniform vec2 origin;          // the tile's lower-left corner (window pixels, integers)
+uniform float resolution;     // R
+uniform float max_distance;   // local units
+uniform bool limited;         // max_distance is finite
+uniform sampler2D triangles;  // per triangle: texel 2i = first corner, 2i + 1 = unit normal
+flat in int face;
+out float blocked;
+
+vec4 fetch(int texel) {
+    return texelFetch(triangles, ivec2(texel % %(width)d, texel / %(width)d), 0);
+}
+
+void main() {
+    if (limited) {
+        // the pixel centre on its face plane (exact: integers + 0.5 minus integers)
+        vec2 p = gl_FragCoord.xy - origin;
+        float step = 2.0 / resolution;
+        float col = p.x - resolution * floor(p.x / resolution);
+        float x = col * step - 1.0;
+        float y;
+        if (face == 0) y = p.y * step - 1.0;
+        else y = (p.y - (face == 2 || face == 4 ? 0.5 * resolution : 0.0)) * step;
+        vec3 t = frame[0], b = frame[1], n = frame[2];
+        vec3 d;   // the pixel's direction (x right + y up + forward)
+        if (face == 0)      d = x * t + y * b + n;
+        else if (face == 1) d = x * b + y * n + t;
+        else if (face == 2) d = -x * b + y * n - t;
+        else if (face == 3) d = -x * t + y * n + b;
+        else                d = x * t + y * n - b;
+        vec3 corner = fetch(2 * gl_PrimitiveID).xyz;
+        vec3 normal = fetch(2 * gl_PrimitiveID + 1).xyz;
+        // distance along the unit ray to the triangle's plane; NaN (edge-on) is discarded
+        float along = dot(normal, corner - eye) / dot(normal, d) * length(d);
+        if (!(along <= max_distance)) discard;
+    }
+    blocked = 1.0;
+}
+"""
+
+
+def half_size(resolution: int) -> int:
+    """S: the power of two at least MIN_HALF whose [S + MARGIN, 2S - MARGIN) holds a tile."""
+    need = 3 * resolution + 2 * MARGIN
+    return max(MIN_HALF, 1 << (need - 1).bit_length())
+
+
+def tiles_per_batch(resolution: int) -> tuple[int, int]:
+    """(columns, rows) of tiles in one framebuffer."""
+    span = half_size(resolution) - 2 * MARGIN
+    return span // (3 * resolution), span // resolution
+
+
+def _triangle_texture(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(rows, TEXTURE_WIDTH, 4) float32: per triangle its first corner and unit normal (from
+    the float32 corners the rasteriser draws; zero for a degenerate triangle: its distance is
+    NaN and it is discarded, if it ever covers a pixel centre)."""
+    corners = vertices.astype(np.float64)[faces]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+    texels = np.zeros((2 * len(faces), 4), dtype=np.float32)
+    texels[0::2, :3] = vertices[faces[:, 0]]
+    texels[1::2, :3] = normal
+    rows = max(1, -(-len(texels) // TEXTURE_WIDTH))
+    out = np.zeros((rows * TEXTURE_WIDTH, 4), dtype=np.float32)
+    out[:len(texels)] = texels
+    return out.reshape(rows, TEXTURE_WIDTH, 4)
+
+
+class Rasteriser:
+    """One GL context and the scene's buffers; ``draw(eyes, frames, near, weight)`` renders
+    hemicubes.  vertices (v, 3) float32 local units, faces (f, 3) int64, resolution R (even),
+    max_distance local units (inf: none), backfaces 'occlude' | 'ignore'."""
+
+    def __init__(self, vertices, faces, resolution: int, max_distance: float,
+                 backfaces: str = "occlude"):
+        import moderngl
+
+        self.resolution = hemicube_cells.check_resolution(resolution)
+        self.ctx = ctx = moderngl.create_standalone_context(backend="egl")
+        vertices = np.ascontiguousarray(vertices, dtype=np.float32)
+        faces = np.ascontiguousarray(faces, dtype=np.uint32)
+        self.program = ctx.program(
+            vertex_shader=VERTEX_SHADER,
+            fragment_shader=FRAGMENT_SHADER.replace("%(width)d", str(TEXTURE_WIDTH)))
+        self.vbo = ctx.buffer(vertices.tobytes())
+        self.ibo = ctx.buffer(faces.tobytes())
+        self.vao = ctx.vertex_array(self.program, [(self.vbo, "3f", "in_position")],
+                                    index_buffer=self.ibo, index_element_size=4)
+        table = _triangle_texture(vertices, faces.astype(np.int64))
+        self.texture = ctx.texture((TEXTURE_WIDTH, table.shape[0]), 4, table.tobytes(),
+                                   dtype="f4")
+        self.texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.texture.use(0)
+        self.program["triangles"].value = 0
+        self.program["resolution"].value = float(self.resolution)
+        limited = math.isfinite(max_distance) and max_distance < 3.0e38
+        self.program["limited"].value = limited
+        self.program["max_distance"].value = float(max_distance) if limited else 0.0
+        self.half = half_size(self.resolution)
+        size = (2 * self.half, 2 * self.half)
+        self.colour = ctx.renderbuffer(size, components=1, dtype="f1")
+        self.depth = ctx.depth_renderbuffer(size)
+        self.fbo = ctx.framebuffer(color_attachments=[self.colour], depth_attachment=self.depth)
+        self.fbo.use()
+        ctx.enable(moderngl.DEPTH_TEST)
+        # '<=', not '<': with a near plane tiny against the scene (a point at the local
+        # origin with a tiny triangle has an offset of ~1e-11) the depth 1 - near / w of
+        # everything rounds to the cleared 1.0 in a 24-bit buffer, and '<' would drop it
+        ctx.depth_func = "<="
+        # hemicube_cells' face frames are right-handed and look along +forward, so a triangle
+        # whose (counter-clockwise) front faces the eye is drawn clockwise
+        ctx.front_face = "cw"
+        if backfaces == "ignore":
+            ctx.enable(moderngl.CULL_FACE)
+            ctx.cull_face = "back"
+        elif backfaces != "occlude":
+            raise ValueError(f"backfaces must be 'occlude' or 'ignore', got {backfaces!r}")
+        self.info = {key: str(ctx.info.get(key)) for key in ("GL_RENDERER", "GL_VERSION")}
+
+    def draw(self, eyes, frames, near, weight, keep_tiles: bool = False) -> dict:
+        """Hemicubes of the points with eyes (n, 3) float32, frames (n, 3, 3) float32 (rows t,
+        b, n) and near planes (n,) float32, reduced batch by batch with ``weight`` (R, 3R)
+        float64 (``hemicube_cells.weights``): {"ao": (n,) float64 the open pixels' weight,
+        "blocked_pixels": (n,) int64} and with keep_tiles "tiles" (n, R, 3R) uint8, 255
+        where the pixel's ray is blocked."""
+        r = self.resolution
+        columns, rows = tiles_per_batch(r)
+        per_batch = columns * rows
+        n = len(eyes)
+        ao = np.empty(n)
+        blocked = np.empty(n, dtype=np.int64)
+        tiles = np.empty((n, r, 3 * r), dtype=np.uint8) if keep_tiles else None
+        program, base = self.program, self.half + MARGIN
+        for start in range(0, n, per_batch):
+            count = min(per_batch, n - start)
+            used_rows = -(-count // columns)
+            region = (base, base, (columns if used_rows > 1 else count) * 3 * r,
+                      used_rows * r)
+            self.ctx.scissor = None
+            self.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=region)
+            for k in range(count):
+                i = start + k
+                x, y = base + (k % columns) * 3 * r, base + (k // columns) * r
+                self.ctx.viewport = (x, y, 3 * r, r)
+                self.ctx.scissor = (x, y, 3 * r, r)
+                program["eye"].value = tuple(float(c) for c in eyes[i])
+                # GLSL's mat3 from 9 floats is column-major: columns t, b, n
+                program["frame"].write(np.ascontiguousarray(frames[i], dtype=np.float32))
+                program["near"].value = float(near[i])
+                program["origin"].value = (float(x), float(y))
+                self.vao.render(instances=5)
+            self.ctx.scissor = None
+            data = np.frombuffer(self.fbo.read(viewport=region, components=1), dtype=np.uint8)
+            # (rows of tiles, R, columns of tiles, 3R) -> (tile, R, 3R), tiles row-major
+            image = data.reshape(used_rows, r, region[2] // (3 * r), 3 * r)
+            batch = image.transpose(0, 2, 1, 3).reshape(-1, r, 3 * r)[:count]
+            is_open = batch == 0
+            # each tile's sum on its own contiguous row (pairwise summation of 3R^2 values):
+            # the same bits whatever the batch holds
+            ao[start:start + count] = np.where(is_open, weight, 0.0).reshape(count, -1).sum(axis=1)
+            blocked[start:start + count] = 3 * r * r - np.count_nonzero(is_open, axis=(1, 2))
+            if tiles is not None:
+                tiles[start:start + count] = batch
+        out = {"ao": ao, "blocked_pixels": blocked}
+        if tiles is not None:
+            out["tiles"] = tiles
+        return out
+
+    def release(self) -> None:
+        self.ctx.release()
+
+
+def _threads(inputs: dict) -> None:
+    """llvmpipe's rasteriser threads (LP_NUM_THREADS, read when a context is made): the
+    bake's ``threads``; the values do not depend on it."""
+    threads = int(inputs.get("threads", 0))
+    if threads > 0:
+        os.environ["LP_NUM_THREADS"] = str(threads)
+
+
+def render(inputs: dict) -> dict:
+    """The child's work.  inputs: vertices (v, 3) float32 and faces (f, 3) int64 (local
+    units), eyes (n, 3) float32, frames (n, 3, 3) float32 (rows t, b, n), near (n,) float32,
+    resolution, max_distance (local units, inf: none), weighting ('cosine' | 'uniform'),
+    backfaces ('occlude' | 'ignore'), threads (llvmpipe's), keep_tiles (bool).  outputs: ao
+    (n,) float64 the weight of the open pixels (1 = open), blocked_pixels (n,) int64,
+    renderer and gl_version (str), and with keep_tiles the tiles (n, R, 3R) uint8."""
+    _threads(inputs)
+    resolution = int(inputs["resolution"])
+    weight = hemicube_cells.weights(resolution, str(inputs["weighting"]))
+    raster = Rasteriser(inputs["vertices"], inputs["faces"], resolution,
+                        float(inputs["max_distance"]), str(inputs["backfaces"]))
+    try:
+        out = raster.draw(inputs["eyes"], inputs["frames"], inputs["near"], weight,
+                          bool(inputs.get("keep_tiles", False)))
+    finally:
+        raster.release()
+    out["renderer"] = np.array(raster.info["GL_RENDERER"])
+    out["gl_version"] = np.array(raster.info["GL_VERSION"])
+    return out
+
+
+def probe(inputs: dict) -> dict:
+    """The child's check that a context can be made: its renderer and version."""
+    import moderngl
+
+    ctx = moderngl.create_standalone_context(backend="egl")
+    try:
+        return {"renderer": np.array(str(ctx.info.get("GL_RENDERER"))),
+                "gl_version": np.array(str(ctx.info.get("GL_VERSION")))}
+    finally:
+        ctx.release()
