@@ -53,6 +53,10 @@ log = logging.getLogger(__name__)
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 
 
+#: a float64 coordinate step above this fraction of the median triangle size is warned of
+QUANTISED_FRACTION = 1e-3
+
+
 @dataclass(frozen=True)
 class Scene:
     """One triangle scene in float64, as baked.
@@ -87,6 +91,26 @@ class Scene:
     #: what --fix-normals found and did (see :func:`repair_record`); None for a Scene built
     #: directly
     repair: dict | None = None
+
+    def __post_init__(self):
+        """Shapes and index ranges checked, also for a Scene built directly (``make_scene``
+        validates everything else): a bad one is an InputError now, not an IndexError
+        deep in a bake."""
+        v, f = np.asarray(self.vertices), np.asarray(self.faces)
+        if v.ndim != 2 or v.shape[1] != 3 or v.dtype.kind != "f":
+            raise InputError(f"{self.source}: vertices must be (n, 3) floats, got "
+                             f"{v.shape} {v.dtype}")
+        if f.ndim != 2 or f.shape[1] != 3 or f.dtype.kind not in "iu" or len(f) == 0:
+            raise InputError(f"{self.source}: faces must be (f, 3) integers (f > 0), got "
+                             f"{f.shape} {f.dtype}")
+        if f.min() < 0 or f.max() >= len(v):
+            raise InputError(f"{self.source}: face index out of range (have {len(v)} "
+                             "vertices)")
+        for name, rows in (("vertex_normals", len(v)), ("face_normals", len(f))):
+            array = np.asarray(getattr(self, name))
+            if array.shape != (rows, 3):
+                raise InputError(f"{self.source}: {name} must be ({rows}, 3), got "
+                                 f"{array.shape}")
 
     @cached_property
     def used(self) -> np.ndarray:
@@ -327,6 +351,16 @@ def make_scene(
             raise InputError(f"{source}: material indices do not match the faces")
     else:
         face_material = None
+    # float64 itself quantises coordinates far from the origin: at 1e15 every coordinate is a
+    # multiple of 0.125.  Say so where that step is a visible fraction of the triangles.
+    sized = areas[areas > 0]
+    typical = math.sqrt(2.0 * float(np.median(sized))) if len(sized) else 0.0
+    step = float(np.spacing(largest))
+    if typical > 0 and step > QUANTISED_FRACTION * typical:
+        warnings.append(f"{source}: coordinates up to {largest:.3g} are quantised by float64 "
+                        f"itself to steps of {step:.3g}, {step / typical:.2g} of the median "
+                        "triangle size: the file's positions are already rounded (translate "
+                        "the mesh nearer the origin before exporting it)")
     for message in warnings:
         log.warning(message)
     return Scene(vertices, faces, vnormals, fnormals, uv, faces_uv if uv is not None else None,

@@ -202,3 +202,22 @@ def test_image_metadata_is_strict_json(tmp_path):
         _, _, attrs = read_image(path)
         data = strict(attrs.get("aobake:metadata") or attrs["ImageDescription"])
         assert data["config"]["max_distance"] == "inf" and data["parameters"]["x"] == "nan"
+
+
+def test_identical_inputs_give_byte_identical_images(tmp_path):
+    """No time stamp in the files: the same channels written a second later are the same
+    bytes (EXR, TIFF and PNG), so a cache may key bakes by file hash."""
+    import time
+
+    from aobake.outputs.image import write_exr, write_ldr
+
+    values = np.linspace(0, 1, 48, dtype=np.float32).reshape(6, 8)
+    cover = np.ones_like(values)
+    for name, write in (("a.exr", lambda p: write_exr(p, {"ao": values}, {"k": 1})),
+                        ("a.tif", lambda p: write_ldr(p, values, cover, metadata={"k": 1})),
+                        ("a.png", lambda p: write_ldr(p, values, cover, metadata={"k": 1}))):
+        first, second = tmp_path / ("1" + name), tmp_path / ("2" + name)
+        write(first)
+        time.sleep(1.01)  # DateTime has a resolution of one second
+        write(second)
+        assert first.read_bytes() == second.read_bytes(), name

@@ -470,3 +470,32 @@ def test_a_byte_order_mark_does_not_hide_the_first_line(tmp_path):
     path.write_bytes(b"\xef\xbb\xbfv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     data = read_obj(path)
     assert data.vertices.shape == (3, 3) and data.faces.tolist() == [[0, 1, 2]]
+
+
+def test_a_scene_built_directly_is_checked():
+    """aobake.Scene(...) with faces of the wrong shape or out of range: an InputError at
+    construction, not an IndexError in the bake."""
+    import aobake
+
+    v = np.zeros((4, 3))
+    n = np.zeros((4, 3))
+    with pytest.raises(aobake.InputError, match="faces must be"):
+        aobake.Scene(v, np.array([[0, 1, 2, 3]]), n, np.zeros((1, 3)))
+    with pytest.raises(aobake.InputError, match="out of range"):
+        aobake.Scene(v, np.array([[0, 1, 9]]), n, np.zeros((1, 3)))
+    with pytest.raises(aobake.InputError, match="face_normals"):
+        aobake.Scene(v, np.array([[0, 1, 2]]), n, np.zeros((2, 3)))
+
+
+def test_far_from_origin_coordinates_quantised_by_float64_are_warned_of():
+    """A mesh translated by 1e15: float64 spaces coordinates 0.125 apart there, a visible
+    fraction of unit triangles; at 1e6 the step (1e-10) is not."""
+    import trimesh
+
+    from aobake.scene import make_scene
+
+    box = trimesh.creation.box()
+    far = make_scene(box.vertices + 1e15, box.faces)
+    assert any("quantised by float64" in w for w in far.warnings)
+    near = make_scene(box.vertices + 1e6, box.faces)
+    assert not any("quantised" in w for w in near.warnings)

@@ -122,3 +122,19 @@ def test_cli_bake_at_a_texel_density(tmp_path):
                   "--texel-samples", "1")
     assert res.exit_code == 0, res.output
     assert "texel density 12-12 per scene unit" in res.output
+
+
+def test_the_sparse_chart_warning_names_the_option_in_use():
+    """Too few texels per chart: with --texel-density the advice is to raise the density
+    (a resolution cannot be given with it), else the resolution."""
+    import trimesh
+
+    import aobake
+
+    mesh = trimesh.creation.icosphere(3)
+    dense = aobake.bake_texels(mesh, rays=1, texel_density=2.0, padding=1)
+    sized = aobake.bake_texels(mesh, rays=1, resolution=8, padding=1)
+    for result, option, other in ((dense, "--texel-density", "--resolution"),
+                                  (sized, "--resolution", "--texel-density")):
+        advice = [w for w in result.report["warnings"] if "or lower --padding" in w]
+        assert advice and option in advice[0] and other not in advice[0]

@@ -114,6 +114,9 @@ def _write(path, pixels: np.ndarray, fmt, channel_names, attributes: Mapping[str
         spec.channelnames = tuple(channel_names)
         if channel_formats is not None:
             spec.channelformats = tuple(oiio.TypeDesc(f) for f in channel_formats)
+        # No time stamp: OpenImageIO writes the time of writing as DateTime unless it is set
+        # empty, and identical inputs must give byte-identical files (caches hash them).
+        spec.attribute("DateTime", "")
         for name, value in attributes.items():
             spec.attribute(name, value)
         try:

@@ -149,7 +149,9 @@ class TexelTarget:
             warnings.append(
                 f"{scene.source}: the lightmap covers {texture['texels_covered']} texels for "
                 f"{pieces} {what} ({per_piece:.1f} each, {texture['texel_density'] or 0:.3g} "
-                f"texels per scene unit): raise --resolution or lower --padding")
+                f"texels per scene unit): raise "
+                f"{'--texel-density' if config.texel_density is not None else '--resolution'}"
+                " or lower --padding")
         result = TexelResult(images, covered, {}, atlas=state["atlas"])
         return Finished(result, values, rays, len(plan.points),
                         report={"texture": texture, "timings": timings},
