@@ -3,15 +3,12 @@
 
 from __future__ import annotations
 
-import logging
-import sys
 from pathlib import Path
 
 import click
 
-from aobake.cli import _route_python_warnings
+from aobake.cli import _guarded
 from aobake.cli_options import DistanceType, TauType
-from aobake.errors import AobakeError
 
 
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
@@ -32,25 +29,20 @@ from aobake.errors import AobakeError
 def refit_main(bake, out, tau, max_distance, quantities, report_path, quiet):
     """Recompute ao/obscurance of BAKE (an NPZ written with --keep-distances) at another
     --max-distance or --tau, without tracing: the same numbers as a fresh bake of that seed."""
+    # The main command's contract: one line and exit 1 for a bad input or output, SIGINT
+    # 130, SIGTERM/SIGHUP 128 + the signal, and the outputs a transaction (none left behind).
+    _guarded(quiet, _refit, bake, out, tau, max_distance, quantities, report_path, quiet)
+
+
+def _refit(bake, out, tau, max_distance, quantities, report_path, quiet):
     import time
 
     import aobake
     from aobake.refit import refit
 
-    logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING,
-                        format="aobake: warning: %(message)s", stream=sys.stderr)
-    _route_python_warnings(quiet)
-    try:
-        start = time.perf_counter()
-        result = refit(bake, tau=tau, max_distance=max_distance,
-                       quantities=list(quantities) or None)
-        written = aobake.write(result, out, mesh=bake, report=report_path)
-    except (AobakeError, ValueError) as exc:
-        click.echo(f"aobake: error: {exc}", err=True)
-        sys.exit(1)
-    except KeyboardInterrupt:
-        click.echo("aobake: error: interrupted (SIGINT): no output written", err=True)
-        sys.exit(130)
+    start = time.perf_counter()
+    result = refit(bake, tau=tau, max_distance=max_distance, quantities=list(quantities) or None)
+    written = aobake.write(result, out, mesh=bake, report=report_path)
     if not quiet:
         click.echo(f"aobake: refit {len(result.positions)} vertices in "
                    f"{time.perf_counter() - start:.3f} s, no rays traced -> "

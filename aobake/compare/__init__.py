@@ -37,7 +37,8 @@ import logging
 import math
 import os
 import struct
-import sys
+import zipfile
+import zlib
 from pathlib import Path
 
 import click
@@ -51,7 +52,7 @@ from aobake.compare.parsing import Unreadable
 from aobake.compare.readers import read_table
 from aobake.compare.settings import check_same_quantity
 from aobake.compare.values import TEXEL_SUFFIXES, VERTEX_SUFFIXES, Values, kind, pick, target_of
-from aobake.errors import AobakeError, InputError
+from aobake.errors import InputError
 from aobake.quantities import QUANTITIES
 
 __all__ = ["COMPARABLE", "CONVENTIONS", "POSITION_TOLERANCE", "TEXEL_SUFFIXES", "VERTEX_SUFFIXES",
@@ -111,22 +112,39 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
         raise InputError(f"{reference_path}: holds no {quantity} values")
     aligned = (align_texels if target == "texels" else align_vertices)(reference, candidate)
     ref, cand, ref_se, cand_se, where, extra = aligned
-    for values, path in ((ref, reference_path), (cand, candidate_path)):
-        bad = int(np.count_nonzero(~np.isfinite(values)))
+    for values, path, what in ((ref, reference_path, quantity), (cand, candidate_path, quantity),
+                               (ref_se, reference_path, f"{quantity}_stderr"),
+                               (cand_se, candidate_path, f"{quantity}_stderr")):
+        bad = 0 if values is None else int(np.count_nonzero(~np.isfinite(values)))
         if bad:
-            raise InputError(f"{path}: {bad} of the {len(values)} compared {quantity} values "
+            raise InputError(f"{path}: {bad} of the {len(values)} compared {what} values "
                              "are not finite")
+    with np.errstate(over="ignore"):
+        error = cand - ref
+    if not np.isfinite(error).all():  # finite values whose difference leaves float64
+        big_ref, big_cand = float(np.max(np.abs(ref))), float(np.max(np.abs(cand)))
+        big, path = (big_ref, reference_path) if big_ref > big_cand else (big_cand, candidate_path)
+        raise InputError(f"{path}: {quantity} values as large as {big:.3g}: their difference "
+                         "from the other file's is beyond float64's range")
     result = {"quantity": quantity, "target": target, "reference": str(reference_path),
               "candidate": str(candidate_path), "reference_key": reference.key,
               "candidate_key": candidate.key, "candidate_convention": candidate_convention}
-    result.update(metrics(ref, cand, ref_se, cand_se))
+    try:
+        result.update(metrics(ref, cand, ref_se, cand_se))
+    except ValueError as exc:  # a ratio beyond float64: the reference's stderr is the cause
+        raise InputError(f"{reference_path}: {exc}") from None
     warnings += extra.pop("warnings")
+    notes = reference.notes + candidate.notes + extra.pop("notes")
     result.update(extra)
     result["heatmap"], result["heatmap_scale"] = None, None
     result["warnings"] = warnings
+    result["notes"] = notes
     if heatmap is not None:
         scale = result["max_error"] or 1.0
-        error = cand - ref
+        if target == "vertices":  # on every reference vertex: 0 (white) where none compared
+            full = np.zeros(len(reference.value))
+            full[slice(None) if where is None else where] = error
+            error, where = full, None
         write_heatmap(heatmap, reference, error, where, scale, quantity)
         result["heatmap"], result["heatmap_scale"] = str(heatmap), scale
         log.info("wrote %s (full colour at |error| = %.6g)", heatmap, scale)
@@ -139,42 +157,74 @@ def metrics(reference: np.ndarray, candidate: np.ndarray, reference_stderr: np.n
             candidate_stderr: np.ndarray | None = None) -> dict:
     """The error metrics of ``candidate - reference``.
 
-    reference, candidate : (n,) float, n >= 1; *_stderr : (n,) float or None.
+    reference, candidate : (n,) float, n >= 1, finite; *_stderr : (n,) float, finite, or None.
     Returns a dict of Python floats / None (n an int): n, rmse, bias, max_error,
     mean_abs_error, psnr (peak 1, None when the error is exactly 0), reference_noise_rms,
     rmse_in_reference_se, excess_rmse, candidate_noise_rms (None without the stderr).
+    Every number is finite: the means are taken on values scaled by their largest when
+    squares would leave float64's range (an error of 1e200 has an rmse of 1e200, not inf).
+    Raises ValueError when the error, a difference or a ratio is beyond float64's range.
     """
-    error = np.asarray(candidate, dtype=np.float64) - np.asarray(reference, dtype=np.float64)
+    with np.errstate(over="ignore"):
+        error = np.asarray(candidate, dtype=np.float64) - np.asarray(reference, dtype=np.float64)
+    if not np.isfinite(error).all():
+        raise ValueError("the error candidate - reference is not finite (or beyond float64)")
     n = error.size
-    mse = float(np.mean(error * error))
+    rmse = _rms(error)
+    largest = float(np.max(np.abs(error)))
     noise = _rms(reference_stderr)
     out = {
         "n": int(n),
-        "rmse": math.sqrt(mse),
-        "bias": float(np.mean(error)),
-        "max_error": float(np.max(np.abs(error))),
-        "mean_abs_error": float(np.mean(np.abs(error))),
-        "psnr": 10.0 * math.log10(1.0 / mse) if mse > 0 else None,  # peak 1: AO spans [0, 1]
+        "rmse": rmse,
+        "bias": _mean(error, largest),
+        "max_error": largest,
+        "mean_abs_error": _mean(np.abs(error), largest),
+        # peak 1 (AO spans [0, 1]): 10 log10(1 / mean e^2) = -20 log10(rmse)
+        "psnr": -20.0 * math.log10(rmse) if rmse > 0 else None,
         "reference_noise_rms": noise,
         "rmse_in_reference_se": None,
         "excess_rmse": None,
         "candidate_noise_rms": _rms(candidate_stderr),
     }
     if noise is not None:
-        # the reference's noise alone gives mean e^2 = noise^2 against an exact candidate
-        out["excess_rmse"] = math.sqrt(max(0.0, mse - noise * noise))
+        # the reference's noise alone gives mean e^2 = noise^2 against an exact candidate:
+        # sqrt(max(0, rmse^2 - noise^2)), as rmse sqrt((1 - q)(1 + q)), q = noise / rmse
+        q = noise / rmse if rmse > 0 else math.inf
+        out["excess_rmse"] = 0.0 if q >= 1 else (math.sqrt(max(0.0, rmse * rmse - noise * noise))
+                                                 if rmse < 1e150 else
+                                                 rmse * math.sqrt((1 - q) * (1 + q)))
         if noise > 0:
-            out["rmse_in_reference_se"] = out["rmse"] / noise
+            ratio = rmse / noise
+            if not math.isfinite(ratio):
+                raise ValueError(f"its stderr ({noise:.3g} rms) is too small against an error of "
+                                 f"{rmse:.3g}: their ratio is beyond float64's range")
+            out["rmse_in_reference_se"] = ratio
     return out
 
 
-def _rms(stderr) -> float | None:
-    if stderr is None:
+def _rms(values) -> float | None:
+    """sqrt(mean(values^2)) of finite values (None stays None), finite: on the values scaled
+    by their largest when the squares would overflow (or underflow to 0)."""
+    if values is None:
         return None
-    stderr = np.asarray(stderr, dtype=np.float64)
-    if not np.isfinite(stderr).all():
-        return None
-    return math.sqrt(float(np.mean(stderr * stderr)))
+    values = np.asarray(values, dtype=np.float64)
+    with np.errstate(over="ignore", under="ignore"):
+        mean_square = float(np.mean(values * values))
+    largest = float(np.max(np.abs(values)))
+    if math.isfinite(mean_square) and (mean_square > 0 or largest == 0):
+        return math.sqrt(mean_square)
+    scaled = values / largest
+    return largest * math.sqrt(float(np.mean(scaled * scaled)))
+
+
+def _mean(values: np.ndarray, largest: float) -> float:
+    """mean(values) of finite values, finite (a sum of values near float64's limit would
+    overflow: then on the values scaled by ``largest``, their largest magnitude)."""
+    with np.errstate(over="ignore"):
+        mean = float(np.mean(values))
+    if math.isfinite(mean) or largest == 0:
+        return mean
+    return largest * float(np.mean(values / largest))
 
 
 def read(path, quantity: str = "ao", *, key: str | None = None, role: str = "reference") -> Values:
@@ -198,8 +248,12 @@ def read(path, quantity: str = "ao", *, key: str | None = None, role: str = "ref
         table = read_table(path)
     except InputError:
         raise
-    except (Unreadable, ValueError, KeyError, IndexError, TypeError, EOFError, OSError,
-            struct.error, UnicodeDecodeError) as exc:
+    except MemoryError:  # the readers bound what they make by the file; this is the last net
+        raise InputError(f"{path}: cannot read as {suffix[1:].upper()}: it needs more memory "
+                         "than this machine has") from None
+    except (Unreadable, ValueError, LookupError, TypeError, AttributeError, ArithmeticError,
+            EOFError, OSError, struct.error, zipfile.BadZipFile, zlib.error,
+            RecursionError) as exc:
         reason = f"no {exc}" if isinstance(exc, KeyError) else \
             " ".join(str(exc).split()) or type(exc).__name__
         raise InputError(f"{path}: cannot read as {suffix[1:].upper()}: {reason}") from None
@@ -207,6 +261,8 @@ def read(path, quantity: str = "ao", *, key: str | None = None, role: str = "ref
     values.warnings = [f"{path}: {text}" for text in table.warnings]
     for text in values.warnings:
         log.warning("%s", text)
+    for text in values.notes:
+        log.info("%s", text)
     log.debug("%s: %s from %r, %s", path, quantity, values.key, values.value.shape)
     return values
 
@@ -214,7 +270,9 @@ def read(path, quantity: str = "ao", *, key: str | None = None, role: str = "ref
 def format_table(result: dict) -> str:
     """The short human summary of a ``compare`` record."""
     def num(value, spec=".6f"):
-        return "-" if value is None else format(value, spec)
+        if value is None:
+            return "-"
+        return format(value, spec) if abs(value) < 1e6 else format(value, ".6g")
 
     where = {"order": "vertices (same order)", "position": "vertices (matched by position)",
              "texel": "covered texels"}[result["matched_by"]]
@@ -234,9 +292,10 @@ def format_table(result: dict) -> str:
              f"{result['n']} {where}"]
     width = max(len(label) for label, _ in rows)
     lines += [f"  {label:<{width}}  {value}" for label, value in rows]
-    if result["n_uncovered_in_candidate"]:
+    if result["n_uncovered_in_candidate"] and result["target"] == "texels":
         lines.append(f"  ({result['n_uncovered_in_candidate']} texels the reference covers are "
                      "not covered by the candidate: left out)")
+    lines += [f"  note: {text}" for text in result["notes"]]
     if result["heatmap"]:
         lines.append(f"  heatmap: {result['heatmap']} (full colour at |error| = "
                      f"{result['heatmap_scale']:.4g})")
@@ -267,15 +326,11 @@ def main(reference, candidate, quantity, candidate_key, candidate_convention, he
     another tool (see --candidate-key, --candidate-convention).  Uniform- and
     cosine-weighted AO are different quantities and are not compared.
     """
-    logging.basicConfig(level=logging.WARNING, format="aobake: warning: %(message)s",
-                        stream=sys.stderr)
-    try:
+    from aobake.cli import _guarded  # the main command's contract: errors, signals, exit codes
+
+    def run():
         result = compare(reference, candidate, quantity, candidate_key=candidate_key,
                          candidate_convention=candidate_convention, heatmap=heatmap)
-    except (AobakeError, ValueError) as exc:
-        click.echo(f"aobake: error: {exc}", err=True)
-        sys.exit(1)
-    if as_json:
-        click.echo(json.dumps(result, allow_nan=False))
-    else:
-        click.echo(format_table(result))
+        click.echo(json.dumps(result, allow_nan=False) if as_json else format_table(result))
+
+    _guarded(False, run)

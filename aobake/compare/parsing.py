@@ -1,18 +1,36 @@
-"""What PLY, GLB and image files hold, as stored: the byte-level parsing, done once.
+"""What NPZ, PLY, GLB and image files hold, as stored: the byte-level parsing, done once.
 
-``readers`` turns these into compare's table; ``tests/readers.py`` reads aobake's own
-outputs back with the same functions (``strict=True`` where the tests refuse what aobake
-never writes but compare tolerates in another tool's file).  Every malformation raises
-``Unreadable`` (a ``ValueError``) with the reason, without the file name.
+``readers`` turns these into compare's table, ``aobake.refit`` reads its NPZ with
+``read_npz``; ``tests/readers.py`` reads aobake's own outputs back with the same functions
+(``strict=True`` where the tests refuse what aobake never writes but compare tolerates in
+another tool's file).  Every malformation raises ``Unreadable`` (a ``ValueError``) with the
+reason, without the file name.
+
+What a reader allocates is bounded by what the file holds: a header's count (a PLY element,
+a glTF accessor, an NPZ array's shape, an image's size) is checked against the bytes that
+would hold it before anything of that size is made, so a file of a few bytes claiming
+terabytes is refused, not attempted.  JSON nested beyond any real metadata is refused
+(``parse_json``), and the libraries' own complaints (libpng's) never reach the terminal.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
+import os
+import re
 import struct
+import sys
+import tempfile
+import tokenize
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
@@ -24,6 +42,139 @@ _GLTF_WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 
 class Unreadable(ValueError):
     """A reader's reason a file is malformed (compare: ``InputError('FILE: cannot read ...')``)."""
+
+
+#: JSON deeper than this is not metadata (aobake's is 4 levels deep); Python's parser
+#: would otherwise recurse until RecursionError
+_JSON_DEPTH = 64
+
+
+def parse_json(text, what: str = "JSON"):
+    """``json.loads(text)``, refused (``Unreadable``) when it is not JSON or nests deeper
+    than ``_JSON_DEPTH`` (checked on the text before parsing, so the parser never recurses
+    that far)."""
+    if isinstance(text, (bytes, bytearray)):
+        try:
+            text = text.decode("utf-8")
+        except UnicodeDecodeError:
+            raise Unreadable(f"{what} is not UTF-8 text") from None
+    depth = _json_depth(text)
+    if depth > _JSON_DEPTH:
+        raise Unreadable(f"{what} nests {depth} levels deep (more than {_JSON_DEPTH}: not "
+                         "metadata)")
+    try:
+        return json.loads(text)
+    except RecursionError:  # pragma: no cover - bounded above
+        raise Unreadable(f"{what} nests too deeply") from None
+    except ValueError as exc:
+        raise Unreadable(f"{what} is not valid JSON ({exc})") from None
+
+
+def _json_depth(text: str) -> int:
+    """The deepest nesting of [ and { outside strings (strings are blanked first; an
+    unterminated one leaves an upper bound, which is all the check needs)."""
+    if "[" not in text and "{" not in text:
+        return 0
+    codes = np.frombuffer(_JSON_STRING.sub('""', text).encode("utf-8", "replace"), np.uint8)
+    step = np.isin(codes, _OPEN).astype(np.int64) - np.isin(codes, _CLOSE)
+    return int(np.max(np.cumsum(step), initial=0))
+
+
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"', re.S)
+_OPEN, _CLOSE = np.frombuffer(b"[{", np.uint8), np.frombuffer(b"]}", np.uint8)
+
+
+# ---------------------------------------------------------------------------------------------
+# NPZ
+
+#: the most bytes one byte of deflate data can expand to (deflate's limit is 1032)
+_DEFLATE_RATIO = 1040
+
+
+def read_npz(path, names=None) -> dict:
+    """Arrays of an NPZ archive (``np.savez``'s format): {name: array} for ``names`` (None:
+    all; names it does not hold are left out), never unpickled.  Each array's size is
+    checked against the bytes the archive holds for it before it is allocated.  Raises
+    ``Unreadable`` for anything malformed (OSError for a file that cannot be opened)."""
+    with _npz_errors():
+        with zipfile.ZipFile(path) as archive:
+            members = npz_members(archive)
+            wanted = members if names is None else [n for n in names if n in members]
+            return {name: npz_array(archive, name) for name in wanted}
+
+
+def npz_names(path) -> list:
+    """The array names of an NPZ archive.  Raises ``Unreadable`` (OSError: cannot open)."""
+    with _npz_errors():
+        with zipfile.ZipFile(path) as archive:
+            return npz_members(archive)
+
+
+@contextlib.contextmanager
+def _npz_errors():
+    """What zipfile and zlib raise on a malformed archive, as ``Unreadable``."""
+    try:
+        yield
+    except zipfile.BadZipFile as exc:
+        raise Unreadable(f"not an NPZ archive ({exc})") from None
+    except zlib.error as exc:
+        raise Unreadable(f"corrupt compressed data ({exc})") from None
+    except NotImplementedError as exc:  # zipfile: an unknown version or feature
+        raise Unreadable(f"not an NPZ archive np.savez writes ({exc})") from None
+    except (EOFError, struct.error):
+        raise Unreadable("truncated archive") from None
+
+
+def npz_members(archive: zipfile.ZipFile) -> list:
+    """The array names of an open NPZ archive (its ``.npy`` members, without the suffix)."""
+    return [info.filename[:-4] for info in archive.infolist() if info.filename.endswith(".npy")]
+
+
+def npz_array(archive: zipfile.ZipFile, name: str) -> np.ndarray:
+    """Array ``name`` of an open NPZ archive, its header checked first: no Python objects,
+    and no more bytes than the member holds (itself at most what its compressed bytes can
+    expand to)."""
+    info = archive.getinfo(name + ".npy")
+    if info.flag_bits & 0x1:
+        raise Unreadable(f"array {name!r} is encrypted (np.savez never encrypts)")
+    if info.compress_type == zipfile.ZIP_STORED:
+        if info.file_size != info.compress_size:
+            raise Unreadable(f"array {name!r}: the archive's sizes disagree")
+    elif info.compress_type == zipfile.ZIP_DEFLATED:
+        if info.file_size > info.compress_size * _DEFLATE_RATIO + 1024:
+            raise Unreadable(f"array {name!r}: claims {info.file_size} bytes from "
+                             f"{info.compress_size} compressed ones (more than deflate makes)")
+    else:
+        raise Unreadable(f"array {name!r}: compression method {info.compress_type} "
+                         "(np.savez writes stored or deflated members)")
+    with archive.open(info) as member:
+        try:
+            version = np.lib.format.read_magic(member)
+            if version == (1, 0):
+                shape, _, dtype = np.lib.format.read_array_header_1_0(member)
+            elif version == (2, 0):
+                shape, _, dtype = np.lib.format.read_array_header_2_0(member)
+            else:
+                raise Unreadable(f"array {name!r}: .npy format version {version} not read")
+        except (ValueError, SyntaxError, RecursionError, tokenize.TokenError) as exc:
+            if isinstance(exc, Unreadable):
+                raise
+            raise Unreadable(f"array {name!r}: malformed .npy header ({' '.join(str(exc).split())})"
+                             ) from None
+        if dtype.hasobject:
+            raise Unreadable(f"array {name!r} holds Python objects (never unpickled)")
+        count = 1
+        for extent in shape:
+            count *= int(extent)
+        if count * dtype.itemsize > info.file_size:
+            raise Unreadable(f"array {name!r}: its header claims {shape} of {dtype}, "
+                             f"{count * dtype.itemsize} bytes, but the archive holds "
+                             f"{info.file_size} for it")
+    with archive.open(info) as member:
+        try:
+            return np.lib.format.read_array(member, allow_pickle=False)
+        except ValueError as exc:  # e.g. "EOF: reading array data"
+            raise Unreadable(f"array {name!r}: {' '.join(str(exc).split())}") from None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -61,21 +212,29 @@ def parse_ply(data: bytes) -> Ply:
     end = data.find(b"end_header")
     if end < 0:
         raise Unreadable("no end_header")
-    body = data.index(b"\n", end) + 1
+    newline = data.find(b"\n", end)
+    if newline < 0:
+        raise Unreadable("truncated after end_header")
+    body = newline + 1
     fmt, metadata, elements = None, {}, []
     for line in data[:end].decode("ascii", errors="replace").splitlines()[1:]:
         words = line.split()
         if not words:
             continue
         if words[0] == "format":
-            fmt = words[1]
+            fmt = words[1] if len(words) > 1 else None
         elif words[0] == "comment" and words[1:2] == [METADATA_COMMENT]:
-            metadata = json.loads(line.split(None, 2)[2])
+            text = line.split(None, 2)[2] if len(words) > 2 else ""
+            metadata = parse_json(text, f"its {METADATA_COMMENT} comment")
         elif words[0] == "element":
-            elements.append((words[1], int(words[2]), []))
+            if len(words) != 3:
+                raise Unreadable(f"malformed header line {line.strip()!r}")
+            elements.append((words[1], _ply_count(words[1], words[2], len(data)), []))
         elif words[0] == "property":
             if not elements:
                 raise Unreadable("a property before any element")
+            if len(words) != (5 if words[1:2] == ["list"] else 3):
+                raise Unreadable(f"malformed header line {line.strip()!r}")
             if words[1] == "list":
                 elements[-1][2].append((words[4], _ply_type(words[2]), _ply_type(words[3])))
             else:
@@ -87,6 +246,18 @@ def parse_ply(data: bytes) -> Ply:
     if "vertex" not in parsed:
         raise Unreadable("no vertex element")
     return Ply(fmt, elements, parsed["vertex"], parsed.get("face"), metadata)
+
+
+def _ply_count(name: str, text: str, size: int) -> int:
+    """An element's count: a whole number, at most the file's size in bytes (every item
+    takes at least one byte), so nothing is allocated beyond what the file holds."""
+    try:
+        count = int(text)
+    except ValueError:
+        raise Unreadable(f"element {name!r} has count {text!r}, not a number") from None
+    if count < 0 or count > size:
+        raise Unreadable(f"element {name!r} claims {count} items in a file of {size} bytes")
+    return count
 
 
 def _ply_type(name: str) -> str:
@@ -141,7 +312,7 @@ def _ply_ascii(body: bytes, elements) -> dict:
         columns, col = {}, 0
         for prop in props:
             if len(prop) == 2:
-                columns[prop[0]] = table[:, col].astype(prop[1])
+                columns[prop[0]] = _ascii_column(prop[0], table[:, col], prop[1])
                 col += 1
             else:
                 if (table[:, col] != 3).any():
@@ -159,6 +330,20 @@ def _ply_ascii(body: bytes, elements) -> dict:
         if "vertex" in out and "face" in out:
             break
     return out
+
+
+def _ascii_column(name: str, values: np.ndarray, dtype: str) -> np.ndarray:
+    """A text column in its declared type: an integer type's values must be whole numbers
+    within its range (a cast would wrap them silently)."""
+    dtype = np.dtype(dtype)
+    if dtype.kind in "iu":
+        info = np.iinfo(dtype)
+        bad = ~((values >= info.min) & (values <= info.max) & (values == np.floor(values)))
+        if bad.any():
+            raise Unreadable(f"property {name!r}: {values[bad][0]:g} is not a {dtype} value")
+        return values.astype(dtype)
+    with np.errstate(over="ignore"):  # a float32 property beyond its range is inf, refused later
+        return values.astype(dtype)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -189,7 +374,9 @@ def parse_glb(data: bytes, *, strict: bool = False) -> tuple[dict, bytes]:
         raise Unreadable(f"truncated chunk header at byte {offset}")
     if not chunks or chunks[0][0] != _CHUNK_JSON:
         raise Unreadable("the first chunk is not JSON")
-    gltf = json.loads(chunks[0][1].decode("utf-8"))
+    gltf = parse_json(chunks[0][1], "its JSON chunk")
+    if not isinstance(gltf, dict):
+        raise Unreadable("its JSON chunk is not an object")
     binary = chunks[1][1] if len(chunks) > 1 and chunks[1][0] == _CHUNK_BIN else b""
     return gltf, binary
 
@@ -206,30 +393,62 @@ def glb_view(gltf: dict, binary: bytes, index: int) -> bytes:
     return binary[start:end]
 
 
-def glb_accessor(gltf: dict, binary: bytes, index: int, *, strict: bool = False) -> np.ndarray:
+def glb_accessor(gltf: dict, binary: bytes, index: int, *, strict: bool = False,
+                 max_bytes: int | None = None) -> np.ndarray:
     """Accessor ``index`` as stored: (count,) for SCALAR, else (count, k), in its component
     dtype (normalised integers not rescaled), interleaved or not; a copy.  Not sparse ones.
 
-    An accessor without a bufferView is all zeros (the spec).  strict: the accessor must lie
-    within its bufferView, itself within the GLB's own buffer (``glb_view``); else only
-    within the BIN chunk.
+    An accessor without a bufferView is all zeros (the spec); it may take at most
+    ``max_bytes`` (default: the BIN chunk's size), an accessor with one is bounded by the
+    bytes of its view.  strict: the accessor must lie within its bufferView, itself within
+    the GLB's own buffer (``glb_view``); else only within the BIN chunk.
     """
     from aobake.outputs.glb import _COMPONENT_DTYPES
 
-    accessor = gltf["accessors"][index]
+    accessors = gltf.get("accessors")
+    if not isinstance(accessors, list) or not _whole(index) or not 0 <= index < len(accessors) \
+            or not isinstance(accessors[index], dict):
+        raise Unreadable(f"no accessor {index}")
+    accessor = accessors[index]
     if "sparse" in accessor:
         raise Unreadable(f"accessor {index} is sparse (not supported)")
-    width = _GLTF_WIDTHS.get(accessor["type"])
+    width = _GLTF_WIDTHS.get(accessor.get("type")) if isinstance(accessor.get("type"), str) \
+        else None
     if width is None:
-        raise Unreadable(f"accessor {index} has type {accessor['type']} (not supported)")
-    dtype = _COMPONENT_DTYPES[accessor["componentType"]]
-    count = accessor["count"]
+        raise Unreadable(f"accessor {index} has type {accessor.get('type')} (not supported)")
+    component = accessor.get("componentType")
+    if not _whole(component) or component not in _COMPONENT_DTYPES:
+        raise Unreadable(f"accessor {index} has componentType {component} (not a glTF one)")
+    dtype = _COMPONENT_DTYPES[component]
+    count = accessor.get("count")
+    if not _whole(count) or count < 0:
+        raise Unreadable(f"accessor {index} has count {count!r}")
+    size = dtype.itemsize * width  # bytes of one element
     if "bufferView" not in accessor:
+        limit = len(binary) if max_bytes is None else max_bytes
+        if count * size > limit:
+            raise Unreadable(f"accessor {index} claims {count} zero elements ({count * size} "
+                             f"bytes), more than the file holds ({limit})")
         values = np.zeros((count, width), dtype=dtype)
     else:
-        view = gltf["bufferViews"][accessor["bufferView"]]
+        views = gltf.get("bufferViews")
+        at = accessor["bufferView"]
+        if not isinstance(views, list) or not _whole(at) or not 0 <= at < len(views) \
+                or not isinstance(views[at], dict):
+            raise Unreadable(f"accessor {index} names bufferView {at!r}, which does not exist")
+        view = views[at]
         start = accessor.get("byteOffset", 0)
-        stride = view.get("byteStride", dtype.itemsize * width)
+        stride = view.get("byteStride", size)
+        for label, number in (("byteOffset", start), ("bufferView byteOffset",
+                                                      view.get("byteOffset", 0))):
+            if not _whole(number) or number < 0:
+                raise Unreadable(f"accessor {index} has {label} {number!r}")
+        if not _whole(stride) or stride < size:
+            raise Unreadable(f"accessor {index}: byteStride {stride!r} is less than its "
+                             f"{size}-byte elements")
+        if max_bytes is not None and count * size > max_bytes:
+            raise Unreadable(f"accessor {index} claims {count * size} bytes, more than the file "
+                             f"holds ({max_bytes})")
         if strict:
             buffer, within = glb_view(gltf, binary, accessor["bufferView"]), "bufferView"
         else:
@@ -240,6 +459,11 @@ def glb_accessor(gltf: dict, binary: bytes, index: int, *, strict: bool = False)
         values = np.ndarray((count, width), dtype=dtype, buffer=buffer, offset=start,
                             strides=(stride, dtype.itemsize)).copy()
     return values[:, 0] if width == 1 else values
+
+
+def _whole(value) -> bool:
+    """A JSON integer (not a bool, which Python counts as one)."""
+    return isinstance(value, int) and not isinstance(value, bool)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -257,21 +481,138 @@ def read_pixels(path) -> tuple[np.ndarray, list[str], dict]:
     """
     import OpenImageIO as oiio
 
+    with open(path, "rb") as handle:
+        head = handle.read(len(_PNG_SIGNATURE))
+        size = os.fstat(handle.fileno()).st_size
+        if head == _PNG_SIGNATURE:  # libpng reports a broken file on stderr itself: check first
+            handle.seek(0)
+            check_png(handle.read())
     config = oiio.ImageSpec()
     config.attribute("oiio:UnassociatedAlpha", 1)
-    inp = oiio.ImageInput.open(str(path), config)
-    if inp is None:
-        raise Unreadable(oiio.geterror() or "OpenImageIO cannot open it")
-    try:
-        spec = inp.spec()
-        pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
-        if pixels is None:
-            raise Unreadable(inp.geterror() or "cannot read its pixels")
-        attrs = {p.name: p.value for p in spec.extra_attribs}
-        attrs["oiio:format"] = str(spec.format)
-        attrs["oiio:channelformats"] = [str(f) for f in spec.channelformats]
-        names = list(spec.channelnames)
-    finally:
-        inp.close()
+    with quiet_stderr() as said:
+        inp = oiio.ImageInput.open(str(path), config)
+        if inp is None:
+            raise Unreadable(oiio.geterror() or "OpenImageIO cannot open it")
+        try:
+            spec = inp.spec()
+            need = spec.width * spec.height * max(spec.nchannels, 1) * 4
+            if need > max(_IMAGE_FLOOR, _IMAGE_RATIO * size):
+                raise Unreadable(f"its header claims {spec.width}x{spec.height} pixels of "
+                                 f"{spec.nchannels} channels ({need} bytes as float) from "
+                                 f"{size} bytes")
+            pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+            if pixels is None:
+                raise Unreadable(inp.geterror() or "cannot read its pixels")
+            attrs = {p.name: p.value for p in spec.extra_attribs}
+            attrs["oiio:format"] = str(spec.format)
+            attrs["oiio:channelformats"] = [str(f) for f in spec.channelformats]
+            names = list(spec.channelnames)
+        finally:
+            inp.close()
+    if said:
+        log.debug("%s: the image library said: %s", path, " ".join(said))
     pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
     return pixels, names, attrs
+
+
+#: an image's pixels (as float32) may take this many times its file's size (compressed
+#: formats of smooth maps reach a few hundred), or _IMAGE_FLOOR bytes whatever the size
+_IMAGE_RATIO, _IMAGE_FLOOR = 4096, 256 << 20
+
+
+@contextlib.contextmanager
+def quiet_stderr():
+    """Keep what C libraries write to the process's stderr (libpng's ``libpng error: ...``)
+    off the terminal: file descriptor 2 points at a temporary file for the block, and the
+    list yielded receives its text (stripped lines) afterwards.  Python's own sys.stderr is
+    flushed first, so nothing of ours is caught."""
+    said: list = []
+    fd = 2  # where C's stderr writes, whatever Python's sys.stderr is at the moment
+    try:
+        saved = os.dup(fd)
+    except OSError:  # no stderr at all: nothing to keep quiet
+        yield said
+        return
+    try:
+        if sys.stderr is not None:
+            sys.stderr.flush()
+        with tempfile.TemporaryFile() as caught:
+            os.dup2(caught.fileno(), fd)
+            try:
+                yield said
+            finally:
+                os.dup2(saved, fd)
+                caught.seek(0)
+                text = caught.read(1 << 16).decode("utf-8", errors="replace")
+                said.extend(line.strip() for line in text.splitlines() if line.strip())
+    finally:
+        os.close(saved)
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: colour type -> channels, and the bit depths allowed for it (the PNG specification, 11.2.2)
+_PNG_COLOUR = {0: (1, (1, 2, 4, 8, 16)), 2: (3, (8, 16)), 3: (1, (1, 2, 4, 8)),
+               4: (2, (8, 16)), 6: (4, (8, 16))}
+
+
+def check_png(data: bytes) -> None:
+    """Refuse (``Unreadable``) a PNG that libpng would fail on: a bad signature, a chunk
+    running past the end or failing its CRC, no IHDR first, no IEND, or image data that
+    does not inflate to exactly the rows the header describes.  Inflating is bounded by
+    that size."""
+    if not data.startswith(_PNG_SIGNATURE):
+        raise Unreadable("not a PNG file")
+    at, chunks, idat = len(_PNG_SIGNATURE), [], []
+    while True:
+        if at + 12 > len(data):
+            raise Unreadable(f"truncated: a chunk header at byte {at} runs past the end")
+        length, kind = struct.unpack_from(">I4s", data, at)
+        if at + 12 + length > len(data):
+            raise Unreadable(f"truncated: chunk {kind.decode('latin-1')!r} at byte {at} runs "
+                             "past the end")
+        body = data[at + 8:at + 8 + length]
+        (crc,) = struct.unpack_from(">I", data, at + 8 + length)
+        if zlib.crc32(kind + body) != crc:
+            raise Unreadable(f"chunk {kind.decode('latin-1')!r} at byte {at} fails its CRC")
+        chunks.append(kind)
+        if kind == b"IDAT":
+            idat.append(body)
+        elif kind == b"IHDR":
+            if len(chunks) != 1 or length != 13:
+                raise Unreadable("malformed IHDR chunk")
+            width, height, depth, colour, method, filtering, interlace = \
+                struct.unpack(">IIBBBBB", body)
+        at += 12 + length
+        if kind == b"IEND":
+            break
+    if chunks[0] != b"IHDR":
+        raise Unreadable("the first chunk is not IHDR")
+    if colour not in _PNG_COLOUR or depth not in _PNG_COLOUR[colour][1] or method or filtering \
+            or interlace > 1 or not width or not height:
+        raise Unreadable(f"unsupported IHDR ({width}x{height}, colour type {colour}, depth "
+                         f"{depth}, interlace {interlace})")
+    if not idat:
+        raise Unreadable("no image data (IDAT)")
+    bits = _PNG_COLOUR[colour][0] * depth
+    passes = [(0, 0, 1, 1)] if not interlace else \
+        [(0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2),
+         (0, 1, 1, 2)]
+    expected = 0
+    for x0, y0, dx, dy in passes:
+        w, h = (width - x0 + dx - 1) // dx, (height - y0 + dy - 1) // dy
+        if w > 0 and h > 0:
+            expected += h * (1 + (w * bits + 7) // 8)
+    inflate, got = zlib.decompressobj(), 0
+    try:
+        for piece in idat:
+            while piece:
+                got += len(inflate.decompress(piece, 1 << 20))
+                piece = inflate.unconsumed_tail
+                if got > expected:
+                    raise Unreadable(f"its image data inflates to more than the {expected} "
+                                     "bytes its header describes")
+        got += len(inflate.flush())
+    except zlib.error as exc:
+        raise Unreadable(f"corrupt image data ({exc})") from None
+    if got != expected or not inflate.eof:
+        raise Unreadable(f"truncated image data: {got} of {expected} bytes")

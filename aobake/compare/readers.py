@@ -7,14 +7,14 @@ The byte-level parsing is ``parsing``'s; this module decides what compare makes 
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from aobake.compare.parsing import Unreadable, glb_accessor, parse_glb, parse_ply, read_pixels
+from aobake.compare.parsing import (Unreadable, glb_accessor, npz_names, parse_glb, parse_json,
+                                    parse_ply, read_npz, read_pixels)
 from aobake.errors import InputError
 
 
@@ -46,16 +46,18 @@ def read_table(path: Path) -> Table:
 def npz_table(path: Path) -> Table:
     """The archive's arrays, loaded when asked for (an archive may also hold every ray's
     distance, which compare never needs), positions, normals, faces and metadata."""
-    with np.load(path, allow_pickle=False) as data:
-        names = set(data.files) - {"metadata", "positions", "faces"}
-
-        def get(name):
-            return data[name] if name in data.files else None
-
-        positions, normals, faces = get("positions"), get("normals"), get("faces")
-        metadata = json.loads(str(data["metadata"][()])) if "metadata" in data.files else {}
-    return Table(_LazyArchive(path, names), "name", _float(positions), _float(normals),
-                 _faces(faces), metadata if isinstance(metadata, dict) else {})
+    arrays = read_npz(path, ("positions", "normals", "faces", "metadata"))
+    names = set(npz_names(path)) - {"metadata", "positions", "faces"}
+    metadata = {}
+    if "metadata" in arrays:
+        text = arrays["metadata"]
+        if text.shape != () or text.dtype.kind != "U":
+            raise Unreadable(f"its metadata is a {text.dtype} array of shape {text.shape}, "
+                             "not a JSON string")
+        metadata = parse_json(str(text[()]), "its metadata")
+    return Table(_LazyArchive(path, names), "name", _float(arrays.get("positions")),
+                 _float(arrays.get("normals")), _faces(arrays.get("faces")),
+                 metadata if isinstance(metadata, dict) else {})
 
 
 class _LazyArchive(Mapping):
@@ -75,15 +77,21 @@ class _LazyArchive(Mapping):
             raise KeyError(name)
         if name not in self.loaded:
             try:
-                with np.load(self.path, allow_pickle=False) as data:
-                    self.loaded[name] = data[name]
-            except ValueError as exc:  # e.g. an object array, which is never unpickled
-                raise InputError(f"{self.path}: cannot read array {name!r}: {exc}") from None
+                self.loaded[name] = read_npz(self.path, [name])[name]
+            except (Unreadable, OSError) as exc:
+                reason = " ".join(str(exc).split()) or type(exc).__name__
+                raise InputError(f"{self.path}: cannot read array {name!r}: {reason}") from None
         return self.loaded[name]
 
 
 def _float(array):
-    return None if array is None else np.asarray(array, dtype=np.float64)
+    """(n, k) float64 of a numeric array (None stays None); Unreadable for text or objects."""
+    if array is None:
+        return None
+    array = np.asarray(array)
+    if array.dtype.kind not in "biuf":
+        raise Unreadable(f"an array of {array.dtype} where numbers belong")
+    return array.astype(np.float64)
 
 
 def _faces(array):
@@ -119,16 +127,34 @@ def glb_table(path: Path) -> Table:
     transforms are not applied), ``asset.extras`` as metadata when aobake wrote it."""
     from aobake.outputs.glb import GENERATOR
 
-    gltf, binary = parse_glb(path.read_bytes())
+    data = path.read_bytes()
+    gltf, binary = parse_glb(data)
+    # Every accessor read takes from one budget, a few times the file's size: accessors
+    # sharing bytes (or all zeros, without a bufferView) cannot multiply what is allocated.
+    budget = [4 * len(data) + (1 << 20)]
+
+    def accessor(index):
+        values = _accessor(gltf, binary, index, budget[0])
+        budget[0] -= values.nbytes
+        return values
+
     groups: dict = {}  # POSITION accessor -> (attributes, [index arrays])
-    for mesh in gltf.get("meshes", []):
-        for prim in mesh.get("primitives", []):
-            attributes = prim.get("attributes", {})
+    for mesh in _list(gltf.get("meshes", [])):
+        for prim in _list(mesh.get("primitives", []) if isinstance(mesh, dict) else None):
+            attributes = prim.get("attributes", {}) if isinstance(prim, dict) else None
+            if not isinstance(attributes, dict):
+                raise Unreadable("a primitive without an attributes object")
             if prim.get("mode", 4) != 4 or "POSITION" not in attributes:
                 continue
+            if not all(isinstance(a, int) for a in attributes.values()):
+                raise Unreadable("a primitive's attributes are not accessor numbers")
             group = groups.setdefault(attributes["POSITION"], (attributes, []))
             if "indices" in prim:
-                group[1].append(_accessor(gltf, binary, prim["indices"]).astype(np.int64))
+                indices = accessor(prim["indices"])
+                if indices.dtype.kind != "u":
+                    raise Unreadable(f"indices of {indices.dtype} (glTF indices are unsigned "
+                                     "integers)")
+                group[1].append(indices.astype(np.int64))
     if not groups:
         raise Unreadable("no triangle mesh with POSITION")
     names = set.intersection(*(set(a) for a, _ in groups.values()))
@@ -136,17 +162,18 @@ def glb_table(path: Path) -> Table:
     faces, base = [], 0
     for attributes, indices in groups.values():
         for name in names:
-            parts[name].append(_accessor(gltf, binary, attributes[name]))
+            parts[name].append(accessor(attributes[name]))
         count = len(parts["POSITION"][-1])
         flat = np.concatenate(indices) if indices else np.arange(count)
         faces.append(flat.reshape(-1, 3) + base)
         base += count
     columns = {name: np.concatenate(arrays) for name, arrays in parts.items()}
     asset = gltf.get("asset", {})
+    asset = asset if isinstance(asset, dict) else {}
     metadata = asset.get("extras", {}) if asset.get("generator") == GENERATOR else {}
     warnings = []
-    if any(k in node for node in gltf.get("nodes", []) for k in ("matrix", "translation",
-                                                                  "rotation", "scale")):
+    if any(isinstance(node, dict) and k in node for node in _list(gltf.get("nodes", []))
+           for k in ("matrix", "translation", "rotation", "scale")):
         warnings.append("node transforms are not applied: positions are matched as stored")
     positions = columns.pop("POSITION").astype(np.float64)
     normals = columns.get("NORMAL")
@@ -154,9 +181,15 @@ def glb_table(path: Path) -> Table:
                  metadata if isinstance(metadata, dict) else {}, warnings)
 
 
-def _accessor(gltf: dict, binary: bytes, index: int) -> np.ndarray:
+def _list(value) -> list:
+    if not isinstance(value, list):
+        raise Unreadable(f"{type(value).__name__} where the glTF JSON has a list")
+    return value
+
+
+def _accessor(gltf: dict, binary: bytes, index: int, max_bytes: int) -> np.ndarray:
     """Accessor ``index`` as (count,) or (count, k); normalised integers scaled to [0, 1]."""
-    values = glb_accessor(gltf, binary, index)
+    values = glb_accessor(gltf, binary, index, max_bytes=max_bytes)
     accessor = gltf["accessors"][index]
     if accessor.get("normalized") and values.dtype.kind in "iu":
         values = np.maximum(values / float(np.iinfo(values.dtype).max), -1.0)
@@ -170,9 +203,12 @@ def image_table(path: Path) -> Table:
     columns = {name: pixels[:, :, i] for i, name in enumerate(names)}
     metadata = {}
     for attr in ("aobake:metadata", "ImageDescription"):  # TIFF keeps only the description
+        text = attrs.get(attr)
+        if not isinstance(text, str):
+            continue
         try:
-            candidate = json.loads(attrs.get(attr, ""))
-        except (TypeError, ValueError):
+            candidate = parse_json(text)
+        except Unreadable:  # a description that is not aobake's metadata
             continue
         if isinstance(candidate, dict) and "config" in candidate:
             metadata = candidate

@@ -31,6 +31,7 @@ class Values:
     metadata : the aobake metadata the file carries ({} for another tool's file)
     key : the array / property / attribute / channel the value was read from
     warnings : what the reader could not honour (e.g. a GLB's node transforms)
+    notes : what was assumed to read it (grey vertex colours taken as the quantity)
     """
 
     path: Path
@@ -44,6 +45,7 @@ class Values:
     metadata: dict = field(default_factory=dict)
     key: str = ""
     warnings: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
 
 
 def kind(target: str) -> str:
@@ -69,10 +71,18 @@ def pick(path: Path, table: Table, quantity: str, key, role: str, target: str) -
     standard = getattr(q.value, table.naming)
     standard = standard[0] if isinstance(standard, tuple) else standard
     columns = table.columns
-    mask = None
+    mask, notes = None, []
     name = key if key is not None else standard
     if key is None and standard not in columns and target == "texels":
         name = _image_channel(path, table, quantity)
+    grey = None
+    if key is None and standard not in columns and target == "vertices" and role == "candidate":
+        grey = _grey_colour(columns, table.naming)
+        if grey is not None and grey[1]:
+            name = grey[0]
+            notes.append(f"{path}: has no {standard!r}: its grey vertex colours "
+                         f"({_COLOUR_NAMES[table.naming]}, equal) are read as {quantity} "
+                         "(white = 1)")
     if name not in columns:
         have = ", ".join(sorted(columns)) or "nothing"
         hint = "; name the candidate's with --candidate-key NAME" if role == "candidate" else ""
@@ -81,6 +91,8 @@ def pick(path: Path, table: Table, quantity: str, key, role: str, target: str) -
         extra = ""
         if table.naming == "gltf" and "TEXCOORD_0" in columns:
             extra = " (a lightmap GLB's AO is a texture: compare its .exr or .png)"
+        if grey is not None:
+            extra += " (its vertex colours are not grey: R, G and B differ)"
         raise InputError(f"{path}: no {what} {name!r} (it has {have}){extra}{hint}")
     value = _scalar(path, name, columns[name], target)
     stderr = None
@@ -89,6 +101,9 @@ def pick(path: Path, table: Table, quantity: str, key, role: str, target: str) -
         error_name = error_name[0] if isinstance(error_name, tuple) else error_name
         if error_name in columns:
             stderr = _scalar(path, error_name, columns[error_name], target)
+            if stderr.shape != value.shape:
+                raise InputError(f"{path}: {error_name!r} is {stderr.shape}, {name!r} "
+                                 f"{value.shape}: one standard error per value")
     if target == "texels":
         mask = _coverage(table)
     else:
@@ -96,12 +111,35 @@ def pick(path: Path, table: Table, quantity: str, key, role: str, target: str) -
         for label, array in (("positions", table.positions), ("normals", table.normals)):
             if array is not None and array.shape != (n, 3):
                 raise InputError(f"{path}: {label} are {array.shape}, expected ({n}, 3)")
+            if array is not None and not np.isfinite(array).all():
+                bad = int(np.count_nonzero(~np.isfinite(array).all(axis=1)))
+                raise InputError(f"{path}: {bad} of its {n} vertex {label} are not finite")
         if table.faces is not None and len(table.faces) and \
                 (table.faces.min() < 0 or table.faces.max() >= n):
             raise InputError(f"{path}: faces index vertices {table.faces.min()}.."
                              f"{table.faces.max()}, but there are {n}")
     return Values(path, target, value, stderr, table.positions, table.normals, table.faces, mask,
-                  table.metadata, name)
+                  table.metadata, name, notes=notes)
+
+
+#: each format's names of a vertex colour (PLY properties, the glTF attribute)
+_COLOUR_NAMES = {"ply": "red, green, blue", "gltf": "COLOR_0"}
+
+
+def _grey_colour(columns, naming: str):
+    """(column, grey) of a per-vertex colour another tool wrote (trimesh's PLY red/green/
+    blue, a glTF COLOR_0): grey when R, G and B agree at every vertex.  None without one."""
+    if naming == "ply" and {"red", "green", "blue"} <= set(columns):
+        grey = np.array_equal(columns["red"], columns["green"]) and \
+            np.array_equal(columns["red"], columns["blue"])
+        return "red", grey
+    if naming == "gltf" and "COLOR_0" in columns:
+        colour = np.asarray(columns["COLOR_0"])
+        grey = colour.ndim == 2 and colour.shape[1] in (3, 4) and \
+            np.array_equal(colour[:, 0], colour[:, 1]) and \
+            np.array_equal(colour[:, 0], colour[:, 2])
+        return "COLOR_0", grey
+    return None
 
 
 def _image_channel(path: Path, table: Table, quantity: str) -> str:

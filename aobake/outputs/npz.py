@@ -17,9 +17,15 @@ name                 shape        dtype     meaning
 ``bent_normal_stderr`` (n,)       float32   angular standard error of ``bent_normal`` (radians)
 ``rays``             (n,)         int32     rays cast for each vertex
 ``metadata``         ()           str       JSON text: conventions and configuration
-``ray_distances``    (p, r)       float32   --keep-distances: every ray's hit distance (local units: scene units x ``parameters.trace_scale``; inf on a miss) of the p traced points
+``ray_distances``    (p, r)       float32   --keep-distances: every ray's hit distance (local units: scene units x ``parameters.trace_scale``; ``RAY_MISS`` = -1 on a miss) of the p traced points
 ``ray_point``        (n,)         int32     --keep-distances: row of ``ray_distances`` of each vertex
 ==================== ============ ========= =====================================
+
+A miss is stored as ``RAY_MISS`` (-1), never inf: no output holds NaN or inf, and every
+hit's distance is >= 0, so the sentinel cannot be taken for one.  In memory
+(``BakeResult.kept``) a miss is inf, the tracer's own convention; ``encode_ray_distances``
+and ``decode_ray_distances`` convert.  Archives written before this encoding hold inf for a
+miss; ``decode_ray_distances`` reads both.
 
 Only the fields that were computed are present (the table lists today's
 ``aobake.quantities.FIELDS``, which is where the names come from).  Geometry stays float64; the
@@ -117,6 +123,24 @@ def check_vertex_data(
     return positions, faces, checked
 
 
+#: ``ray_distances`` of a ray that hit nothing within the max distance, as stored
+RAY_MISS = np.float32(-1.0)
+
+
+def encode_ray_distances(distances: np.ndarray) -> np.ndarray:
+    """(p, r) float32 hit distances, inf for a miss -> as stored: ``RAY_MISS`` for a miss."""
+    distances = np.asarray(distances, dtype=np.float32)
+    return np.where(distances == np.inf, RAY_MISS, distances)
+
+
+def decode_ray_distances(stored: np.ndarray) -> np.ndarray:
+    """As stored (``RAY_MISS`` for a miss, or inf in archives written before) -> float32
+    distances with inf for a miss.  Other values are returned as they are (a reader
+    refuses negative or NaN ones: ``aobake.refit``)."""
+    stored = np.asarray(stored, dtype=np.float32)
+    return np.where(stored == RAY_MISS, np.float32(np.inf), stored)
+
+
 def _savez(handle, arrays: dict) -> None:
     """np.savez_compressed at deflate level 1: the same archive format (np.load reads it),
     measured on the bunny's arrays 0.23 -> 0.12 s (a loaded machine) for a 3% larger file."""
@@ -157,7 +181,7 @@ def write(
     # a 0-d unicode array loads without pickling (np.load(allow_pickle=False))
     arrays["metadata"] = np.array(metadata_json(metadata))
     for name, value in (kept or {}).items():
-        arrays[name] = value
+        arrays[name] = encode_ray_distances(value) if name == "ray_distances" else value
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as handle:
             _savez(handle, arrays)
