@@ -367,7 +367,7 @@ def _run(mesh, out, target, run, quiet, config, files):
             saving = t["saving_vs_fixed"] or 0.0
             versus = (f"{saving:.1f}x fewer than" if saving >= 1 else
                       f"{1 / saving:.1f}x more than" if saving > 0 else "against")
-            click.echo(f"aobake: tolerance {t['tolerance']:g}: {t['points_met']} points met "
+            click.echo(f"aobake: tolerance {t['tolerance']:g}: {t['points_met']} {what} met "
                        f"it, {t['points_missed']} missed, {t['points_capped']} capped at "
                        f"{t['max_rays']} rays; {t['rays_total']} rays, {versus} a fixed "
                        "count for the same worst case", err=True)

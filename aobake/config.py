@@ -20,6 +20,7 @@ from aobake.constants import AXES, OFFSET_ULPS  # noqa: F401  (re-exported)
 from aobake.errors import InputError
 from aobake.methods.discs import DiscsOptions
 from aobake.methods.file import FileOptions
+from aobake.methods.hemicube import HemicubeOptions
 from aobake.methods.rays_options import (BACKFACES, DEFAULT_RAY_OFFSET, MAX_CONFIDENCE,  # noqa: F401
                                          MAX_RAYS, RaysOptions)
 from aobake.options import check as check_settings
@@ -122,10 +123,11 @@ class CommonOptions:
 
 
 @dataclass(frozen=True)
-class BakeConfig(LightmapOptions, DiscsOptions, FileOptions, RaysOptions, CommonOptions):
+class BakeConfig(LightmapOptions, HemicubeOptions, DiscsOptions, FileOptions, RaysOptions,
+                 CommonOptions):
     """Everything that decides a bake's numbers (threads, executors and chunking do not): the
-    common settings, the ray-traced method's, the file method's, the disc method's and the
-    lightmap target's, in that order (each
+    common settings, the ray-traced method's, the file method's, the disc method's, the
+    hemicube method's and the lightmap target's, in that order (each
     section's record documents its fields; ``python -c "from aobake.config import
     BakeConfig; help(BakeConfig)"`` or ``aobake --help`` shows them).  The one source of
     every default: the CLI reads them from here.
@@ -134,6 +136,7 @@ class BakeConfig(LightmapOptions, DiscsOptions, FileOptions, RaysOptions, Common
     def __post_init__(self):
         check_settings(self)
         self.check_rays()
+        self.check_hemicube()
         self.check_lightmap()
         if self.tolerance is not None and not {"ao", "obscurance"} & set(self.quantities):
             # bent normals have no interval: a tolerance would be "met" by nothing baked

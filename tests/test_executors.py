@@ -139,3 +139,24 @@ def test_cli_executor_processes_matches_threads(tmp_path):
     with np.load(a) as x, np.load(b) as y:
         for key in ("ao", "ao_stderr", "rays"):
             np.testing.assert_array_equal(x[key], y[key])
+
+
+@pytest.mark.parametrize("method", ["discs", "hemicube"])
+def test_approximations_are_the_same_for_every_split_and_executor(method):
+    """A method that casts no rays merges by index like the rays: the same bits whatever
+    the split and executor (hemicube: where an EGL context can be made)."""
+    if method == "hemicube":
+        pytest.importorskip("moderngl")
+        from aobake.methods.hemicube import available
+
+        ok, why = available()
+        if not ok:
+            pytest.skip(why)
+    mesh = _scene()
+    options = dict(method=method, hemicube_resolution=8)
+    base = aobake.bake(mesh, threads=1, **options)
+    for run in (dict(executor="threads", chunk_points=5, threads=2),
+                dict(executor="processes", workers=2, chunk_points=9)):
+        other = aobake.bake(mesh, **options, **run)
+        _same(base.values, other.values)
+        assert base.rays is None and other.rays is None

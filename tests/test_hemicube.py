@@ -57,9 +57,17 @@ def gl():
 
 @pytest.fixture
 def resolution(monkeypatch):
-    """Set the class-level resolution (until BakeConfig carries the setting)."""
+    """``resolution(r)``: the test's bakes run with ``hemicube_resolution=r`` (the config's
+    field, as ``--hemicube-resolution`` sets it) unless they give it."""
+    import importlib
+
+    bake_module = importlib.import_module("aobake.bake")  # aobake.bake is also a function
+    original = bake_module._config
+
     def set_resolution(r):
-        monkeypatch.setattr(HemicubeMethod, "options", HemicubeOptions(hemicube_resolution=r))
+        def with_resolution(config, options):
+            return original(config, {"hemicube_resolution": r, **options})
+        monkeypatch.setattr(bake_module, "_config", with_resolution)
     return set_resolution
 
 
@@ -129,7 +137,9 @@ def test_options_are_read_from_a_config_that_has_them():
         hemicube_resolution = 16
     assert HemicubeOptions.of(Wired()).hemicube_resolution == 16
     assert HemicubeOptions.of(BakeConfig()).hemicube_resolution == 64
-    assert HemicubeOptions.of(BakeConfig(), HemicubeOptions(8)).hemicube_resolution == 8
+    # BakeConfig composes the record: its value wins over a default for configs without it
+    assert HemicubeOptions.of(BakeConfig(hemicube_resolution=8)).hemicube_resolution == 8
+    assert HemicubeOptions.of(object(), HemicubeOptions(8)).hemicube_resolution == 8
 
 
 def test_settings_it_cannot_honour_are_refused():

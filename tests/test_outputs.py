@@ -679,3 +679,25 @@ def test_query_points_write_as_point_sets(tmp_path):
     with pytest.raises(aobake.OutputError, match="no faces"):
         aobake.write(res, tmp_path / "p.glb")
     assert not (tmp_path / "p.glb").exists()
+
+
+@pytest.mark.parametrize("arguments, name", [
+    (dict(result="a string"), "result"),
+    (dict(out=None), "out"),
+    (dict(out=3), "out"),
+    (dict(report=5), "report"),
+    (dict(half="no"), "half"),
+    (dict(r_only=1), "r_only"),
+    (dict(bit_depth=7), "bit_depth"),
+])
+def test_write_names_a_bad_argument(tmp_path, arguments, name):
+    import trimesh
+
+    import aobake
+
+    result = aobake.bake(trimesh.creation.box(), rays=4)
+    call = dict(result=result, out=tmp_path / "ao.npz")
+    call.update(arguments)
+    with pytest.raises(aobake.InputError, match=f"write: {name} must be"):
+        aobake.write(call.pop("result"), call.pop("out"), **call)
+    assert not list(tmp_path.iterdir())

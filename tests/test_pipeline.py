@@ -68,7 +68,7 @@ def test_config_round_trips_through_a_report_with_every_field_changed():
                          unwrap="always", bent_space="tangent", seams="off", denoise=True,
                          ao_from="bake.npz", albedo=0.25, bounces=3, discs_k=3.0,
                          discs_passes=3, discs_weight=0.5, discs_kappa=2.0,
-                         discs_traversal="brute")
+                         discs_traversal="brute", hemicube_resolution=32)
     # keep_distances cannot go with a tolerance: the second config changes it
     kept = replace(changed, tolerance=None, keep_distances=True)
     # a texel density replaces the resolution: the third config sets it

@@ -9,9 +9,11 @@ error bars) is the reference; an approximation is one more module with a class h
 from aobake.methods.base import Estimates, Method, merge
 from aobake.methods.discs import DiscsMethod
 from aobake.methods.file import FileMethod
+from aobake.methods.hemicube import HemicubeMethod
 from aobake.methods.rays import RaysMethod
 
 #: method name -> class
-METHODS = {"rays": RaysMethod, "discs": DiscsMethod, "file": FileMethod}
+METHODS = {"rays": RaysMethod, "discs": DiscsMethod, "file": FileMethod,
+           "hemicube": HemicubeMethod}
 
 __all__ = ["Estimates", "METHODS", "Method", "RaysMethod", "merge"]

@@ -116,6 +116,7 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
     from aobake.outputs.report import write_report
     from aobake.outputs.texture import prepare_atlas_mesh
 
+    _check_write_arguments(result, out, mesh_out, report, half, bit_depth, r_only)
     target = result.target  # each result says what made it: no guessing from its attributes
     where = plan(out, target, mesh=mesh, mesh_out=mesh_out, report=report)
     options = WriteOptions(half=half, bit_depth=int(bit_depth), r_only=r_only)
@@ -151,6 +152,25 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
             with _naming(where.report):
                 write_report(where.report, full)
     return written
+
+
+def _check_write_arguments(result, out, mesh_out, report, half, bit_depth, r_only) -> None:
+    """InputError naming the argument for anything ``write`` cannot take."""
+    from aobake.errors import InputError
+    from aobake.results import BakeResult, ImageResult
+
+    if not isinstance(result, (BakeResult, ImageResult)):
+        raise InputError(f"write: result must be a bake's result (BakeResult, TexelResult or "
+                         f"ViewResult), got {type(result).__name__}")
+    for name, path in (("out", out), ("mesh_out", mesh_out), ("report", report)):
+        if path is None and name == "out" or path is not None and \
+                not isinstance(path, (str, os.PathLike)):
+            raise InputError(f"write: {name} must be a file path, got {path!r}")
+    for name, flag in (("half", half), ("r_only", r_only)):
+        if not isinstance(flag, (bool, np.bool_)):
+            raise InputError(f"write: {name} must be True or False, got {flag!r}")
+    if isinstance(bit_depth, bool) or bit_depth not in (8, 16, "8", "16"):
+        raise InputError(f"write: bit_depth must be 8 or 16, got {bit_depth!r}")
 
 
 @contextlib.contextmanager

@@ -46,6 +46,8 @@ STREAM_POINT = 0x5EED_0004
 #: hash stream of the final stage of a --tolerance bake (independent of its pilot's rays)
 STREAM_FINAL = 0x5EED_0005
 #: uint64 salts of the two sample dimensions (u0: elevation, u1: azimuth)
+#: the distance between the streams of successive --tolerance stages
+STAGE_STRIDE = 0x1_0000
 SALTS = (np.uint64(dim_salt(0)), np.uint64(dim_salt(1)))
 
 
@@ -100,8 +102,12 @@ class SampleSet:
 
 def point_key(seed: int, stage: int = 0) -> int:
     """The bake's uint64 key of the per-point stream (stage 1: a --tolerance bake's final
-    rays, independent of its pilot's)."""
-    return hash_key(seed, STREAM_FINAL if stage else STREAM_POINT)
+    rays, independent of its pilot's; stage s >= 2: its further stages)."""
+    if stage == 0:
+        return hash_key(seed, STREAM_POINT)
+    # stage 1 is the final stage; 2, 3, ... the further stages of points it left wider
+    # than the tolerance, each from a stream of its own
+    return hash_key(seed, STREAM_FINAL + STAGE_STRIDE * (stage - 1))
 
 
 def replicate_keys(key: int, point_ids: np.ndarray, groups: int) -> np.ndarray:
