@@ -17,10 +17,9 @@ from pathlib import Path
 
 import click
 
-from aobake.cli_options import DistanceType, FiniteRange, TauType, given, settings  # noqa: F401
-from aobake.errors import AobakeError
-from aobake.executors import EXECUTORS
-from aobake.methods import METHODS
+from aobake.cli_common import guarded
+from aobake.cli_options import (RUN_OPTIONS, DistanceType, FiniteRange, TauType,  # noqa: F401
+                                given, settings)
 from aobake.outputs.registry import MESH_OUTPUTS, suffixes
 from aobake.targets import CLI_TARGETS
 
@@ -104,36 +103,6 @@ def _view_command():
 SUBCOMMANDS = {"compare": _compare_command, "refit": _refit_command, "view": _view_command}
 
 
-#: glibc mallopt parameters (malloc.h)
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
-#: the largest mmap threshold glibc accepts on 64-bit systems (DEFAULT_MMAP_THRESHOLD_MAX)
-_MMAP_THRESHOLD_MAX = 32 << 20
-
-
-def _keep_freed_memory() -> None:
-    """Let this process reuse the memory it frees instead of handing it back to the system.
-
-    By default glibc gives freed blocks above an adaptive threshold back to the system and
-    the next array of that size takes fresh pages, each zeroed by the kernel on its first
-    touch; a lightmap bake allocates and frees arrays of tens of MB in every phase.  With
-    the threshold fixed at its largest value and no trimming, freed blocks below it are
-    reused: the bunny's 1024^2 lightmap bake takes 80k page faults instead of 143k and
-    0.2-0.3 s less system time (2 ms per MB first touched on this machine's virtual
-    memory).  The CLI process only: the library leaves its host's allocator alone.
-    Elsewhere (not glibc) this does nothing.
-    """
-    import ctypes
-
-    try:
-        libc = ctypes.CDLL(None)  # this process's symbols (find_library would run ldconfig)
-        if not hasattr(libc, "gnu_get_libc_version") or not hasattr(libc, "mallopt"):
-            return
-        libc.mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX)
-        libc.mallopt(_M_TRIM_THRESHOLD, ctypes.c_int(2**31 - 1))
-    except (OSError, AttributeError):  # pragma: no cover - no C library to tune
-        pass
-
-
 def _with(options):
     """Decorate a command with click options made elsewhere (``cli_options.settings``)."""
     def decorate(function):
@@ -142,29 +111,6 @@ def _with(options):
         params.extend(reversed(options))
         return function
     return decorate
-
-
-#: the options of where and how fast a bake runs (never its numbers); ``aobake view`` too
-RUN_OPTIONS = [
-    click.Option(["--threads"], default=None, type=click.IntRange(min=1),
-                 help="Worker threads. Default: all cores."),
-    click.Option(["--method"], default="rays", show_default=True,
-                 type=click.Choice(sorted(METHODS)),
-                 help="How values are estimated: rays (ray-traced, with error bars: the "
-                      "reference); discs (Bunnell's disc approximation); hemicube "
-                      "(rasterised hemicubes, OpenGL); file (a per-vertex bake's values, "
-                      "--ao-from)."),
-    click.Option(["--executor"], default="threads", show_default=True,
-                 type=click.Choice(sorted(EXECUTORS)),
-                 help="Where the points are estimated: threads (this process) or processes (a "
-                      "local pool of --workers processes). The same bits either way."),
-    click.Option(["--workers"], default=None, type=click.IntRange(min=1),
-                 help="--executor processes: worker processes. Default: --threads (all "
-                      "cores)."),
-    click.Option(["--chunk-points"], default=None, type=click.IntRange(min=1),
-                 help="Points per work item (default: a few items per worker). The same bits "
-                      "for any value."),
-]
 
 
 @click.command(cls=_WithSubcommands, epilog=EPILOG,
@@ -200,33 +146,9 @@ def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, report_p
 
     run = dict(threads=threads, method=_method_for(method, config), executor=executor,
                workers=workers, chunk_points=chunk_points)
-    _guarded(quiet, _run, mesh, out, target, run, quiet, given(config),
+    guarded(quiet, _run, mesh, out, target, run, quiet, given(config),
              dict(mesh_out=mesh_out, report=report_path, half=half, bit_depth=int(bit_depth),
                   r_only=r_only))
-
-
-def _guarded(quiet: bool, function, *args) -> None:
-    """Run a bake command's work under the CLI's contract: library errors as one line and
-    exit 1, SIGINT 130, SIGTERM/SIGHUP 128 + the signal (outputs are one transaction: an
-    interrupted bake leaves no file)."""
-    logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING,
-                        format="aobake: warning: %(message)s", stream=sys.stderr)
-    _route_python_warnings(quiet)
-    _keep_freed_memory()
-    previous = _catch_signals()
-    try:
-        function(*args)
-    except (AobakeError, ValueError) as exc:
-        click.echo(f"aobake: error: {exc}", err=True)
-        sys.exit(1)
-    except KeyboardInterrupt:  # SIGINT; the output transaction has removed its temporary files
-        click.echo("aobake: error: interrupted (SIGINT): no output written", err=True)
-        sys.exit(130)
-    except Terminated as exc:
-        click.echo(f"aobake: error: terminated ({exc.name}): no output written", err=True)
-        sys.exit(128 + exc.signum)
-    finally:
-        _restore_signals(previous)
 
 
 def entry() -> None:
@@ -258,55 +180,6 @@ def entry() -> None:
             pass
     # atexit hooks do not run (the CLI registers none; a coverage tool's would be skipped).
     os._exit(code)
-
-
-def _route_python_warnings(quiet: bool) -> None:
-    """A Python or numpy warning that escapes the library reaches the user as one
-    ``aobake: warning:`` line (never a source line and a stack position)."""
-    import warnings
-
-    def show(message, category, filename, lineno, file=None, line=None):
-        if not quiet:
-            click.echo(f"aobake: warning: {category.__name__}: {message}", err=True)
-
-    warnings.showwarning = show
-
-
-class Terminated(BaseException):
-    """SIGTERM or SIGHUP arrived: unwinds like KeyboardInterrupt (so every temporary file
-    is removed) and exits 128 + the signal number (143 for SIGTERM)."""
-
-    def __init__(self, signum: int):
-        import signal
-
-        super().__init__(signum)
-        self.signum, self.name = signum, signal.Signals(signum).name
-
-
-def _catch_signals() -> dict:
-    """SIGTERM and SIGHUP handled like SIGINT (only in the main thread, where Python can)."""
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        return {}
-
-    def handler(signum, frame):
-        raise Terminated(signum)
-
-    previous = {}
-    for name in ("SIGTERM", "SIGHUP"):
-        if hasattr(signal, name):
-            signum = getattr(signal, name)
-            previous[signum] = signal.signal(signum, handler)
-    return previous
-
-
-def _restore_signals(previous: dict) -> None:
-    import signal
-
-    for signum, handler in previous.items():
-        signal.signal(signum, handler)
 
 
 def _prefetching(progress):

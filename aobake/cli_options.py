@@ -12,6 +12,8 @@ import math
 import click
 
 from aobake.config import SPECS, parse_distance
+from aobake.executors import EXECUTORS
+from aobake.methods import METHODS
 from aobake.errors import InputError
 
 
@@ -106,3 +108,26 @@ def given(values: dict) -> dict:
             continue
         out[name] = value
     return out
+
+
+#: the options of where and how fast a bake runs (never its numbers); ``aobake view`` too
+RUN_OPTIONS = [
+    click.Option(["--threads"], default=None, type=click.IntRange(min=1),
+                 help="Worker threads. Default: all cores."),
+    click.Option(["--method"], default="rays", show_default=True,
+                 type=click.Choice(sorted(METHODS)),
+                 help="How values are estimated: rays (ray-traced, with error bars: the "
+                      "reference); discs (Bunnell's disc approximation); hemicube "
+                      "(rasterised hemicubes, OpenGL); file (a per-vertex bake's values, "
+                      "--ao-from)."),
+    click.Option(["--executor"], default="threads", show_default=True,
+                 type=click.Choice(sorted(EXECUTORS)),
+                 help="Where the points are estimated: threads (this process) or processes (a "
+                      "local pool of --workers processes). The same bits either way."),
+    click.Option(["--workers"], default=None, type=click.IntRange(min=1),
+                 help="--executor processes: worker processes. Default: --threads (all "
+                      "cores)."),
+    click.Option(["--chunk-points"], default=None, type=click.IntRange(min=1),
+                 help="Points per work item (default: a few items per worker). The same bits "
+                      "for any value."),
+]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from aobake.cli import _guarded
+from aobake.cli_common import guarded
 from aobake.cli_options import DistanceType, TauType
 
 
@@ -31,7 +31,7 @@ def refit_main(bake, out, tau, max_distance, quantities, report_path, quiet):
     --max-distance or --tau, without tracing: the same numbers as a fresh bake of that seed."""
     # The main command's contract: one line and exit 1 for a bad input or output, SIGINT
     # 130, SIGTERM/SIGHUP 128 + the signal, and the outputs a transaction (none left behind).
-    _guarded(quiet, _refit, bake, out, tau, max_distance, quantities, report_path, quiet)
+    guarded(quiet, _refit, bake, out, tau, max_distance, quantities, report_path, quiet)
 
 
 def _refit(bake, out, tau, max_distance, quantities, report_path, quiet):

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import click
 
-from aobake.cli_options import FiniteRange, given, settings
+from aobake.cli_common import guarded
+from aobake.cli_options import RUN_OPTIONS, FiniteRange, given, settings
 
 #: settings that mean nothing for a camera view (kept distances are an NPZ's)
 NOT_FOR_VIEWS = ("keep_distances",)
@@ -69,8 +70,6 @@ def _camera_options() -> list:
 def view_command(main: click.Command) -> click.Command:
     """The ``view`` command: camera options, every setting but the lightmap target's, the
     run options and ``main``'s image-output options."""
-    from aobake.cli import RUN_OPTIONS
-
     outputs = [p for p in main.params if p.name in ("half", "bit_depth", "report_path",
                                                     "quiet")]
     bake = settings(skip_sections=("texels",), exclude=NOT_FOR_VIEWS)
@@ -87,8 +86,6 @@ def view_command(main: click.Command) -> click.Command:
 
 def _view(mesh, out, look_from, look_at, up, fov, size, camera, threads, half, bit_depth,
           report_path, quiet, quantities, method, executor, workers, chunk_points, **config):
-    from aobake.cli import _guarded
-
     if (look_from is None) != (look_at is None):
         raise click.UsageError("give --look-from and --look-at together")
     if camera is not None and look_from is not None:
@@ -104,7 +101,7 @@ def _view(mesh, out, look_from, look_at, up, fov, size, camera, threads, half, b
     method = _method_for(method, config)
     run = dict(threads=threads, method=method, executor=executor, workers=workers,
                chunk_points=chunk_points)
-    _guarded(quiet, _run, mesh, out, look, gltf, size, fov, run, quiet,
+    guarded(quiet, _run, mesh, out, look, gltf, size, fov, run, quiet,
              given(dict(config, quantities=quantities)),
              dict(report=report_path, half=half, bit_depth=int(bit_depth)))
 

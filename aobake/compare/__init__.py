@@ -326,11 +326,11 @@ def main(reference, candidate, quantity, candidate_key, candidate_convention, he
     another tool (see --candidate-key, --candidate-convention).  Uniform- and
     cosine-weighted AO are different quantities and are not compared.
     """
-    from aobake.cli import _guarded  # the main command's contract: errors, signals, exit codes
+    from aobake.cli_common import guarded  # the CLI's contract: errors, signals, exit codes
 
     def run():
         result = compare(reference, candidate, quantity, candidate_key=candidate_key,
                          candidate_convention=candidate_convention, heatmap=heatmap)
         click.echo(json.dumps(result, allow_nan=False) if as_json else format_table(result))
 
-    _guarded(False, run)
+    guarded(False, run)

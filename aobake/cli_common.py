@@ -1,0 +1,116 @@
+"""What every command of the CLI shares: the error, signal and exit-code contract
+(``guarded``), warnings routed to one line, and the allocator setting of the process.
+A leaf of the CLI: the sub-commands (view, refit, compare) import it, never ``aobake.cli``
+itself, so no command imports another that imports it back."""
+
+from __future__ import annotations
+
+import logging
+import sys
+
+import click
+
+from aobake.errors import AobakeError
+
+
+#: glibc mallopt parameters (malloc.h)
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+#: the largest mmap threshold glibc accepts on 64-bit systems (DEFAULT_MMAP_THRESHOLD_MAX)
+_MMAP_THRESHOLD_MAX = 32 << 20
+
+
+def keep_freed_memory() -> None:
+    """Let this process reuse the memory it frees instead of handing it back to the system.
+
+    By default glibc gives freed blocks above an adaptive threshold back to the system and
+    the next array of that size takes fresh pages, each zeroed by the kernel on its first
+    touch; a lightmap bake allocates and frees arrays of tens of MB in every phase.  With
+    the threshold fixed at its largest value and no trimming, freed blocks below it are
+    reused: the bunny's 1024^2 lightmap bake takes 80k page faults instead of 143k and
+    0.2-0.3 s less system time (2 ms per MB first touched on this machine's virtual
+    memory).  The CLI process only: the library leaves its host's allocator alone.
+    Elsewhere (not glibc) this does nothing.
+    """
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL(None)  # this process's symbols (find_library would run ldconfig)
+        if not hasattr(libc, "gnu_get_libc_version") or not hasattr(libc, "mallopt"):
+            return
+        libc.mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX)
+        libc.mallopt(_M_TRIM_THRESHOLD, ctypes.c_int(2**31 - 1))
+    except (OSError, AttributeError):  # pragma: no cover - no C library to tune
+        pass
+
+
+def guarded(quiet: bool, function, *args) -> None:
+    """Run a bake command's work under the CLI's contract: library errors as one line and
+    exit 1, SIGINT 130, SIGTERM/SIGHUP 128 + the signal (outputs are one transaction: an
+    interrupted bake leaves no file)."""
+    logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING,
+                        format="aobake: warning: %(message)s", stream=sys.stderr)
+    route_python_warnings(quiet)
+    keep_freed_memory()
+    previous = catch_signals()
+    try:
+        function(*args)
+    except (AobakeError, ValueError) as exc:
+        click.echo(f"aobake: error: {exc}", err=True)
+        sys.exit(1)
+    except KeyboardInterrupt:  # SIGINT; the output transaction has removed its temporary files
+        click.echo("aobake: error: interrupted (SIGINT): no output written", err=True)
+        sys.exit(130)
+    except Terminated as exc:
+        click.echo(f"aobake: error: terminated ({exc.name}): no output written", err=True)
+        sys.exit(128 + exc.signum)
+    finally:
+        restore_signals(previous)
+
+
+def route_python_warnings(quiet: bool) -> None:
+    """A Python or numpy warning that escapes the library reaches the user as one
+    ``aobake: warning:`` line (never a source line and a stack position)."""
+    import warnings
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if not quiet:
+            click.echo(f"aobake: warning: {category.__name__}: {message}", err=True)
+
+    warnings.showwarning = show
+
+
+class Terminated(BaseException):
+    """SIGTERM or SIGHUP arrived: unwinds like KeyboardInterrupt (so every temporary file
+    is removed) and exits 128 + the signal number (143 for SIGTERM)."""
+
+    def __init__(self, signum: int):
+        import signal
+
+        super().__init__(signum)
+        self.signum, self.name = signum, signal.Signals(signum).name
+
+
+def catch_signals() -> dict:
+    """SIGTERM and SIGHUP handled like SIGINT (only in the main thread, where Python can)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+
+    def handler(signum, frame):
+        raise Terminated(signum)
+
+    previous = {}
+    for name in ("SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signum = getattr(signal, name)
+            previous[signum] = signal.signal(signum, handler)
+    return previous
+
+
+def restore_signals(previous: dict) -> None:
+    import signal
+
+    for signum, handler in previous.items():
+        signal.signal(signum, handler)
