@@ -11,8 +11,9 @@ Supported: ``v`` (extra w or colour columns ignored), ``vt``, ``vn``, ``f`` with
 quads and n-gons (fan-triangulated from the first corner, as most tools do),
 ``mtllib``/``usemtl`` (recorded, so a lightmap
 GLB can keep the base colour), line continuations.  Ignored with a count in the
-warnings: ``l``/``p`` elements.  Ignored silently: ``o``/``g`` groups (all faces are baked
-as one mesh), ``s``, comments.
+warnings: ``l``/``p`` elements.  ``o``/``g`` names are recorded per triangle (the whole rest of
+the line is one name; all faces are baked as one mesh, and ``aobake.groups`` selects faces by
+these names).  Ignored silently: ``s``, comments.
 
 Two readers give the same :class:`ObjData`: a vectorised one (:func:`_read_fast`, numpy over
 the whole file) for files in the forms exporters write, and the line-by-line one
@@ -55,6 +56,12 @@ class ObjData:
     materials: list = field(default_factory=list)
     #: (f,) int64 index into ``materials`` of each triangle, -1 before any usemtl
     face_material: np.ndarray | None = None
+    #: the names of the ``o`` and ``g`` statements, in order of first use, and (f,) int64
+    #: each triangle's index into them (-1 before any, or after a ``g`` without a name)
+    objects: list = field(default_factory=list)
+    face_object: np.ndarray | None = None
+    groups: list = field(default_factory=list)
+    face_group: np.ndarray | None = None
 
 
 def _logical_lines(text: str):
@@ -93,14 +100,20 @@ def _resolve(token: str, count: int, path, number: int, what: str) -> int:
 
 
 class _Statements:
-    """The statements that are not geometry (``l``/``p``, ``mtllib``, ``usemtl``), read the
-    same way by both readers.  A malformed one raises IndexError."""
+    """The statements that are not geometry (``l``/``p``, ``mtllib``, ``usemtl``, ``o``,
+    ``g``), read the same way by both readers.  A malformed one raises IndexError."""
+
+    #: the statements that name the faces after them: key -> attribute of the name lists
+    NAMING = {"o": "objects", "g": "groups"}
 
     def __init__(self):
         self.skipped = 0
         self.mtllibs: list = []
         self.materials: list = []
         self.current = -1  # index into materials of the latest usemtl, -1 before any
+        self.objects: list = []
+        self.groups: list = []
+        self.named = {"o": -1, "g": -1}  # index of the latest o / g name, -1 before any
 
     def read(self, key: str, line: str) -> None:
         if key in ("l", "p"):
@@ -112,17 +125,25 @@ class _Statements:
             if name not in self.materials:
                 self.materials.append(name)
             self.current = self.materials.index(name)
+        elif key in self.NAMING:  # "g" alone: the default group, no name
+            name = line.split(None, 1)[1].strip() if len(line.split()) > 1 else None
+            names = getattr(self, self.NAMING[key])
+            if name is not None and name not in names:
+                names.append(name)
+            self.named[key] = -1 if name is None else names.index(name)
 
 
 def _result(path, statements: _Statements, vertices, faces, uv, faces_uv, normals, faces_normal,
-            face_material) -> ObjData:
+            face_material, face_object, face_group) -> ObjData:
     warnings = []
     if statements.skipped:
         warnings.append(f"{path}: ignored {statements.skipped} line/point elements "
                         "(only faces are baked)")
     return ObjData(vertices=vertices, faces=faces, uv=uv, faces_uv=faces_uv, normals=normals,
                    faces_normal=faces_normal, warnings=warnings, mtllibs=statements.mtllibs,
-                   materials=statements.materials, face_material=face_material)
+                   materials=statements.materials, face_material=face_material,
+                   objects=statements.objects, face_object=face_object,
+                   groups=statements.groups, face_group=face_group)
 
 
 def _read_text(path) -> tuple[bytes, str, str]:
@@ -160,7 +181,7 @@ def _read_slow(path, text: str) -> ObjData:
     """The reference reader: one logical line at a time, every statement and index checked."""
     verts, uvs, norms = [], [], []
     tri_v, tri_t, tri_n = [], [], []
-    statements, tri_m = _Statements(), []
+    statements, tri_m, tri_o, tri_g = _Statements(), [], [], []
     all_have_t = True
     for number, line in _logical_lines(text):
         parts = line.split()
@@ -194,6 +215,8 @@ def _read_slow(path, text: str) -> ObjData:
                     tri_t.append((ct[0], ct[k], ct[k + 1]))
                     tri_n.append((cn[0], cn[k], cn[k + 1]))
                     tri_m.append(statements.current)
+                    tri_o.append(statements.named["o"])
+                    tri_g.append(statements.named["g"])
             else:
                 statements.read(key, line)
         except InputError:
@@ -214,6 +237,8 @@ def _read_slow(path, text: str) -> ObjData:
         normals=np.asarray(norms, dtype=np.float64) if norms else None,
         faces_normal=np.asarray(tri_n, dtype=np.int64) if norms else None,
         face_material=np.asarray(tri_m, dtype=np.int64),
+        face_object=np.asarray(tri_o, dtype=np.int64),
+        face_group=np.asarray(tri_g, dtype=np.int64),
     )
 
 
@@ -371,6 +396,7 @@ def _read_fast_bytes(path, data: bytes, encoding: str) -> ObjData | None:
     # Everything else, one line at a time, as the slow reader reads it.
     statements = _Statements()
     usemtl_at, usemtl_material = [], []
+    named_at = {key: ([], []) for key in _Statements.NAMING}  # line numbers, name indices
     other = np.flatnonzero(kind == _OTHER)
     for i, start, end in zip(other.tolist(), starts[other].tolist(), ends[other].tolist()):
         line = data[start:end].decode(encoding).split("#", 1)[0].rstrip()
@@ -383,6 +409,9 @@ def _read_fast_bytes(path, data: bytes, encoding: str) -> ObjData | None:
         if parts[0] == "usemtl":
             usemtl_at.append(i)
             usemtl_material.append(statements.current)
+        elif parts[0] in named_at:
+            named_at[parts[0]][0].append(i)
+            named_at[parts[0]][1].append(statements.named[parts[0]])
 
     kind_of_byte = np.repeat(kind, ends - starts + 1)
     body = a[:size]
@@ -439,10 +468,13 @@ def _read_fast_bytes(path, data: bytes, encoding: str) -> ObjData | None:
     k = np.arange(len(face_of_tri)) - np.repeat(np.cumsum(tris) - tris, tris) + 1
     corner = np.stack([first, first + k, first + k + 1], axis=1)
 
-    material = np.full(len(f_lines), -1, np.int64)
-    if usemtl_at:
-        latest = np.searchsorted(np.asarray(usemtl_at), f_lines) - 1
-        material = np.where(latest >= 0, np.asarray(usemtl_material, np.int64)[latest], -1)
+    def latest(at, value):  # per f line: the value of the latest statement before it
+        if not at:
+            return np.full(len(f_lines), -1, np.int64)
+        index = np.searchsorted(np.asarray(at), f_lines) - 1
+        return np.where(index >= 0, np.asarray(value, np.int64)[index], -1)
+
+    material = latest(usemtl_at, usemtl_material)
     return _result(
         path, statements,
         vertices=vertices,
@@ -452,4 +484,6 @@ def _read_fast_bytes(path, data: bytes, encoding: str) -> ObjData | None:
         normals=normals,
         faces_normal=n[corner] if normals is not None else None,
         face_material=material[face_of_tri],
+        face_object=latest(*named_at["o"])[face_of_tri],
+        face_group=latest(*named_at["g"])[face_of_tri],
     )

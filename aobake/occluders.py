@@ -33,7 +33,9 @@ class Occluders:
     (local = (world - center) * scale), step : float local units a ray steps past a back
     face (``--backfaces ignore``), diagonal : float the scene's bounding-box diagonal,
     backend : the triangle backend (``BACKENDS[config.backend]``), union : backend plus
-    ground plane (``Union``), backend_name : str, ground : {"axis", "height"} | None.
+    ground plane (``Union``), backend_name : str, ground : {"axis", "height"} | None,
+    faces : (k,) int64 the scene face of each of the backend's triangles when only some
+    faces occlude (``Scene.occluding``), or None: the backend holds every face, in order.
     """
 
     center: np.ndarray
@@ -44,6 +46,7 @@ class Occluders:
     union: Union
     backend_name: str
     ground: dict | None
+    faces: np.ndarray | None = None
 
     def to_local(self, points: np.ndarray) -> np.ndarray:
         """(n, 3) float64 scene units -> (n, 3) float64 local units."""
@@ -62,6 +65,8 @@ class Occluders:
         t, prim = self.backend.intersect(origins, directions, limit)
         t = np.where(prim >= 0, t, np.float32(np.inf)).astype(np.float32)
         prim = prim.astype(np.int64)
+        if self.faces is not None:  # the backend's triangles are a subset: scene indices
+            prim = np.where(prim >= 0, self.faces[np.maximum(prim, 0)], -1)
         ground = np.zeros(len(t), dtype=bool)
         if self.ground is not None:
             plane = self.union.occluders[-1]
@@ -89,6 +94,8 @@ class Occluders:
                   "trace_scale": self.scale, "diagonal": self.diagonal}
         if self.ground is not None:
             params["ground_plane"] = dict(self.ground)
+        if self.faces is not None:
+            params["occluding_faces"] = int(len(self.faces))
         return params
 
 
@@ -99,17 +106,35 @@ def check(scene) -> None:
 
 
 def build(scene, config) -> Occluders:
-    """The occluders of ``scene`` under ``config`` (backend, ground_plane, up_axis)."""
+    """The occluders of ``scene`` under ``config`` (backend, ground_plane, up_axis).
+
+    With ``scene.occluding`` (``aobake.groups``: some faces are baked but cast nothing) the
+    backend holds the occluding faces alone, and the frame is theirs (rebased on their
+    vertices, scaled to their extent): the same occluders, bit for bit, as a scene of those
+    faces alone.  The ground plane stays under the whole scene.
+    """
     check(scene)
     lo, hi = scene.bounds
+    faces, subset = scene.faces, None
+    if scene.occluding is not None and not np.all(scene.occluding):
+        subset = np.flatnonzero(scene.occluding)
+        if not len(subset):
+            raise InputError(f"{scene.source}: no face occludes (every face is receive-only)")
+        faces = scene.faces[subset]
     # The backend's frame: rebased on the per-axis median of the vertices (far-from-origin
     # scenes; the median, not the bbox centre, so a stray far-away triangle does not move
     # the bulk of the scene to large float32 coordinates, where its rays would need larger
     # offsets) and scaled by a power of two so the scene spans [-1, 1] (tiny and huge
     # scenes).  A power of two scales float32 values and spacings exactly, so this changes
     # no bit at ordinary scales, and Embree's float32 arithmetic never under- or overflows.
-    center = np.median(scene.vertices[np.unique(scene.faces)], axis=0)
-    reach = float(np.maximum(np.abs(hi - center), np.abs(lo - center)).max())
+    used = np.unique(faces)
+    center = np.median(scene.vertices[used], axis=0)
+    if subset is None:
+        reach = float(np.maximum(np.abs(hi - center), np.abs(lo - center)).max())
+    else:  # the occluders' own extent
+        span = scene.vertices[used]
+        reach = float(np.maximum(np.abs(span.max(axis=0) - center),
+                                 np.abs(span.min(axis=0) - center)).max())
     scale = 2.0 ** -math.frexp(reach)[1]
     # Stepping past a back face (--backfaces ignore): OFFSET_ULPS ulps of the scene's
     # largest local coordinate, a length any point of the scene can resolve.
@@ -118,13 +143,14 @@ def build(scene, config) -> Occluders:
     # Vertices no face uses never reach a ray; zero them so a far-off one cannot overflow
     # the backend's float32 cast.
     unused = np.ones(len(local), dtype=bool)
-    unused[scene.faces.ravel()] = False
+    unused[faces.ravel()] = False
     local[unused] = 0.0
-    backend = BACKENDS[config.backend](local, scene.faces, scene.face_normals, step)
+    normals = scene.face_normals if subset is None else scene.face_normals[subset]
+    backend = BACKENDS[config.backend](local, faces, normals, step)
     members, ground = [backend], None
     if config.ground_plane:
         axis = AXES.index(config.up_axis)
         ground = {"axis": config.up_axis, "height": float(lo[axis])}
         members.append(PlaneOccluder(axis, (ground["height"] - center[axis]) * scale))
     return Occluders(center, scale, step, scene.diagonal, backend, Union(members),
-                     config.backend, ground)
+                     config.backend, ground, subset)

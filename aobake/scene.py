@@ -91,6 +91,15 @@ class Scene:
     #: what --fix-normals found and did (see :func:`repair_record`); None for a Scene built
     #: directly
     repair: dict | None = None
+    #: the names the input gives its faces, for selecting them (``aobake.groups``): kind ->
+    #: (names: tuple of str, index: (f,) int64 each face's name, -1 for none), kinds
+    #: "object" and "group" (OBJ ``o`` / ``g``), "node" and "mesh" (glTF / other formats
+    #: through trimesh: the scene-graph node and its mesh), "material" (OBJ ``usemtl``, a
+    #: glTF material); None when the input names nothing
+    names: dict | None = field(default=None, repr=False)
+    #: (f,) bool the faces that block rays (``aobake.groups``: the others are baked but cast
+    #: nothing), or None: every face does
+    occluding: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self):
         """Shapes and index ranges checked, also for a Scene built directly (``make_scene``
@@ -111,6 +120,13 @@ class Scene:
             if array.shape != (rows, 3):
                 raise InputError(f"{self.source}: {name} must be ({rows}, 3), got "
                                  f"{array.shape}")
+        for kind, (names, index) in (self.names or {}).items():
+            if np.shape(index) != (len(f),) or (len(index) and (np.min(index) < -1 or
+                                                                 np.max(index) >= len(names))):
+                raise InputError(f"{self.source}: the {kind} names do not match the faces")
+        if self.occluding is not None and np.shape(self.occluding) != (len(f),):
+            raise InputError(f"{self.source}: occluding must be ({len(f)},) bools, got "
+                             f"{np.shape(self.occluding)}")
 
     @cached_property
     def used(self) -> np.ndarray:
@@ -231,13 +247,14 @@ def make_scene(
     materials: list | None = None,
     face_material=None,
     fix_normals: str = "warn",
+    names: dict | None = None,
 ) -> Scene:
     """Validate arrays and build a :class:`Scene`.
 
     vertices : (v, 3) float, faces : (f, 3) int, normals : (v, 3) float or None
     (the shading normals when ``normals_mode == "file"``; with any mode they orient
     open components, see :mod:`aobake.repair`).  fix_normals : "warn" | "fix" | "off"
-    (see the module docstring).  Raises InputError naming ``source`` on empty,
+    (see the module docstring).  names : see ``Scene.names`` (kinds without a name dropped).  Raises InputError naming ``source`` on empty,
     non-finite or out-of-range input.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
@@ -363,8 +380,10 @@ def make_scene(
                         "the mesh nearer the origin before exporting it)")
     for message in warnings:
         log.warning(message)
+    names = {kind: (tuple(str(n) for n in given), np.asarray(index, dtype=np.int64))
+             for kind, (given, index) in (names or {}).items() if len(given)} or None
     return Scene(vertices, faces, vnormals, fnormals, uv, faces_uv if uv is not None else None,
-                 source, mode, warnings, materials, face_material, areas, record)
+                 source, mode, warnings, materials, face_material, areas, record, names)
 
 
 def _obj_normals(data) -> np.ndarray | None:
@@ -512,6 +531,7 @@ def _load_with_trimesh(path: Path):
     else:
         raise InputError(f"{path}: holds no triangle mesh (got {type(loaded).__name__})")
     vertices, faces, normals, uvs, offset = [], [], [], [], 0
+    names = _trimesh_names(meshes)
     have_normals = all("vertex_normals" in m._cache for m in meshes)
     have_uv = all(getattr(m.visual, "uv", None) is not None and len(m.visual.uv) == len(m.vertices)
                   for m in meshes)
@@ -530,7 +550,27 @@ def _load_with_trimesh(path: Path):
         faces = inverse.reshape(-1)[faces]
         normals = []
     return (vertices, faces, np.concatenate(normals) if normals else None,
-            np.concatenate(uvs) if uvs else None, _trimesh_materials(meshes) if uvs else None)
+            np.concatenate(uvs) if uvs else None, _trimesh_materials(meshes) if uvs else None,
+            names)
+
+
+def _trimesh_names(meshes) -> dict:
+    """``Scene.names`` of trimesh meshes (``Scene.dump``'s copies know their node and mesh
+    names; a material its name): kind -> (names, (f,) int64 index)."""
+    out = {}
+    for kind, name_of in (("node", lambda m: m.metadata.get("node")),
+                          ("mesh", lambda m: m.metadata.get("name")),
+                          ("material", lambda m: getattr(getattr(m.visual, "material", None),
+                                                         "name", None))):
+        names, index = [], []
+        for mesh in meshes:
+            name = name_of(mesh)
+            if name is not None and str(name) not in names:
+                names.append(str(name))
+            index.append(np.full(len(mesh.faces), -1 if name is None else
+                                 names.index(str(name)), dtype=np.int64))
+        out[kind] = (names, np.concatenate(index))
+    return out
 
 
 def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn") -> Scene:
@@ -572,11 +612,15 @@ def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn") ->
         data = read_obj(path)
         has_uv = data.faces_uv is not None
         materials, face_material = _obj_materials(path, data) if has_uv else (None, None)
+        names = {"object": (data.objects, data.face_object),
+                 "group": (data.groups, data.face_group),
+                 "material": (data.materials, data.face_material)}
         return make_scene(data.vertices, data.faces, _obj_normals(data), normals_mode,
                           uv=data.uv if has_uv else None, faces_uv=data.faces_uv, source=str(path),
                           warnings=data.warnings, materials=materials, face_material=face_material,
-                          fix_normals=fix_normals)
-    vertices, faces, normals, uv, materials = _load_with_trimesh(path)
+                          fix_normals=fix_normals, names=names)
+    vertices, faces, normals, uv, materials, names = _load_with_trimesh(path)
     materials, face_material = materials or (None, None)
     return make_scene(vertices, faces, normals, normals_mode, uv=uv, source=str(path),
-                      materials=materials, face_material=face_material, fix_normals=fix_normals)
+                      materials=materials, face_material=face_material, fix_normals=fix_normals,
+                      names=names)

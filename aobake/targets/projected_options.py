@@ -1,0 +1,96 @@
+"""The studio settings (section "studio"): high-to-low baking through a cage
+(``aobake.targets.projected``) and what occludes what (``aobake.groups``).
+
+Not (yet) part of ``BakeConfig``: a record of its own, made and checked like the others
+(``aobake.options``), which the command line turns into a target and a selection:
+
+    aobake LOW.obj --from HIGH.obj --out ao.exr [--cage-offset D | --cage CAGE.obj]
+           [--exclude NAME ...] [--receive-only NAME ...] [--occluder-only NAME ...]
+
+With ``--from`` the positional mesh is the low mesh (where the values are stored: its UVs
+for an image, its vertices for .ply/.npz/.glb) and ``--from`` the source, the pipeline's
+scene (``run(config, options.source, options.target(per))``); the groups select faces of
+the pipeline's scene (the source with ``--from``).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+from aobake.errors import InputError
+from aobake.options import check, setting
+from aobake.targets.projected_cage import parse_offset
+
+
+def _path(value) -> str:
+    if not isinstance(value, (str, os.PathLike)) or not str(value):
+        raise InputError(f"expected a mesh file, got {value!r}")
+    return str(value)
+
+
+def _patterns(value) -> tuple:
+    values = (value,) if isinstance(value, str) else tuple(value or ())
+    for pattern in values:
+        if not isinstance(pattern, str) or not pattern:
+            raise InputError(f"a name pattern must be a non-empty string, got {pattern!r}")
+    return values
+
+
+@dataclass(frozen=True)
+class StudioOptions:
+    """High-to-low baking and occluder groups (each field's help is its documentation)."""
+
+    source: str | None = setting(
+        None, "parsed", "Bake the AO of this high-poly mesh onto MESH (the low-poly mesh: its "
+        "UVs for an image --out, its vertices for .ply/.npz/.glb), each point projected "
+        "onto the source along a cage (docs/studio.md).", section="studio", optional=True,
+        parse=_path, flags=("--from",), show_default=False)
+    cage_offset: float | str | None = setting(
+        None, "parsed", "With --from: the cage is MESH pushed out along its vertex normals by "
+        "D (scene units, or 'P%' of MESH's diagonal); rays run from the cage through MESH "
+        "for twice that. Default 1%.", section="studio", optional=True, parse=parse_offset,
+        show_default=False)
+    cage: str | None = setting(
+        None, "parsed", "With --from: a cage mesh with MESH's topology (same vertices and "
+        "triangles) instead of --cage-offset.", section="studio", optional=True, parse=_path,
+        show_default=False)
+    exclude: tuple = setting(
+        (), "parsed", "Faces whose object/group/node/mesh/material name matches this glob "
+        "('material:glass*' for one kind) neither occlude nor are baked (repeatable).",
+        section="studio", parse=_patterns, multiple=True, show_default=False)
+    receive_only: tuple = setting(
+        (), "parsed", "Faces matching this glob are baked but cast nothing (repeatable).",
+        section="studio", parse=_patterns, multiple=True, show_default=False)
+    occluder_only: tuple = setting(
+        (), "parsed", "Faces matching this glob cast but are not baked (with --from: cage "
+        "rays pass through them) (repeatable).", section="studio", parse=_patterns,
+        multiple=True, show_default=False)
+
+    def __post_init__(self):
+        check(self)
+        self.check_studio()
+
+    def check_studio(self) -> None:
+        """The checks between this record's fields."""
+        if self.cage is not None and self.cage_offset is not None:
+            raise InputError("give --cage-offset or --cage, not both")
+        if self.source is None and (self.cage is not None or self.cage_offset is not None):
+            raise InputError("--cage-offset and --cage shape the projection of --from: give "
+                             "--from HIGH")
+
+    def target(self, per: str, low):
+        """The high-to-low target storing values per ``per`` ("texels" | "vertices") of the
+        low mesh ``low`` (the CLI's positional mesh), or None without ``source``."""
+        if self.source is None:
+            return None
+        from aobake.targets.projected import ProjectedTexelTarget, ProjectedVertexTarget
+
+        kind = {"texels": ProjectedTexelTarget, "vertices": ProjectedVertexTarget}[per]
+        return kind(low, cage_offset=self.cage_offset, cage=self.cage)
+
+    def selection(self):
+        """The ``aobake.groups.Selection`` of the group patterns (falsy when none)."""
+        from aobake.groups import Selection
+
+        return Selection(self.exclude, self.receive_only, self.occluder_only)
