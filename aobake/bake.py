@@ -18,7 +18,7 @@ import numpy as np
 from dataclasses import replace
 from typing import Callable
 
-from aobake import _native
+from aobake import _native, groups
 from aobake import occluders as occluder_stage
 from aobake import report as reports
 from aobake.config import BakeConfig
@@ -88,6 +88,13 @@ def run(
     timings["load_s"] = time.perf_counter() - clock
 
     warnings: list = []
+    selection = config.selection()
+    if selection:  # what occludes what: faces left out, or only casting, or only baked
+        if selection.receive_only and not METHODS[method].casts_rays:
+            raise InputError(f"--receive-only needs rays that pass the faces it names; "
+                             f"--method {method} builds from every face of the scene")
+        applied = groups.apply(scene, selection)
+        scene, target = applied.scene, groups.GroupedTarget(target, applied)
     occluder_stage.check(scene)  # its errors first, not after the target's work
     rays_per_point = target.rays_per_point(config)
     compiled = _native.kernels() is not None  # decided once, on this thread
@@ -119,6 +126,11 @@ def run(
     estimates = runner.estimate(job, the_method, plan, threads, chunk_rays, progress)
     timings["trace_s"] = time.perf_counter() - clock
     done = target.finish(scene, config, plan, estimates, timings, warnings)
+    if not hasattr(getattr(target, "inner", target), "receivers"):
+        # (a high-to-low target says it of its low mesh itself)
+        dark = groups.dark_warning(estimates, scene.source)
+        if dark:
+            warnings.append(dark)
     wall = time.perf_counter() - start
 
     record = the_method.record(estimates)

@@ -207,7 +207,8 @@ def _run(mesh, out, target, run, quiet, config, files):
 
     config = aobake.BakeConfig(**config)  # validated before any file is touched
     where = aobake.outputs.plan(out, target, mesh=mesh, mesh_out=files["mesh_out"],
-                                report=files["report"], quantities=config.quantities)
+                                report=files["report"], quantities=config.quantities,
+                                inputs=(config.source, config.cage))
     if config.keep_distances and where.out.suffix.lower() != ".npz":
         raise click.UsageError(f"--keep-distances needs an .npz --out (got {where.out.name})")
     if config.denoise and (where.target != "texels" or where.out.suffix.lower() != ".exr"):
@@ -219,14 +220,18 @@ def _run(mesh, out, target, run, quiet, config, files):
         progress = _prefetching(progress)
     from aobake.targets import TARGETS
 
-    target = TARGETS[where.target]()  # the CLI's targets need nothing beyond the config
+    scene = mesh
+    if config.source is not None:  # high-to-low: the source is the scene, MESH the low mesh
+        target, scene = config.target(where.target, mesh), config.source
+    else:
+        target = TARGETS[where.target]()  # the CLI's targets need nothing beyond the config
     unwrapping = None
     if where.target == "texels" and config.unwrap != "never":
         from aobake.targets.texels import unwrap as unwrapping
 
         unwrapping.prestart()  # its start overlaps the loading; ended if own UVs are baked
     try:
-        result = aobake.run(config, mesh, target, progress=progress, **run)
+        result = aobake.run(config, scene, target, progress=progress, **run)
     finally:
         finish()
         if unwrapping is not None:

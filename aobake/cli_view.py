@@ -14,8 +14,9 @@ import click
 from aobake.cli_common import guarded
 from aobake.cli_options import RUN_OPTIONS, FiniteRange, given, settings
 
-#: settings that mean nothing for a camera view (kept distances are an NPZ's)
-NOT_FOR_VIEWS = ("keep_distances",)
+#: settings that mean nothing for a camera view (kept distances are an NPZ's; a view sees
+#: the scene, it is not projected from another mesh)
+NOT_FOR_VIEWS = ("keep_distances", "source", "cage_offset", "cage")
 
 
 class _VectorType(click.ParamType):

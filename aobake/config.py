@@ -27,6 +27,7 @@ from aobake.options import check as check_settings
 from aobake.options import setting, specs
 from aobake.quantities import QUANTITIES, canonical
 from aobake.repair import MODES as FIX_NORMALS
+from aobake.targets.projected_options import StudioOptions
 from aobake.targets.texels.options import (BENT_SPACES, DEFAULT_RESOLUTION,  # noqa: F401
                                            SEAMS, UNWRAP, LightmapOptions, parse_resolution)
 from aobake.warp import WEIGHTINGS
@@ -123,11 +124,12 @@ class CommonOptions:
 
 
 @dataclass(frozen=True)
-class BakeConfig(LightmapOptions, HemicubeOptions, DiscsOptions, FileOptions, RaysOptions,
-                 CommonOptions):
+class BakeConfig(StudioOptions, LightmapOptions, HemicubeOptions, DiscsOptions, FileOptions,
+                 RaysOptions, CommonOptions):
     """Everything that decides a bake's numbers (threads, executors and chunking do not): the
     common settings, the ray-traced method's, the file method's, the disc method's, the
-    hemicube method's and the lightmap target's, in that order (each
+    hemicube method's, the lightmap target's and the studio's (high-to-low, groups), in
+    that order (each
     section's record documents its fields; ``python -c "from aobake.config import
     BakeConfig; help(BakeConfig)"`` or ``aobake --help`` shows them).  The one source of
     every default: the CLI reads them from here.
@@ -138,6 +140,7 @@ class BakeConfig(LightmapOptions, HemicubeOptions, DiscsOptions, FileOptions, Ra
         self.check_rays()
         self.check_hemicube()
         self.check_lightmap()
+        self.check_studio()
         if self.tolerance is not None and not {"ao", "obscurance"} & set(self.quantities):
             # bent normals have no interval: a tolerance would be "met" by nothing baked
             raise InputError("tolerance bounds the intervals of ao and obscurance; bake at "

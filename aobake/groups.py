@@ -229,11 +229,6 @@ class GroupedTarget:
 
     def finish(self, scene, config, plan, estimates, timings, warnings):
         done = self.inner.finish(scene, config, plan, estimates, timings, warnings)
-        # (a high-to-low target says it of its low mesh itself)
-        dark = None if hasattr(self.inner, "receivers") else dark_warning(estimates,
-                                                                          scene.source)
-        if dark:
-            warnings.append(dark)
         report = dict(done.report)
         report["groups"] = self.applied.record
         return replace(done, report=report)
@@ -268,20 +263,16 @@ def dark_warning(estimates, source) -> str | None:
 
 def bake_grouped(mesh, target, config=None, *, exclude=(), receive_only=(), occluder_only=(),
                  **run_kw):
-    """Load ``mesh``, apply the selection and bake ``target`` (``aobake.bake.run``'s
-    keywords in ``run_kw``; BakeConfig fields in ``config``).  With an empty selection this
-    is ``run(config, mesh, target)``."""
+    """Bake ``target`` on ``mesh`` with a selection of its faces (``aobake.bake.run``'s
+    keywords in ``run_kw``; BakeConfig fields in ``config``): the patterns go into the
+    config (its report then reproduces the bake) and ``run`` applies them."""
     from aobake.bake import _config, _split as split_options, run
-    from aobake.scene import load_scene
 
     options, keywords = split_options(dict(run_kw))
     for name in ("threads", "chunk_rays", "progress"):
         if name in options:
             keywords[name] = options.pop(name)
-    config = _config(config, options)
-    selection = Selection(tuple(exclude), tuple(receive_only), tuple(occluder_only))
-    if not selection:
-        return run(config, mesh, target, **keywords)
-    scene = load_scene(mesh, config.normals, config.fix_normals)
-    applied = apply(scene, selection)
-    return run(config, applied.scene, GroupedTarget(target, applied), **keywords)
+    config = _config(config, dict(options, exclude=tuple(exclude),
+                                  receive_only=tuple(receive_only),
+                                  occluder_only=tuple(occluder_only)))
+    return run(config, mesh, target, **keywords)

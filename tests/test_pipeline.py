@@ -68,9 +68,12 @@ def test_config_round_trips_through_a_report_with_every_field_changed():
                          unwrap="always", bent_space="tangent", seams="off", denoise=True,
                          ao_from="bake.npz", albedo=0.25, bounces=3, discs_k=3.0,
                          discs_passes=3, discs_weight=0.5, discs_kappa=2.0,
-                         discs_traversal="brute", hemicube_resolution=32)
+                         discs_traversal="brute", hemicube_resolution=32,
+                         source="high.obj", cage_offset=0.25, exclude=("a*",),
+                         receive_only=("b",), occluder_only=("c",))
     # keep_distances cannot go with a tolerance: the second config changes it
-    kept = replace(changed, tolerance=None, keep_distances=True)
+    kept = replace(changed, tolerance=None, keep_distances=True, cage_offset=None,
+                   cage="cage.obj")
     # a texel density replaces the resolution: the third config sets it
     dense = replace(kept, resolution=DEFAULTS["resolution"], texel_density=12.5)
     assert all(getattr(changed, k) != v or getattr(kept, k) != v or getattr(dense, k) != v

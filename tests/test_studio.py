@@ -358,3 +358,28 @@ def test_outputs(tmp_path):
     vertex, faces, meta = read_ply(path)
     assert len(vertex) == len(low.vertices) and np.array_equal(faces, low.faces)
     assert np.allclose(vertex["ao"], per_vertex.ao, atol=1e-7)
+
+
+def test_cli_from_bakes_high_to_low_and_protects_the_source(tmp_path):
+    """`aobake LOW --from HIGH --out ao.ply`: the low mesh's vertices, projected onto the
+    source; the report's config carries --from (so it re-bakes); no output may overwrite
+    the source."""
+    import json
+
+    import trimesh
+
+    from conftest import run_cli
+
+    high, low = tmp_path / "high.ply", tmp_path / "low.obj"
+    trimesh.creation.icosphere(4, 1.0).export(high)
+    trimesh.creation.icosphere(1, 1.0).export(low)
+    report = tmp_path / "r.json"
+    result = run_cli(low, "--from", high, "--out", tmp_path / "ao.ply", "--rays", "8",
+                     "--report", report, "--quiet")
+    assert result.exit_code == 0, result.output
+    config = json.loads(report.read_text())["config"]
+    assert config["source"] == str(high)
+    clash = run_cli(low, "--from", high, "--out", high, "--rays", "8")
+    assert clash.exit_code == 1 and "refusing to overwrite the input mesh" in clash.output
+    alone = run_cli(low, "--cage-offset", "0.1", "--out", tmp_path / "x.ply")
+    assert alone.exit_code == 1 and "--from" in alone.output

@@ -38,7 +38,7 @@ class Outputs:
 
 
 def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=None,
-         quantities=None) -> Outputs:
+         quantities=None, inputs=()) -> Outputs:
     """Resolve and check a bake's output paths before baking (fail before any work).
 
     target : 'vertices' | 'texels' | None (from the extension); mesh : the input path, which
@@ -72,6 +72,9 @@ def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=Non
     seen = {}
     if mesh is not None:
         seen[mesh.resolve()] = "the input mesh"
+    for other in inputs:
+        if isinstance(other, (str, os.PathLike)):
+            seen.setdefault(Path(other).resolve(), "the input mesh")
     for role, path in roles:
         if path is None:
             continue
