@@ -16,10 +16,24 @@ from aobake.estimates import Estimates
 #: job key -> (Job, prepared method); a worker holds the jobs it was given
 _CACHE: dict = {}
 
+#: the most jobs a worker keeps: a long-lived worker (Dask) is sent one scene after another
+#: (a batch's assets); the oldest is dropped when a new one arrives, so its memory holds at
+#: most this many scenes and acceleration structures (the executor also forgets a job when
+#: its bake ends: ``forget``)
+KEEP_JOBS = 2
+
 
 def install(job) -> None:
     """Pool initializer: remember ``job`` (its method is built on the first item)."""
     _CACHE[job.key] = (job, None)
+    while len(_CACHE) > KEEP_JOBS:  # dicts keep insertion order: the oldest goes first
+        _CACHE.pop(next(iter(_CACHE)))
+
+
+def forget(key: str) -> bool:
+    """Drop job ``key`` (its scene, occluders and method) from this worker's cache; True if
+    it was there."""
+    return _CACHE.pop(key, None) is not None
 
 
 def prepared(job):

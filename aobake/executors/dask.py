@@ -1,0 +1,619 @@
+"""The ``dask`` executor: a bake's points estimated on a Dask cluster (``--executor dask``).
+
+Where: an existing cluster (``scheduler="tls://host:8786"``, reached with Dask's security
+settings: docs/scale.md), the session a caller opened (:func:`cluster`, which ``aobake
+batch`` opens once for all its assets), or a ``LocalCluster`` started for this bake: one
+worker process per core, one thread each, listening on 127.0.0.1 only, no dashboard, its
+connections mutual TLS with throw-away credentials when ``cryptography`` is installed.
+
+How: the job (scene, configuration, method name; ``executors.base.Job``) is scattered once
+and replicated to every worker (worker to worker, a tree: the client uploads it once);
+each worker builds the occluders and the method once per job and keeps them
+(``executors.worker``, an importable module: Dask ships ``__main__``'s functions by value,
+a module's by name) for all the job's work items (point ranges).  Items are sized by a
+cost model: the first points are estimated here, on one thread, until about
+``PILOT_SECONDS`` have passed (those estimates are kept), which gives the seconds per point;
+what is left is finished here when it is less than ``MIN_ITEM_SECONDS`` of this process's
+threads (shipping the scene would cost more), else cut into items of about
+``ITEM_SECONDS`` of a worker's tracing (never under ``MIN_ITEM_SECONDS``, at least
+``ITEMS_PER_WORKER`` items per worker when there is that much work); with
+``chunk_points``, into items of that many points (no pilot, no shortcut).  Results are
+gathered as they finish (a finished item lives in this process, so a worker lost later
+loses nothing of it) and merged by point index: every worker count and split gives the
+same bits as the local bake.
+
+Faults: a worker that dies mid-item (killed, out of memory, a crash in native code) has
+its item re-run on another worker by the scheduler; an item that has been running on
+``ALLOWED_FAILURES + 1`` workers when they died is declared poisonous (Dask's
+``KilledWorker``) and the bake fails with :class:`ClusterError`: bounded time, a clear
+message, never a hang.  ``ALLOWED_FAILURES`` is set as
+``distributed.scheduler.allowed-failures`` on the LocalCluster this module starts; a remote
+scheduler keeps its own setting (Dask's default is 3).  An exception raised by an item is
+not retried (``retries=0``): every item is a pure function of its inputs, so it would
+raise again.  If every worker holding the scattered job dies, the job is scattered again
+and the unfinished items resubmitted, at most ``MAX_RESHIPS`` times.  An interrupt
+(Ctrl-C) cancels the items and closes the cluster this module started.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import logging
+import math
+import threading
+import time
+import uuid
+from dataclasses import replace
+
+import numpy as np
+
+from aobake.errors import AobakeError, InputError
+from aobake.estimates import merge
+from aobake.executors import worker
+from aobake.executors.base import items
+
+log = logging.getLogger(__name__)
+
+#: seconds of one worker's tracing a work item carries (a task's round trip costs 6-11 ms
+#: over TCP, 10-25 ms over TLS on loopback: about 1-2% of it)
+ITEM_SECONDS = 1.0
+#: the least tracing an item carries when the work is split finer for balance
+MIN_ITEM_SECONDS = 0.5
+#: items per worker when the work allows (a slow item does not leave the others idle)
+ITEMS_PER_WORKER = 2
+#: the parent's pilot: point-rays of its first block, and how long it traces (its
+#: estimates are kept); blocks grow 4x until this much time has passed
+PILOT_RAYS = 1 << 15
+PILOT_SECONDS = 0.05
+#: worker deaths an item may survive (distributed.scheduler.allowed-failures of the
+#: LocalCluster started here): its third death fails the bake
+ALLOWED_FAILURES = 2
+#: re-runs of an item that raised (deterministic: it would raise again)
+RETRIES = 0
+#: times the job is scattered again after every worker holding it died
+MAX_RESHIPS = 2
+#: seconds to wait for a scheduler to answer, and for its first workers
+CONNECT_SECONDS = 30.0
+WAIT_WORKERS_SECONDS = 60.0
+#: fields of a WorkItem holding one row per point (cut with the items; the rest is whole)
+_PER_POINT = ("points", "normals", "ids", "sizes", "faces", "bary")
+
+
+class ClusterError(AobakeError):
+    """The cluster could not finish a bake: an item killed every worker it ran on, the
+    scheduler could not be reached or had no workers, or the job's data was lost."""
+
+
+def require():
+    """The ``distributed`` module; InputError saying what to install where it is missing."""
+    try:
+        import distributed
+    except ImportError:
+        raise InputError("--executor dask needs Dask: pip install 'aobake[dask]' (or "
+                         "'dask[distributed]')") from None
+    return distributed
+
+
+class Session:
+    """A Dask cluster that bakes go through, connected (or started) when a bake first needs
+    it: a batch of assets the parent finishes alone never starts one.
+
+    scheduler : an existing scheduler's address, or None for a LocalCluster of ``workers``
+    processes (default one per core); with a scheduler, ``workers`` is how many to wait
+    for (default 1); security : ``distributed.Security`` for a remote scheduler (default:
+    Dask's configuration).  Once open: ``client``, ``cluster`` (the LocalCluster started
+    here, or None), ``address``, ``tls`` (whether its connections are TLS).  ``stats``: one
+    dict per bake estimated on the cluster (points, items, the split, seconds of the pilot,
+    of the workers' tracing and preparing, wall time: what ``benchmarks/bench_scale.py``
+    reports).
+    """
+
+    def __init__(self, scheduler: str | None = None, workers: int | None = None,
+                 security=None):
+        self.scheduler, self.n_workers, self.security = scheduler, workers, security
+        self.cluster = self._client = self.address = self.tls = None
+        self.stats: list = []
+        self._loggers: list = []  # (logger, level) to restore when the session closes
+
+    @property
+    def opened(self) -> bool:
+        return self._client is not None
+
+    @property
+    def client(self):
+        """The ``distributed.Client`` (connecting, or starting the cluster, now if needed)."""
+        if self._client is None:
+            self._open()
+        return self._client
+
+    def workers(self) -> dict:
+        """worker address -> its threads, now."""
+        return dict(self.client.nthreads())
+
+    def _open(self) -> None:
+        distributed = require()
+        # a remote cluster's warnings stay (its workers are someone's to look after); a
+        # local one is this module's to report
+        self._loggers = _quiet(logging.WARNING if self.scheduler else logging.CRITICAL)
+        try:
+            if self.scheduler:
+                self._connect(distributed)
+            else:
+                self._start(distributed)
+        except BaseException:
+            self._restore_loggers()
+            raise
+
+    def _connect(self, distributed) -> None:
+        """Connect to the scheduler, and wait for its first workers."""
+        scheduler, wanted = self.scheduler, self.n_workers or 1
+        security = self.security or distributed.Security()  # Dask's configuration
+        if str(scheduler).startswith("tls://") and \
+                security.get_connection_args("client").get("ssl_context") is None:
+            raise ClusterError(
+                f"cannot reach the Dask scheduler at {scheduler}: it speaks TLS and Dask's "
+                "configuration has no credentials for a client (distributed.comm.tls.ca-file, "
+                ".client.cert, .client.key; docs/scale.md)")
+        try:
+            client = distributed.Client(scheduler, security=security,
+                                        timeout=CONNECT_SECONDS, set_as_default=False)
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:
+            raise ClusterError(f"cannot reach the Dask scheduler at {scheduler}: "
+                                  f"{exc}") from None
+        try:
+            client.wait_for_workers(wanted, timeout=WAIT_WORKERS_SECONDS)
+        except (OSError, TimeoutError) as exc:
+            client.close()
+            raise ClusterError(f"the Dask scheduler at {scheduler} has fewer than {wanted} "
+                                  f"workers after {WAIT_WORKERS_SECONDS:g} s ({exc})") from None
+        self._client, self.address = client, str(scheduler)
+        self.tls = self.address.startswith("tls://")
+
+    def _start(self, distributed) -> None:
+        """A LocalCluster: one single-threaded worker process per core (or ``workers``),
+        on 127.0.0.1, no dashboard, ALLOWED_FAILURES, TLS where it can."""
+        import dask
+
+        from aobake.executors.local import default_workers
+
+        security, self.tls = local_security()
+        try:
+            # an interrupt during the start waits for it to end, then closes it below
+            with _signals_deferred(), dask.config.set(
+                    {"distributed.scheduler.allowed-failures": ALLOWED_FAILURES}):
+                self.cluster = distributed.LocalCluster(
+                    n_workers=self.n_workers or default_workers(), threads_per_worker=1,
+                    processes=True, host="127.0.0.1", security=security,
+                    dashboard_address=None,
+                    # no dashboard; the scheduler's HTTP endpoints (health) on a free
+                    # loopback port instead of 8787
+                    scheduler_kwargs={"dashboard": False,
+                                      "dashboard_address": "127.0.0.1:0"},
+                    silence_logs=logging.CRITICAL)  # the workers' own logs
+                self._client = distributed.Client(self.cluster, security=security,
+                                                  set_as_default=False)
+                # A terminal's Ctrl-C reaches every process of its group: the workers leave
+                # it to this process, which cancels the items and closes the cluster (each
+                # worker would print its own KeyboardInterrupt traceback otherwise).
+                self._client.register_plugin(_IgnoreInterrupts())
+        except BaseException:
+            self._shut()
+            raise
+        self.address = self.cluster.scheduler_address
+
+    def close(self) -> None:
+        """Close the client, and the cluster if this session started it (its worker
+        processes are ended: an interrupt arriving meanwhile waits until they are)."""
+        try:
+            self._shut()
+        finally:
+            self._restore_loggers()
+
+    def _shut(self) -> None:
+        with _signals_deferred():
+            try:
+                if self._client is not None:
+                    self._client.close(timeout=10)
+            finally:
+                if self.cluster is not None:
+                    self.cluster.close(timeout=10)
+        self._client = self.cluster = None
+
+    def _restore_loggers(self) -> None:
+        for logger, level in self._loggers:
+            logger.setLevel(level)
+        self._loggers = []
+
+
+#: the signals a CLI turns into exceptions (SIGINT: KeyboardInterrupt; SIGTERM, SIGHUP)
+_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+
+
+@contextlib.contextmanager
+def _signals_deferred():
+    """Hold SIGINT, SIGTERM and SIGHUP while the block runs, then deliver the first that came
+    (to the handlers the process had): a cluster interrupted half-started or half-closed
+    would leave worker processes behind.  Only in the main thread (where Python can)."""
+    import signal
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+
+    def hold(signum, frame):
+        caught.append(signum)
+
+    previous = {}
+    for name in _SIGNALS:
+        if hasattr(signal, name):
+            signum = getattr(signal, name)
+            previous[signum] = signal.signal(signum, hold)
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        if caught:
+            signal.raise_signal(caught[0])
+
+
+_ACTIVE: contextvars.ContextVar = contextvars.ContextVar("aobake_dask_session", default=None)
+
+
+@contextlib.contextmanager
+def cluster(scheduler: str | None = None, workers: int | None = None, security=None):
+    """A :class:`Session` every ``--executor dask`` bake inside the block runs on (opened
+    by the first bake that needs it, closed at the end of the block).
+
+    scheduler : address of an existing scheduler (``tcp://`` or ``tls://host:port``), or
+    None to start a LocalCluster of ``workers`` processes (default: one per core) on
+    127.0.0.1; with a scheduler, ``workers`` is how many to wait for (default 1).
+    security : a ``distributed.Security`` for a remote scheduler (default: Dask's
+    configuration, ``distributed.comm.tls.*``).  Inside a session of the same scheduler (or
+    of any, when none is named), that session is used.
+    """
+    active = _ACTIVE.get()
+    if active is not None and (scheduler is None or (
+            active.scheduler is not None and _same_address(scheduler, active.scheduler))):
+        yield active
+        return
+    session = Session(scheduler, workers, security)
+    token = _ACTIVE.set(session)
+    try:
+        yield session
+    finally:
+        _ACTIVE.reset(token)
+        session.close()
+
+
+def _same_address(a: str, b: str) -> bool:
+    def bare(address):
+        return str(address).split("://", 1)[-1].rstrip("/")
+
+    return bare(a) == bare(b)
+
+
+def local_security():
+    """(security, tls) for a LocalCluster: mutual TLS with credentials made in memory for
+    this cluster alone (another local user cannot connect to its loopback ports and run
+    code in its workers), or Dask's plain configuration without ``cryptography``."""
+    from distributed import Security
+
+    try:
+        return Security.temporary(), True
+    except ImportError:
+        log.warning("cryptography is not installed: the local Dask cluster talks plain TCP on "
+                    "127.0.0.1, which every local user can connect to; pip install "
+                    "cryptography (in aobake[dask]) to make it TLS")
+        return Security(), False
+
+
+def _quiet(level: int) -> list:
+    """Raise Dask's loggers to ``level`` for a session: [(logger, level before)].  Where the
+    host configured logging first (the CLI does), Dask's records reach its handlers, and a
+    cluster's routine (workers starting and closing) is not the user's business; what
+    matters (a worker lost, an item that kills workers) this module reports itself."""
+    saved = []
+    names = ["distributed", "tornado"] + [  # and those Dask's configuration set a level on
+        name for name, logger in logging.root.manager.loggerDict.items()
+        if name.startswith(("distributed.", "tornado.")) and isinstance(logger, logging.Logger)
+        and logger.level != logging.NOTSET]
+    for name in names:
+        logger = logging.getLogger(name)
+        saved.append((logger, logger.level))
+        logger.setLevel(max(logger.getEffectiveLevel(), level))
+    return saved
+
+
+def _IgnoreInterrupts():
+    """A worker plugin (set up on every worker of the LocalCluster, restarted ones too):
+    SIGINT ignored in the worker process.  Built here, as Dask is optional; cloudpickle
+    ships the class by value."""
+    from distributed import WorkerPlugin
+
+    class IgnoreInterrupts(WorkerPlugin):
+        name = "aobake-ignore-sigint"
+
+        def setup(self, worker=None):
+            import signal
+
+            try:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+            except ValueError:  # not the process's main thread: nothing to change
+                pass
+
+    return IgnoreInterrupts()
+
+
+class DaskExecutor:
+    """``--executor dask``: the bake's points as work items on a Dask cluster.
+
+    workers : LocalCluster processes (default one per core) or, with ``scheduler``, the
+    workers to wait for; chunk_points : points per item (default: the cost model);
+    scheduler : an existing scheduler's address (default: the open :func:`cluster`
+    session, else a LocalCluster for this bake); security : ``distributed.Security`` for it.
+    """
+
+    name = "dask"
+
+    def __init__(self, workers: int | None = None, chunk_points: int | None = None,
+                 scheduler: str | None = None, security=None):
+        self.workers, self.chunk_points = workers, chunk_points
+        self.scheduler, self.security = scheduler, security
+
+    def estimate(self, job, method, plan, threads: int, chunk_rays: int, progress=None):
+        """Estimates of every point of ``plan`` (``SamplePoints``), merged by index."""
+        n = len(plan.points)
+        if n == 0:
+            return method.estimate(plan, threads, chunk_rays, progress)
+        require()
+        wall = time.perf_counter()
+        # a key no other client of a shared cluster has (it names the workers' cache entry)
+        job = replace(job, key=f"{job.key}-{uuid.uuid4().hex[:12]}")
+        whole = items(job, plan, n)[0]
+        parts, start, pilot_s, per_point = [], 0, 0.0, None
+        if not self.chunk_points:
+            clock = time.perf_counter()
+            parts, start, per_point = _pilot(method, whole, n, job.rays_per_point, chunk_rays,
+                                             progress)
+            pilot_s = time.perf_counter() - clock
+            if (n - start) * per_point / threads < MIN_ITEM_SECONDS:
+                # less than an item's worth is left: shipping the scene to a worker, which
+                # rebuilds its acceleration structure, costs more than tracing it here
+                if start < n:
+                    rest = method.estimate(_cut(whole, start, n).sample_points(), threads,
+                                           chunk_rays)
+                    parts.append((np.arange(start, n), rest))
+                    if progress:
+                        progress(n, n)
+                log.info("dask executor: %d points, all estimated here (less than %g s of "
+                         "tracing left after the pilot)", n, MIN_ITEM_SECONDS)
+                return merge(parts, n)
+        with cluster(self.scheduler, self.workers, self.security) as session:
+            if self.chunk_points:
+                size = self.chunk_points
+                ranges = [(a, min(n, a + size)) for a in range(0, n, size)]
+            else:
+                nthreads = list(session.workers().values()) or [1]
+                ranges = split(n, start, per_point, len(nthreads),
+                               int(np.median(nthreads)))
+            stats = {"points": n, "pilot_points": start, "pilot_s": pilot_s,
+                     "items": len(ranges),
+                     "per_item": max((b - a for a, b in ranges), default=0)}
+            parts += _run_items(session, job, whole, ranges, chunk_rays, progress, start, n,
+                                stats)
+            stats["wall_s"] = time.perf_counter() - wall
+            session.stats.append(stats)
+        return merge(parts, n)
+
+
+def _cut(whole, start: int, stop: int):
+    """Points start..stop-1 of ``whole`` (the WorkItem of every point): the per-point
+    arrays cut as ``executors.base.items`` cuts them, the rest whole."""
+    rows = {name: getattr(whole, name)[start:stop] for name in _PER_POINT
+            if getattr(whole, name) is not None}
+    return replace(whole, start=start, stop=stop, **rows)
+
+
+def split(n: int, start: int, seconds_per_point: float, workers: int, threads: int) -> list:
+    """The (start, stop) ranges of points start..n-1 from the cost model: items of about
+    ITEM_SECONDS of one worker (``threads`` threads), at least ITEMS_PER_WORKER per worker
+    when each still carries MIN_ITEM_SECONDS.  seconds_per_point : one thread's."""
+    rest = n - start
+    if rest <= 0:
+        return []
+    per_second = threads / max(seconds_per_point, 1e-12)  # points one worker does per second
+    balanced = rest / (max(1, workers) * ITEMS_PER_WORKER)
+    size = max(min(ITEM_SECONDS * per_second, balanced), MIN_ITEM_SECONDS * per_second)
+    size = max(1, math.ceil(size))
+    return [(a, min(n, a + size)) for a in range(start, n, size)]
+
+
+def _pilot(method, whole, n: int, rays_per_point: int, chunk_rays: int, progress):
+    """Estimate the first points here on one thread until PILOT_SECONDS have passed:
+    (parts, points done, seconds per point on one thread)."""
+    parts, done, seconds = [], 0, 0.0
+    size = max(1, math.ceil(PILOT_RAYS / max(1, rays_per_point)))
+    while done < n and seconds < PILOT_SECONDS:
+        stop = min(n, done + size)
+        clock = time.perf_counter()
+        part = method.estimate(_cut(whole, done, stop).sample_points(), 1, chunk_rays)
+        seconds += time.perf_counter() - clock
+        parts.append((np.arange(done, stop), part))
+        done, size = stop, size * 4
+        if progress:
+            progress(done, n)
+    return parts, done, seconds / max(done, 1)
+
+
+def _worker_threads() -> int:
+    try:
+        from distributed import get_worker
+
+        return max(1, int(get_worker().state.nthreads))
+    except (ImportError, ValueError, AttributeError):
+        return 1
+
+
+#: one item at a time in a worker process, on all its threads (a method's prepared state
+#: is not shared between concurrent estimates; a worker with more threads than one gives
+#: them to the item)
+_SERIAL = threading.Lock()
+
+
+def run(item, chunk_rays: int, job, image=None):
+    """On a worker: (start, stop, Estimates, timings) of one item; ``image`` (a view's
+    G-buffer, scattered once like the job) is put back into the item."""
+    threads = _worker_threads()
+    with _SERIAL:
+        if image is not None:
+            item = replace(item, image=image)
+        if job.key not in worker._CACHE:
+            worker.install(job)
+        clock = time.perf_counter()
+        worker.prepared(job)
+        prepare_s = time.perf_counter() - clock
+        cpu = time.process_time()  # the process's CPU: a worker starved of a core shows
+        start, stop, part = worker.run_item(item, threads, chunk_rays)
+        estimate_s = time.perf_counter() - clock - prepare_s
+        cpu_s = time.process_time() - cpu
+    return start, stop, part, {"prepare_s": prepare_s, "estimate_s": estimate_s,
+                               "estimate_cpu_s": cpu_s}
+
+
+def _run_items(session, job, whole, ranges, chunk_rays, progress, done, n, stats) -> list:
+    """[(index, Estimates)] of the items ``ranges`` of ``whole``, run on the session's
+    cluster; ``stats`` gets the workers' seconds and the reships."""
+    import distributed
+    from distributed.client import FutureCancelledError
+
+    client = session.client
+    image = getattr(whole, "image", None)
+    if image is not None:  # a view's whole G-buffer: shipped once, not with every item
+        whole = replace(whole, image=None)
+    stats.update(prepare_s=0.0, estimate_s=0.0, estimate_cpu_s=0.0, reships=0,
+                 workers=len(session.workers()))
+    before = set(session.workers())
+    parts, shipped = [], []
+    todo, attempt = [_cut(whole, a, b) for a, b in ranges], 0
+    since = time.time()
+    try:
+        while todo:
+            job_future = client.scatter(job, broadcast=True, hash=False)
+            shipped.append(job_future)
+            image_future = None
+            if image is not None:
+                image_future = client.scatter(image, broadcast=True, hash=False)
+                shipped.append(image_future)
+            futures = {client.submit(run, item, chunk_rays, job_future, image_future,
+                                     key=f"aobake-item-{item.start}-{attempt}-{job.key}",
+                                     pure=False, retries=RETRIES): item for item in todo}
+            lost = []
+            try:
+                for future in distributed.as_completed(futures, loop=client.loop):
+                    item = futures[future]
+                    try:
+                        first, stop, part, timing = future.result()
+                    except FutureCancelledError:
+                        lost.append(item)  # its job's data died with every worker holding it
+                        continue
+                    except distributed.KilledWorker as exc:
+                        raise ClusterError(_killed(item, exc.allowed_failures)) from None
+                    future.release()  # the worker frees it: the result lives here now
+                    parts.append((np.arange(first, stop), part))
+                    for name in ("prepare_s", "estimate_s", "estimate_cpu_s"):
+                        stats[name] += timing[name]
+                    done += stop - first
+                    if progress:
+                        progress(done, n)
+            finally:
+                client.cancel(list(futures))  # nothing left running on an error or interrupt
+            todo, attempt = lost, attempt + 1
+            if todo:
+                # Every worker holding the job died (two workers a poisonous item killed in
+                # turn, say): the scheduler cannot count those deaths against the items any
+                # more, so count them from its log of removed workers.
+                deaths = _deaths(client, job.key, since)
+                worst = max(todo, key=lambda item: deaths.get(item.start, 0))
+                allowed = _allowed_failures(client)
+                if deaths.get(worst.start, 0) > allowed:
+                    raise ClusterError(_killed(worst, allowed))
+                stats["reships"] += 1
+                if stats["reships"] > MAX_RESHIPS:
+                    raise ClusterError(
+                        f"the Dask cluster lost the scene {stats['reships']} times (every "
+                        f"worker holding it died); {len(todo)} work items were left")
+                log.warning("dask: every worker holding the scene died; sending it again and "
+                            "re-running %d work items", len(todo))
+    finally:
+        with contextlib.suppress(Exception):
+            client.cancel(shipped)
+    _forget(client, job.key)
+    left = before - set(session.workers())
+    if left:
+        log.warning("dask: %d of %d workers left during the bake (died or were stopped); "
+                    "their unfinished items ran elsewhere: the values are unaffected",
+                    len(left), len(before))
+    log.info("dask executor: %d points, %d estimated here, %d items of <= %d points on %d "
+             "workers", n, stats["pilot_points"], stats["items"], stats["per_item"],
+             stats["workers"])
+    return parts
+
+
+def _killed(item, allowed: int) -> str:
+    """The message of an item that killed every worker it ran on."""
+    return (f"points {item.start}..{item.stop - 1} of the bake killed every Dask worker that "
+            f"ran them ({allowed + 1} workers; distributed.scheduler.allowed-failures = "
+            f"{allowed}): a crash in native code or running out of memory that repeats; the "
+            "bake was stopped")
+
+
+def _deaths(client, key: str, since: float) -> dict:
+    """item start -> how many workers died (not closed on purpose) while running one of the
+    job ``key``'s items since ``since`` (time.time()), from the scheduler's log of removed
+    workers; {} where the scheduler will not say."""
+    def count(dask_scheduler=None):
+        # nested (pickled by value): runs on a scheduler that need not have aobake
+        deaths = {}
+        for stamp, message in dask_scheduler.get_events("all"):
+            if stamp < since or not isinstance(message, dict) or \
+                    message.get("action") != "remove-worker" or message.get("expected"):
+                continue
+            for name in message.get("processing-tasks") or ():
+                name = str(name)
+                if name.startswith("aobake-item-") and name.endswith(key):
+                    start = int(name.split("-")[2])
+                    deaths[start] = deaths.get(start, 0) + 1
+        return deaths
+
+    try:
+        return dict(client.run_on_scheduler(count))
+    except Exception:  # noqa: BLE001 - run_on_scheduler blocked on a hardened scheduler
+        return {}
+
+
+def _allowed_failures(client) -> int:
+    """The scheduler's distributed.scheduler.allowed-failures (ALLOWED_FAILURES for the
+    LocalCluster started here; Dask's setting here where a scheduler will not say)."""
+    def allowed(dask_scheduler=None):
+        return dask_scheduler.allowed_failures
+
+    try:
+        return int(client.run_on_scheduler(allowed))
+    except Exception:  # noqa: BLE001 - run_on_scheduler blocked on a hardened scheduler
+        import dask
+
+        return int(dask.config.get("distributed.scheduler.allowed-failures", 3))
+
+
+def _forget(client, key: str) -> None:
+    """Every worker drops the job from its cache (best effort: a worker that cannot answer
+    drops it when new jobs arrive, ``worker.KEEP_JOBS``)."""
+    with contextlib.suppress(Exception):
+        client.run(worker.forget, key, wait=True, on_error="ignore")
+
+
+__all__ = ["ALLOWED_FAILURES", "DaskExecutor", "ITEM_SECONDS", "Session", "ClusterError",
+           "cluster", "local_security", "require", "split"]
