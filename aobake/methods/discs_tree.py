@@ -18,6 +18,11 @@ too close for the node's disc to stand in for them (``d < kappa sqrt(A / pi)``) 
 the max-distance sphere cuts the node; every node it does not open is one disc term.
 Each receiver's sum is made from its own terms alone, in a fixed order (level by level,
 within a level in tree order), so any split of the receivers gives the same bits.
+
+A gather sums several columns at once, each with its own kernel (``KINDS``): the chapter's
+shadow (AO), or the disc-to-disc form factor seen from the element's front (light it
+emits: indirect light) or from its back (light it blocks: the indirect light's shadow
+passes).  A column's sums do not depend on the other columns gathered with it.
 """
 
 from __future__ import annotations
@@ -168,8 +173,62 @@ def shadow_terms(dx, dy, dz, d2, area, emitter_normal, receiver_normal, k: float
     return np.where(d2 > 0, value, 0.0)
 
 
+#: the kernels a gathered column may use: ``shadow`` (the chapter's shadow of an element's
+#: back, ``shadow_terms``), ``light`` (the form factor of its front: the light it emits),
+#: ``blocked`` (the form factor of its back: the light it blocks)
+KINDS = ("shadow", "light", "blocked")
+
+
+def form_factor_terms(dx, dy, dz, d2, area, emitter_normal, receiver_normal, side: str):
+    """The disc-to-disc form factor of the chapter (section 14.4), in AO's normalisation:
+
+        A sat(cos_E) sat(n_R . v) / (pi d^2 + A)
+
+    arguments as :func:`shadow_terms` (v = (dx, dy, dz) / d, unit, receiver -> element).
+    ``side = "light"``: cos_E = n_E . (-v), positive when the element's **front** faces the
+    receiver (light is emitted and reflected from the front); ``side = "blocked"``: cos_E =
+    n_E . v, positive when the receiver sees the element's **back** (shadows are cast from
+    the back: the same sign as :func:`shadow_terms`).  No gain k on the receiver's cosine.
+
+    On axis (both cosines 1) it is A / (pi d^2 + A) = sin^2(alpha), alpha = atan(r / d) the
+    half-angle of a disc of radius r = sqrt(A / pi): exactly (1/pi) int cos dw over the disc,
+    the cosine-weighted fraction of the hemisphere it covers, so a disc of uniform radiance
+    L gives the receiver L sin^2(alpha) in the units of ``-q indirect``.  Far away it falls as
+    A cos_E cos_R / (pi d^2), the point-to-point form factor.  Returns float64 in [0, 1);
+    a pair at d = 0 gives 0.
+    """
+    safe = np.where(d2 > 0, d2, 1.0)
+    d = np.sqrt(safe)
+    ex, ey, ez = emitter_normal
+    rx, ry, rz = receiver_normal
+    cos_e = (ex * dx + ey * dy + ez * dz) / d
+    if side == "light":
+        cos_e = -cos_e
+    cos_r = (rx * dx + ry * dy + rz * dz) / d
+    value = area / (math.pi * safe + area) * np.clip(cos_e, 0.0, 1.0) * np.clip(cos_r, 0.0, 1.0)
+    return np.where(d2 > 0, value, 0.0)
+
+
+def _kernel(kind: str, dx, dy, dz, d2, area, emitter_normal, receiver_normal, k: float):
+    if kind == "shadow":
+        return shadow_terms(dx, dy, dz, d2, area, emitter_normal, receiver_normal, k)
+    return form_factor_terms(dx, dy, dz, d2, area, emitter_normal, receiver_normal, kind)
+
+
+def _groups(kinds, columns: int) -> list:
+    """[(kind, [column, ...])] in KINDS order; ``kinds`` None: every column a shadow."""
+    kinds = ("shadow",) * columns if kinds is None else tuple(kinds)
+    if len(kinds) != columns:
+        raise ValueError(f"{columns} weight columns but {len(kinds)} kinds")
+    unknown = set(kinds) - set(KINDS)
+    if unknown:
+        raise ValueError(f"kinds must be some of {KINDS}, got {sorted(unknown)}")
+    return [(kind, [j for j in range(columns) if kinds[j] == kind])
+            for kind in KINDS if kind in kinds]
+
+
 def gather_tree(tree: Tree, weights: list, receivers: np.ndarray, normals: np.ndarray,
-                k: float, kappa: float, max_distance: float, budget: int
+                k: float, kappa: float, max_distance: float, budget: int, kinds=None
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Shadow sums at c receivers through the hierarchy.
 
@@ -177,11 +236,13 @@ def gather_tree(tree: Tree, weights: list, receivers: np.ndarray, normals: np.nd
     (1, or an earlier pass's accessibility), receivers : (c, 3), normals : (c, 3) unit,
     kappa : open a node where d^2 < kappa^2 A / pi, max_distance : elements whose centre is
     farther contribute nothing (inf: no limit), budget : the most (receiver, node) pairs held
-    at once (a front over it is cut between receivers, which changes no bit).
+    at once (a front over it is cut between receivers, which changes no bit), kinds : (w,)
+    each column's kernel (``KINDS``; None: every column a shadow).
     Returns (sums (c, w) float64, terms (c,) int64 disc terms evaluated per receiver).
     """
     c = len(receivers)
     columns = weights[0].shape[1]
+    groups = _groups(kinds, columns)
     sums = np.zeros((c, columns))
     terms = np.zeros(c, dtype=np.int64)
     open_factor = kappa * kappa / math.pi
@@ -219,16 +280,17 @@ def gather_tree(tree: Tree, weights: list, receivers: np.ndarray, normals: np.nd
             # Every pair is evaluated and the unaccepted ones add 0 (x + 0.0 == x): cheaper
             # than compressing eight arrays, and each receiver's sum sees the same terms in
             # the same order.
-            value = shadow_terms(dx, dy, dz, d2, area, (g[:, 3], g[:, 4], g[:, 5]),
-                                 (h[:, 3], h[:, 4], h[:, 5]), k)
-            value = np.where(accept, value, 0.0)
             low = int(rec[0])
             span = int(rec[-1]) - low + 1  # rec is sorted: this piece's receivers
             local = rec - low
             w = weights[level]
-            for j in range(columns):
-                sums[low:low + span, j] += np.bincount(local, value * w[node, j],
-                                                       minlength=span)
+            for kind, cols in groups:
+                value = _kernel(kind, dx, dy, dz, d2, area, (g[:, 3], g[:, 4], g[:, 5]),
+                                (h[:, 3], h[:, 4], h[:, 5]), k)
+                value = np.where(accept, value, 0.0)
+                for j in cols:
+                    sums[low:low + span, j] += np.bincount(local, value * w[node, j],
+                                                           minlength=span)
             terms[low:low + span] += np.bincount(local, accept, minlength=span).astype(np.int64)
         if opened is None or not opened.any():
             continue
@@ -267,7 +329,7 @@ def _cut(receiver: np.ndarray, budget: int) -> list:
 
 def gather_brute(position: np.ndarray, normal: np.ndarray, area: np.ndarray,
                  weights: np.ndarray, receivers: np.ndarray, normals: np.ndarray, k: float,
-                 max_distance: float, budget: int) -> tuple[np.ndarray, np.ndarray]:
+                 max_distance: float, budget: int, kinds=None) -> tuple[np.ndarray, np.ndarray]:
     """Shadow sums at c receivers from every one of n elements (O(c n)).
 
     position, normal (n, 3), area (n,), weights (n, w) float64; the rest as
@@ -275,6 +337,7 @@ def gather_brute(position: np.ndarray, normal: np.ndarray, area: np.ndarray,
     (numpy's pairwise sum of that row alone), so any split gives the same bits.
     """
     c, n = len(receivers), len(position)
+    groups = _groups(kinds, weights.shape[1])
     sums = np.zeros((c, weights.shape[1]))
     rows = max(1, budget // max(n, 1))
     limited = math.isfinite(max_distance)
@@ -286,10 +349,11 @@ def gather_brute(position: np.ndarray, normal: np.ndarray, area: np.ndarray,
         dy = position[None, :, 1] - here[:, None, 1]
         dz = position[None, :, 2] - here[:, None, 2]
         d2 = dx * dx + dy * dy + dz * dz
-        value = shadow_terms(dx, dy, dz, d2, area[None, :], emitter,
-                             (nr[:, None, 0], nr[:, None, 1], nr[:, None, 2]), k)
-        if limited:
-            value = np.where(d2 <= max_distance * max_distance, value, 0.0)
-        for j in range(weights.shape[1]):
-            sums[start:stop, j] = np.ascontiguousarray(value * weights[None, :, j]).sum(axis=1)
+        for kind, cols in groups:
+            value = _kernel(kind, dx, dy, dz, d2, area[None, :], emitter,
+                            (nr[:, None, 0], nr[:, None, 1], nr[:, None, 2]), k)
+            if limited:
+                value = np.where(d2 <= max_distance * max_distance, value, 0.0)
+            for j in cols:
+                sums[start:stop, j] = np.ascontiguousarray(value * weights[None, :, j]).sum(axis=1)
     return sums, np.full(c, n, dtype=np.int64)
