@@ -37,7 +37,8 @@ class Job:
 class WorkItem:
     """Points start..stop-1 of a job: points (k, 3) float64, normals (k, 3) float64, ids
     (k,) int64, sizes (k,) float64 | None, faces (k,) int64 | None, bary (k, 3) float64 |
-    None (``SamplePoints`` fields)."""
+    None (``SamplePoints`` fields), image : the view's whole G-buffer or None (not cut: a
+    screen-space method reads a pixel's neighbours)."""
 
     key: str
     start: int
@@ -48,13 +49,14 @@ class WorkItem:
     sizes: np.ndarray | None
     faces: np.ndarray | None = None
     bary: np.ndarray | None = None
+    image: object = None
 
     def sample_points(self):
         """The item's points as ``SamplePoints``."""
         from aobake.targets.base import SamplePoints
 
         return SamplePoints(self.points, self.normals, self.ids, sizes=self.sizes,
-                            faces=self.faces, bary=self.bary)
+                            faces=self.faces, bary=self.bary, image=self.image)
 
 
 def ranges(n: int, per_item: int) -> list:
@@ -73,5 +75,5 @@ def items(job: Job, plan, per_item: int) -> list:
 
         out.append(WorkItem(job.key, start, stop, plan.points[sel], plan.normals[sel],
                             plan.ids[sel], part(plan.sizes), part(plan.faces),
-                            part(plan.bary)))
+                            part(plan.bary), plan.image))
     return out

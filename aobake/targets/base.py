@@ -30,7 +30,10 @@ class SamplePoints:
     the compiled stages the target ran, state : whatever ``finish`` needs back, faces :
     (n,) int64 the triangle each point lies on (-1: none) and bary : (n, 3) float64 its
     barycentric coordinates there, or None when the target does not know them (vertices,
-    query points): a method that interpolates on the surface (``file``) needs them.
+    query points): a method that interpolates on the surface (``file``) needs them;
+    image : the view's G-buffer (``aobake.screen.gbuffer.GBuffer``: depth, hardware depths,
+    view-space normals, coverage, the camera) when the points are a camera's pixels (their
+    ids are then the pixel indices r * W + c), else None: what a screen-space method reads.
     """
 
     points: np.ndarray
@@ -41,6 +44,7 @@ class SamplePoints:
     state: object = None
     faces: np.ndarray | None = None
     bary: np.ndarray | None = None
+    image: object = None
 
 
 @dataclass

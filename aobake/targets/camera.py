@@ -137,9 +137,13 @@ class CameraTarget:
         barycentric = np.zeros((len(index), 3))
         if bary is not None:
             barycentric[mesh] = bary
+        # The G-buffer a screen-space method reads (the channels ``finish`` writes).
+        from aobake.screen.gbuffer import GBuffer
+
+        image = GBuffer.from_hits(cam, index, points, ng, ns)
         timings["primary_s"] = time.perf_counter() - clock
         return SamplePoints(points, ng, index.astype(np.int64), sizes=sizes, state=state,
-                            faces=faces, bary=barycentric)
+                            faces=faces, bary=barycentric, image=image)
 
     def finish(self, scene, config, plan, estimates, timings, warnings) -> Finished:
         state = plan.state
