@@ -52,6 +52,7 @@ def run(
     executor: str = "threads",
     workers: int | None = None,
     chunk_points: int | None = None,
+    scheduler: str | None = None,
 ):
     """Bake ``mesh`` (a path, trimesh mesh/scene or Scene) at ``target``'s points.
 
@@ -59,8 +60,9 @@ def run(
     method's estimates (on the executor) -> the target's result -> the report.
 
     Returns the target's result (BakeResult or TexelResult) with its report.
-    ``threads``, ``chunk_rays``, ``executor`` (``EXECUTORS``: threads | processes),
-    ``workers`` and ``chunk_points`` change the speed and memory, never the numbers.
+    ``threads``, ``chunk_rays``, ``executor`` (``EXECUTORS``: threads | processes | dask),
+    ``workers``, ``chunk_points`` and ``scheduler`` (dask: an existing scheduler's address)
+    change the speed and memory, never the numbers.
     ``method``: ``METHODS`` key.  ``progress(done, total)`` is called as points are
     estimated; if it has a ``phase(name)`` attribute, that is called as each stage starts
     ("loading", "unwrapping", "rasterising", "tracing", ...), so a long unwrap shows too.
@@ -76,6 +78,8 @@ def run(
                         ("chunk_points", chunk_points)):
         if value is not None and not _positive_integer(value):
             raise InputError(f"{name} must be a positive integer (or None), got {value!r}")
+    if scheduler is not None and executor != "dask":
+        raise InputError("scheduler goes with executor='dask'")
     if isinstance(chunk_rays, bool) or int(chunk_rays) != chunk_rays or chunk_rays < 1:
         raise InputError(f"chunk_rays must be a positive integer, got {chunk_rays}")
     threads = threads or default_threads()
@@ -122,7 +126,8 @@ def run(
     clock = time.perf_counter()
     job = Job(scene, config, method, rays_per_point, compiled,
               key=f"{id(scene):x}-{time.monotonic_ns():x}")
-    runner = EXECUTORS[executor](workers=workers, chunk_points=chunk_points)
+    extra = {} if scheduler is None else {"scheduler": scheduler}
+    runner = EXECUTORS[executor](workers=workers, chunk_points=chunk_points, **extra)
     estimates = runner.estimate(job, the_method, plan, threads, chunk_rays, progress)
     timings["trace_s"] = time.perf_counter() - clock
     done = target.finish(scene, config, plan, estimates, timings, warnings)
@@ -138,7 +143,7 @@ def run(
                            threads=threads, chunk_rays=chunk_rays, warnings=warnings,
                            kernels={**the_method.kernel_stages(), **plan.kernels},
                            executor={"name": executor, "workers": workers,
-                                     "chunk_points": chunk_points})
+                                     "chunk_points": chunk_points, **extra})
     report.update(done.report)
     # Every target's phases (a lightmap's add unwrap, raster, splat); writing is added by
     # aobake.write to the report file it writes.
@@ -179,7 +184,7 @@ def _config(config: BakeConfig | None, options: dict) -> BakeConfig:
 
 
 #: run()'s keywords that change where and how fast, never the numbers (or the method)
-RUN_OPTIONS = ("method", "executor", "workers", "chunk_points")
+RUN_OPTIONS = ("method", "executor", "workers", "chunk_points", "scheduler")
 
 
 def _split(options: dict) -> tuple[dict, dict]:

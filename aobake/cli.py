@@ -100,7 +100,14 @@ def _view_command():
     return view_command(main)
 
 
-SUBCOMMANDS = {"compare": _compare_command, "refit": _refit_command, "view": _view_command}
+def _batch_command():
+    from aobake.cli_batch import batch_command
+
+    return batch_command()
+
+
+SUBCOMMANDS = {"compare": _compare_command, "refit": _refit_command, "view": _view_command,
+               "batch": _batch_command}
 
 
 def _with(options):
@@ -136,7 +143,7 @@ def _with(options):
 @click.option("--quiet", is_flag=True, help="No progress bar or warnings.")
 @click.version_option(package_name="aobake")
 def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, report_path, quiet,
-         method, executor, workers, chunk_points, **config):
+         method, executor, workers, chunk_points, scheduler, **config):
     """Bake ambient occlusion of MESH (OBJ, PLY, STL, OFF, GLB/glTF) per vertex or into a
     UV lightmap, written to --out."""
     source = click.get_current_context().get_parameter_source("resolution")
@@ -145,7 +152,7 @@ def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, report_p
     from aobake.cli_view import _method_for
 
     run = dict(threads=threads, method=_method_for(method, config), executor=executor,
-               workers=workers, chunk_points=chunk_points)
+               workers=workers, chunk_points=chunk_points, scheduler=scheduler)
     guarded(quiet, _run, mesh, out, target, run, quiet, given(config),
              dict(mesh_out=mesh_out, report=report_path, half=half, bit_depth=int(bit_depth),
                   r_only=r_only))

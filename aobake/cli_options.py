@@ -122,12 +122,17 @@ RUN_OPTIONS = [
                       "--ao-from)."),
     click.Option(["--executor"], default="threads", show_default=True,
                  type=click.Choice(sorted(EXECUTORS)),
-                 help="Where the points are estimated: threads (this process) or processes (a "
-                      "local pool of --workers processes). The same bits either way."),
+                 help="Where the points are estimated: threads (this process), processes (a "
+                      "local pool of --workers processes) or dask (a Dask cluster: --scheduler, "
+                      "or a local one). The same bits every way."),
     click.Option(["--workers"], default=None, type=click.IntRange(min=1),
                  help="--executor processes: worker processes. Default: --threads (all "
                       "cores)."),
     click.Option(["--chunk-points"], default=None, type=click.IntRange(min=1),
                  help="Points per work item (default: a few items per worker). The same bits "
                       "for any value."),
+    click.Option(["--scheduler"], default=None, metavar="ADDRESS",
+                 help="--executor dask: an existing Dask scheduler (tcp:// or tls://host:port; "
+                      "TLS through Dask's configuration, docs/scale.md). Default: a local "
+                      "cluster of --workers processes on 127.0.0.1."),
 ]

@@ -86,7 +86,8 @@ def view_command(main: click.Command) -> click.Command:
 
 
 def _view(mesh, out, look_from, look_at, up, fov, size, camera, threads, half, bit_depth,
-          report_path, quiet, quantities, method, executor, workers, chunk_points, **config):
+          report_path, quiet, quantities, method, executor, workers, chunk_points, scheduler,
+          **config):
     if (look_from is None) != (look_at is None):
         raise click.UsageError("give --look-from and --look-at together")
     if camera is not None and look_from is not None:
@@ -101,7 +102,7 @@ def _view(mesh, out, look_from, look_at, up, fov, size, camera, threads, half, b
     gltf = None if camera is None else (mesh, None if camera == "first" else camera)
     method = _method_for(method, config)
     run = dict(threads=threads, method=method, executor=executor, workers=workers,
-               chunk_points=chunk_points)
+               chunk_points=chunk_points, scheduler=scheduler)
     guarded(quiet, _run, mesh, out, look, gltf, size, fov, run, quiet,
              given(dict(config, quantities=quantities)),
              dict(report=report_path, half=half, bit_depth=int(bit_depth)))
