@@ -26,6 +26,7 @@ from aobake.methods.rays_options import (BACKFACES, DEFAULT_RAY_OFFSET, MAX_CONF
 from aobake.options import check as check_settings
 from aobake.options import setting, specs
 from aobake.quantities import QUANTITIES, canonical
+from aobake.screen.options import CrytekOptions, GtaoOptions, HeightfieldOptions, SsaoOptions
 from aobake.repair import MODES as FIX_NORMALS
 from aobake.targets.projected_options import StudioOptions
 from aobake.targets.texels.options import (BENT_SPACES, DEFAULT_RESOLUTION,  # noqa: F401
@@ -124,12 +125,13 @@ class CommonOptions:
 
 
 @dataclass(frozen=True)
-class BakeConfig(StudioOptions, LightmapOptions, HemicubeOptions, DiscsOptions, FileOptions,
+class BakeConfig(StudioOptions, LightmapOptions, HeightfieldOptions, GtaoOptions,
+                 CrytekOptions, SsaoOptions, HemicubeOptions, DiscsOptions, FileOptions,
                  RaysOptions, CommonOptions):
     """Everything that decides a bake's numbers (threads, executors and chunking do not): the
     common settings, the ray-traced method's, the file method's, the disc method's, the
-    hemicube method's, the lightmap target's and the studio's (high-to-low, groups), in
-    that order (each
+    hemicube method's, the screen-space methods' (aobake.screen.options), the lightmap
+    target's and the studio's (high-to-low, groups), in that order (each
     section's record documents its fields; ``python -c "from aobake.config import
     BakeConfig; help(BakeConfig)"`` or ``aobake --help`` shows them).  The one source of
     every default: the CLI reads them from here.

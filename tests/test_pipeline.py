@@ -68,7 +68,13 @@ def test_config_round_trips_through_a_report_with_every_field_changed():
                          unwrap="always", bent_space="tangent", seams="off", denoise=True,
                          ao_from="bake.npz", albedo=0.25, bounces=3, discs_k=3.0,
                          discs_passes=3, discs_weight=0.5, discs_kappa=2.0,
-                         discs_traversal="brute", hemicube_resolution=32,
+                         discs_traversal="brute", discs_indirect_passes=3,
+                         discs_indirect_weight=0.5, hemicube_resolution=32,
+                         ssao_radius=0.25, ssao_samples=8, ssao_rotate=False, ssao_blur=False,
+                         ssao_pattern=2, ssao_depth="opengl", ssao_normals="shading",
+                         ssao_blur_depth=2.0, ssao_blur_normal=20.0, crytek_normalise="none",
+                         crytek_range="depth", gtao_slices=2, gtao_steps=8,
+                         gtao_multiplier=1.0, gtao_falloff=0.5, heightfield_thickness=0.1,
                          source="high.obj", cage_offset=0.25, exclude=("a*",),
                          receive_only=("b",), occluder_only=("c",))
     # keep_distances cannot go with a tolerance: the second config changes it

@@ -11,9 +11,10 @@ from aobake.methods.discs import DiscsMethod
 from aobake.methods.file import FileMethod
 from aobake.methods.hemicube import HemicubeMethod
 from aobake.methods.rays import RaysMethod
+from aobake.methods.ssao import SCREEN_METHODS
 
 #: method name -> class
 METHODS = {"rays": RaysMethod, "discs": DiscsMethod, "file": FileMethod,
-           "hemicube": HemicubeMethod}
+           "hemicube": HemicubeMethod, **SCREEN_METHODS}
 
 __all__ = ["Estimates", "METHODS", "Method", "RaysMethod", "merge"]
