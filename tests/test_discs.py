@@ -387,3 +387,27 @@ def test_bake_texels_runs_discs():
     traced = aobake.bake_texels(_small_mesh(), rays=8, resolution=32, threads=1)
     assert (result.covered == traced.covered).all()
     assert 0 <= result.channels["ao"].min() and result.channels["ao"].max() <= 1
+
+
+def test_pass_two_is_never_darker_than_pass_one():
+    """Pass 2 weights every emitter's shadow by its own pass-1 accessibility, a factor in
+    [0, 1], so its summed shadow is at most pass 1's: pass 2 >= pass 1 at every point (the
+    correction of pass 1's over-darkening), and pass 1 alone is darker on average."""
+    result = aobake.bake(_small_mesh(), method="discs", discs_passes=3, threads=1)
+    from aobake import occluders
+    from aobake.config import BakeConfig
+    from aobake.methods.discs import DiscsMethod
+    from aobake.scene import load_scene
+    from aobake.targets.base import SamplePoints
+
+    scene = load_scene(_small_mesh())
+    config = BakeConfig(discs_passes=3)
+    method = DiscsMethod.prepare(scene, config, occluders.build(scene, config), 1)
+    ids = np.arange(len(scene.vertices))
+    estimates = method.estimate(SamplePoints(scene.vertices, scene.vertex_normals, ids),
+                                1, 1 << 16)
+    passes = estimates.extras["discs_passes"]
+    assert passes.shape == (len(scene.vertices), 3)
+    assert (passes[:, 1] >= passes[:, 0]).all()
+    assert passes[:, 0].mean() < passes[:, 1].mean()
+    assert result.report["parameters"]["method"] == "discs"
