@@ -20,6 +20,7 @@ import numpy as np
 from aobake.errors import InputError
 from aobake.estimates import Estimates
 from aobake.options import setting
+from aobake.vectors import defined
 
 
 def _path(value):
@@ -99,12 +100,9 @@ class FileMethod:
         """The values at barycentric ``bary`` (n, 3) of triangles ``faces`` (n,) of the
         scene; 0 where the normal is zero (no point there) or the face is -1 (no triangle:
         the ground plane holds no file values)."""
-        from aobake.vectors import defined
-
         fields = {}
-        corners = self._faces[faces]
         ok = defined(normals) & (faces >= 0)  # -1: a point on no triangle (the ground plane)
-        faces = np.maximum(faces, 0)
+        corners = self._faces[np.maximum(faces, 0)]
         for name, value in self.values.items():
             out = np.einsum("nc,nc->n", bary, value[corners])
             fields[name] = np.where(ok, out, 0.0)
