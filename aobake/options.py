@@ -144,3 +144,13 @@ def check(record, names=None) -> None:
 def specs(cls) -> dict:
     """field name -> Spec of an options record (class or instance), in field order."""
     return {f.name: spec_of(f) for f in fields(cls) if spec_of(f) is not None}
+
+
+def record_of(cls, config, default=None):
+    """The options record ``cls`` made from ``config``'s fields when it carries them all
+    (``BakeConfig`` composes every record), else ``default`` (else the defaults): how a
+    method reads its own settings, also from a config made before its record existed."""
+    names = [f.name for f in fields(cls)]
+    if all(hasattr(config, name) for name in names):
+        return cls(**{name: getattr(config, name) for name in names})
+    return default if default is not None else cls()

@@ -14,7 +14,18 @@ from __future__ import annotations
 
 from typing import Callable, Protocol
 
+from aobake.errors import InputError
 from aobake.estimates import Estimates, merge  # noqa: F401  (the type every method returns)
+
+
+def refuse_ray_settings(name: str, config) -> None:
+    """InputError for the settings that only mean something to a method casting rays
+    (--tolerance, --keep-distances), asked of method ``name``, which casts none."""
+    if getattr(config, "tolerance", None) is not None:
+        raise InputError(f"--tolerance sets a ray count: --method {name} casts no rays")
+    if getattr(config, "keep_distances", False):
+        raise InputError(f"--keep-distances keeps ray distances: --method {name} casts no "
+                         "rays")
 
 
 class Method(Protocol):

@@ -67,15 +67,16 @@ from __future__ import annotations
 
 import math
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from aobake.errors import InputError
 from aobake.estimates import Estimates
 from aobake.methods import discs_tree
+from aobake.methods.base import refuse_ray_settings
 from aobake.options import check as check_settings
-from aobake.options import setting
+from aobake.options import record_of, setting
 from aobake.vectors import defined
 
 #: how a receiver reaches the elements: through the hierarchy, or every element
@@ -166,10 +167,7 @@ class DiscsOptions:
     def of(cls, config, default: "DiscsOptions | None" = None) -> "DiscsOptions":
         """The settings a config carries (once ``BakeConfig`` composes this record), else
         ``default`` (else the defaults)."""
-        names = [f.name for f in fields(cls)]
-        if all(hasattr(config, name) for name in names):
-            return cls(**{name: getattr(config, name) for name in names})
-        return default if default is not None else cls()
+        return record_of(cls, config, default)
 
 
 def chapter_shadow(area, distance, cos_e, cos_r, k: float = 4.0):
@@ -355,11 +353,7 @@ class DiscsMethod:
         if getattr(config, "ground_plane", False):
             raise InputError("--method discs has no ground plane (its elements are the mesh's "
                              "vertices)")
-        if getattr(config, "tolerance", None) is not None:
-            raise InputError("--tolerance sets a ray count: --method discs casts no rays")
-        if getattr(config, "keep_distances", False):
-            raise InputError("--keep-distances keeps ray distances: --method discs casts no "
-                             "rays")
+        refuse_ray_settings("discs", config)
         position, normal, area = elements(scene)
         if len(position) == 0:
             raise InputError(f"{scene.source}: no faces with area: --method discs has no "

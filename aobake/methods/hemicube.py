@@ -40,7 +40,7 @@ from __future__ import annotations
 import importlib.util
 import math
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -48,8 +48,9 @@ from aobake import child
 from aobake.constants import OFFSET_ULPS
 from aobake.errors import AobakeError, InputError
 from aobake.estimates import Estimates
+from aobake.methods.base import refuse_ray_settings
 from aobake.options import check as check_settings
-from aobake.options import setting
+from aobake.options import record_of, setting
 from aobake.vectors import defined
 
 #: the no-information value of ``aobake.quantities.ao`` (the midpoint: nothing is known)
@@ -112,10 +113,7 @@ class HemicubeOptions:
     def of(cls, config, default: "HemicubeOptions | None" = None) -> "HemicubeOptions":
         """The settings a config carries (once ``BakeConfig`` composes this record), else
         ``default`` (else the defaults)."""
-        names = [f.name for f in fields(cls)]
-        if all(hasattr(config, name) for name in names):
-            return cls(**{name: getattr(config, name) for name in names})
-        return default if default is not None else cls()
+        return record_of(cls, config, default)
 
 
 #: The GL child: it imports ``hemicube_gl`` (numpy, moderngl, ``hemicube_cells``) and not
@@ -187,11 +185,7 @@ class HemicubeMethod:
         if getattr(config, "ground_plane", False):
             raise InputError("--method hemicube has no ground plane (it draws the mesh's "
                              "triangles)")
-        if getattr(config, "tolerance", None) is not None:
-            raise InputError("--tolerance sets a ray count: --method hemicube casts no rays")
-        if getattr(config, "keep_distances", False):
-            raise InputError("--keep-distances keeps ray distances: --method hemicube casts "
-                             "no rays")
+        refuse_ray_settings("hemicube", config)
         if importlib.util.find_spec("moderngl") is None:
             raise HemicubeError("--method hemicube needs moderngl and an EGL driver: pip "
                                 "install 'aobake[gl]' (and, on Debian, apt-get install "

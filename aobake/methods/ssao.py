@@ -19,6 +19,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from aobake.errors import InputError
+from aobake.methods.base import refuse_ray_settings
 from aobake.estimates import Estimates
 from aobake.screen import crytek, gbuffer, gtao, heightfield, refine, shanmugam
 from aobake.screen.options import CrytekOptions, GtaoOptions, HeightfieldOptions, SsaoOptions
@@ -36,10 +37,7 @@ def _refuse(name: str, config) -> None:
                          f"{', '.join(quantities)}")
     if getattr(config, "weighting", "cosine") != "cosine":
         raise InputError(f"--method {name} estimates cosine-weighted AO (--weighting cosine)")
-    if getattr(config, "tolerance", None) is not None:
-        raise InputError(f"--tolerance sets a ray count: --method {name} casts no rays")
-    if getattr(config, "keep_distances", False):
-        raise InputError(f"--keep-distances keeps ray distances: --method {name} casts no rays")
+    refuse_ray_settings(name, config)
 
 
 def _chunks(n: int, threads: int):

@@ -14,18 +14,16 @@ from __future__ import annotations
 import numpy as np
 
 from aobake import stats
-from aobake.quantities import ao
+from aobake.quantities import ao, obscurance
 from aobake.quantities.base import Quantity, Traced
 
 
 def moments(traced: Traced) -> dict:
     total, m2 = stats.sums(traced.path, traced.iid)
-    return {"total": total, "m2": m2}  # (k, R) each
+    return {"total": total, "m2": m2}  # (k, R) each, as obscurance's
 
 
-def extend(a: dict, b: dict, na: int, nb: int) -> dict:
-    total, m2 = stats.merge_sums((a["total"], a["m2"]), (b["total"], b["m2"]), na, nb)
-    return {"total": total, "m2": m2}
+extend = obscurance.extend  # the same moments: per-replicate sums and squared deviations
 
 
 def finish(moments: dict, traced: Traced, m: int) -> dict:
@@ -43,11 +41,6 @@ FIELDS = ao.scalar_fields("indirect", "sky light reflected to the point by what 
                                       "(albedo, bounces): 0 = none")
 
 
-def no_information(normals: np.ndarray) -> dict:
-    """Nothing is known: the midpoint 1/2, error 1/2, the interval [0, 1]."""
-    return ao.no_information_of(FIELDS)(normals)
-
-
 QUANTITY = Quantity(
     name="indirect",
     value=FIELDS[0],
@@ -56,7 +49,7 @@ QUANTITY = Quantity(
     moments=moments,
     extend=extend,
     finish=finish,
-    no_information=no_information,
+    no_information=ao.no_information_of(FIELDS),
     conventions={
         "cosine": {"indirect": "(1/pi) int (1 - V) L(h) cos dw, L(h) = albedo x the cosine AO "
                                "at the hit h (one bounce; --bounces N: a path's sample is "

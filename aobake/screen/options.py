@@ -10,11 +10,11 @@ its class-level defaults.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 from aobake.errors import InputError
 from aobake.options import check as check_settings
-from aobake.options import setting
+from aobake.options import record_of, setting
 from aobake.screen.crytek import NORMALISATIONS, RANGE_CHECKS
 from aobake.screen.gbuffer import DEPTH_SOURCES, NORMAL_SOURCES
 
@@ -53,10 +53,7 @@ class _Record:
 
     @classmethod
     def of(cls, config, default=None):
-        names = [f.name for f in fields(cls)]
-        if all(hasattr(config, name) for name in names):
-            return cls(**{name: getattr(config, name) for name in names})
-        return default if default is not None else cls()
+        return record_of(cls, config, default)
 
 
 @dataclass(frozen=True)
