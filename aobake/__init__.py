@@ -14,7 +14,7 @@ Python API::
 import logging
 
 from aobake import outputs
-from aobake.bake import bake, bake_points, bake_texels, bake_view, run
+from aobake.bake import bake, bake_points, bake_texels, bake_view, bake_view_truths, run
 from aobake.config import BakeConfig
 from aobake.errors import AobakeError, InputError, OutputError
 from aobake.outputs import write
@@ -23,6 +23,7 @@ from aobake.scene import Scene, load_scene
 
 __all__ = ["AobakeError", "BakeConfig", "BakeResult", "InputError", "OutputError", "Scene",
            "TexelResult", "ViewResult", "bake", "bake_points", "bake_texels", "bake_view",
+           "bake_view_truths",
            "load_scene", "outputs", "run",
            "write"]
 __version__ = "0.1.0"

@@ -11,6 +11,7 @@ bit-identical for any thread count and chunk size.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -239,6 +240,62 @@ def bake_texels(mesh, config: BakeConfig | None = None, *, threads: int | None =
     options, run_kw = _split(options)
     return run(_config(config, options), mesh, TexelTarget(), threads=threads,
                chunk_rays=chunk_rays, progress=progress, **run_kw)
+
+
+#: what ``bake_view_truths`` adds to a view: the unbounded truth's channels under these names
+UNBOUNDED = {"ao": "ao_unbounded", "ao_stderr": "ao_unbounded_stderr",
+             "ao_ci_low": "ao_unbounded_ci_low", "ao_ci_high": "ao_unbounded_ci_high",
+             "rays": "rays_unbounded"}
+
+
+def bake_view_truths(mesh, config: BakeConfig | None = None, *, camera=None, look=None,
+                     gltf=None, size=(960, 540), fov: float = 40.0, threads: int | None = None,
+                     chunk_rays: int = DEFAULT_CHUNK_RAYS, **options) -> ViewResult:
+    """The two ray-traced truths a screen-space method is scored against, in one view
+    (``aobake view --truths``; docs/screen-space.md): ``ao`` (and its stderr, interval and
+    rays) bounded at the screen methods' radius R (``ssao_radius``: what they can see), and
+    the same channels of the unbounded AO under the names of ``UNBOUNDED`` (``ao_unbounded``,
+    ...), with the G-buffer and the camera of one ``bake_view``.
+
+    Both passes use the same seed, so each pixel's rays are the same directions: the bounded
+    value counts the hits nearer than R of the very rays whose every hit the unbounded one
+    counts (``ao >= ao_unbounded`` at every pixel, exactly); pixels stay independent of each
+    other.  The bounded channels equal ``bake_view(..., max_distance=R)``'s and the unbounded
+    ones ``bake_view(..., max_distance=inf)``'s, bit for bit.  Only ``ao`` is baked by the
+    ray-tracing method; the report's ``truths`` section says which channel is which.
+    """
+    options, run_kw = _split(options)
+    config = _config(config, options)
+    method = run_kw.get("method", "rays")
+    if method != "rays":
+        raise InputError(f"the truths are ray traced: they go with --method rays, not {method}")
+    if tuple(config.quantities) != ("ao",):
+        raise InputError(f"the truths are AO: quantities must be ('ao',), got "
+                         f"{tuple(config.quantities)}")
+    view = dict(gltf=gltf, size=size, fov=fov, threads=threads, chunk_rays=chunk_rays, **run_kw)
+    bounded = bake_view(mesh, replace(config, max_distance=config.ssao_radius), camera=camera,
+                        look=look, **view)
+    unbounded = bake_view(mesh, replace(config, max_distance=math.inf), camera=bounded.camera,
+                          **view)
+    channels = dict(bounded.channels)
+    for name, renamed in UNBOUNDED.items():
+        if name in unbounded.channels:
+            channels[renamed] = unbounded.channels[name]
+    report = dict(bounded.report)
+    radius = bounded.report["parameters"]["max_distance"]
+    report["truths"] = {
+        "bounded": {"max_distance": radius, "ssao_radius": config.ssao_radius,
+                    "channels": [n for n in UNBOUNDED if n in bounded.channels],
+                    "rays_cast": bounded.report["rays_cast"]},
+        "unbounded": {"max_distance": "inf",
+                      "channels": [UNBOUNDED[n] for n in UNBOUNDED if n in unbounded.channels],
+                      "rays_cast": unbounded.report["rays_cast"],
+                      "wall_time_s": unbounded.report["wall_time_s"]},
+        "streams": "one seed: each pixel's rays are the same directions in both passes"}
+    report["wall_time_s"] = bounded.report["wall_time_s"] + unbounded.report["wall_time_s"]
+    log.info("view truths: bounded at R = %.6g and unbounded, %d + %d rays", radius,
+             bounded.report["rays_cast"], unbounded.report["rays_cast"])
+    return ViewResult(channels, bounded.covered, report, camera=bounded.camera)
 
 
 def bake_view(mesh, config: BakeConfig | None = None, *, camera=None, look=None, gltf=None,

@@ -65,6 +65,11 @@ def _camera_options() -> list:
         click.Option(["--camera"], default=None,
                      help="Use the glTF camera node of this name in MESH (a .gltf/.glb); "
                           "'first' for the first camera."),
+        click.Option(["--truths"], is_flag=True, default=False,
+                     help="The two ray-traced truths a screen-space method is scored against, "
+                          "in one .exr: ao bounded at --ssao-radius (what the method can see) "
+                          "and ao_unbounded, with the G-buffer and camera "
+                          "(docs/screen-space.md)."),
     ]
 
 
@@ -85,9 +90,9 @@ def view_command(main: click.Command) -> click.Command:
              "docs/conventions.md.")
 
 
-def _view(mesh, out, look_from, look_at, up, fov, size, camera, threads, half, bit_depth,
-          report_path, quiet, quantities, method, executor, workers, chunk_points, scheduler,
-          **config):
+def _view(mesh, out, look_from, look_at, up, fov, size, camera, truths, threads, half,
+          bit_depth, report_path, quiet, quantities, method, executor, workers, chunk_points,
+          scheduler, **config):
     if (look_from is None) != (look_at is None):
         raise click.UsageError("give --look-from and --look-at together")
     if camera is not None and look_from is not None:
@@ -101,9 +106,11 @@ def _view(mesh, out, look_from, look_at, up, fov, size, camera, threads, half, b
         raise click.UsageError("--up goes with --look-from/--look-at")
     gltf = None if camera is None else (mesh, None if camera == "first" else camera)
     method = _method_for(method, config)
+    if truths:
+        _check_truths(out, method, quantities)
     run = dict(threads=threads, method=method, executor=executor, workers=workers,
                chunk_points=chunk_points, scheduler=scheduler)
-    guarded(quiet, _run, mesh, out, look, gltf, size, fov, run, quiet,
+    guarded(quiet, _run, mesh, out, look, gltf, size, fov, truths, run, quiet,
              given(dict(config, quantities=quantities)),
              dict(report=report_path, half=half, bit_depth=int(bit_depth)))
 
@@ -119,19 +126,38 @@ def _method_for(method: str, config: dict) -> str:
     return "file"
 
 
-def _run(mesh, out, look, gltf, size, fov, run, quiet, config, files):
+def _check_truths(out: Path, method: str, quantities) -> None:
+    """Usage errors of --truths: one EXR of the ray-traced AO, its radius --ssao-radius."""
+    context = click.get_current_context()
+    if out.suffix.lower() != ".exr":
+        raise click.UsageError(f"--truths writes several AO channels: the output must be .exr, "
+                               f"not {out.suffix or 'no suffix'}")
+    if method != "rays":
+        raise click.UsageError(f"--truths are ray traced: not with --method {method}")
+    if context.get_parameter_source("max_distance") == click.core.ParameterSource.COMMANDLINE:
+        raise click.UsageError("--truths bounds its first truth at --ssao-radius: give that, "
+                               "not --max-distance")
+    if quantities is not None and tuple(quantities) != ("ao",):
+        raise click.UsageError("--truths bakes ao only")
+
+
+def _run(mesh, out, look, gltf, size, fov, truths, run, quiet, config, files):
     import aobake
 
     config = aobake.BakeConfig(**config)
     aobake.outputs.plan(out, "view", mesh=mesh, report=files["report"],
                         quantities=config.quantities)
-    result = aobake.bake_view(mesh, config, look=look, gltf=gltf, size=size, fov=fov, **run)
+    bake = aobake.bake_view_truths if truths else aobake.bake_view
+    result = bake(mesh, config, look=look, gltf=gltf, size=size, fov=fov, **run)
     written = aobake.write(result, out, mesh=mesh, **files)
     if not quiet:
         report = result.report
         cam = report["camera"]
         cost = (f"{report['rays_cast']} rays" if "rays_cast" in report
                  else f"method {report['parameters']['method']}, no rays")
+        if "truths" in report:
+            cost += (f" bounded at {report['truths']['bounded']['max_distance']:.6g} + "
+                     f"{report['truths']['unbounded']['rays_cast']} unbounded")
         click.echo(f"aobake: view {cam['width']}x{cam['height']}, "
                    f"{report['pixels_covered']} pixels see the scene, {cost} in "
                    f"{report['wall_time_s']:.2f} s -> {', '.join(map(str, written))}", err=True)

@@ -219,6 +219,74 @@ def _crease():
     return combine(floor, wall), cam
 
 
+def _corner_exact(distance, radius):
+    """Cosine-weighted AO bounded at ``radius`` of a point at ``distance`` from an infinite
+    plane at right angles to its own (the inside of a right-angle corner).  Cosine-weighted
+    directions project uniformly onto the unit disc of the point's plane (Malley); one with
+    component d_y towards the wall meets it at distance/d_y, within the radius when
+    d_y > h = distance/radius: the disc's segment beyond h, of area acos h - h sqrt(1 - h^2),
+    is the occluded share times pi."""
+    h = np.clip(np.asarray(distance, dtype=np.float64) / radius, 0.0, 1.0)
+    return 1.0 - (np.arccos(h) - h * np.sqrt(1.0 - h * h)) / np.pi
+
+
+def _corner_pixels(view, cam, radius):
+    """(covered pixels (k,), distance of each hit to the other plane (k,)) of the crease view,
+    of the hits at least ``radius`` away from the planes' free edges (the closed form's
+    planes are infinite)."""
+    pixels = np.flatnonzero(view.covered.ravel())
+    p_view = np.stack([view.channels[f"P.{a}"].ravel()[pixels] for a in "XYZ"], axis=1)
+    world = p_view.astype(np.float64) @ cam.world_to_view()[:3, :3] + cam.eye
+    on_floor = np.abs(world[:, 2]) < np.abs(world[:, 1] - 1.0)
+    distance = np.where(on_floor, 1.0 - world[:, 1], world[:, 2])
+    inside = (np.abs(world[:, 0]) < 6.0 - radius) & (world[:, 1] > -5.0 + radius) & \
+        (world[:, 2] < 4.0 - radius)
+    return pixels[inside], distance[inside]
+
+
+def test_inside_a_right_angle_corner_the_bounded_truth_is_the_closed_form():
+    mesh, cam = _crease()
+    radius, rays = 0.5, 256
+    # plain Monte Carlo: each pixel's AO is a binomial share of its rays, of known variance
+    view = aobake.bake_view(mesh, camera=cam, rays=rays, max_distance=radius, sampler="random",
+                            replicates=2, seed=2)
+    pixels, distance = _corner_pixels(view, cam, radius)
+    exact = _corner_exact(distance, radius)
+    got = view.channels["ao"].ravel()[pixels].astype(np.float64)
+    sigma = np.sqrt(exact * (1.0 - exact) / rays)
+    near = exact < 1.0
+    assert near.sum() > 500 and exact.min() < 0.55  # the corner is in the picture
+    # per pixel within 5 sigma (P(|z| > 5) = 6e-7 a pixel), float32 storage aside
+    assert (np.abs(got - exact) <= 5 * sigma + 4 * F32).all()
+    # and the mean error over the pixels within 5 of its sigma: no bias at the corner
+    mean_sigma = math.sqrt(float(np.sum(sigma[near] ** 2))) / near.sum()
+    assert abs(float(np.mean(got[near] - exact[near]))) <= 5 * mean_sigma
+    # outside the radius nothing is hit: exactly open
+    assert (got[~near] == 1.0).all()
+
+
+def test_inside_a_right_angle_corner_gtao_with_a_hard_cut_is_the_closed_form():
+    mesh, cam = _crease()
+    radius, steps = 0.5, 256
+    view = aobake.bake_view(mesh, camera=cam, rays=1)
+    frame = GBuffer.from_view(view).frame()
+    pixels, distance = _corner_pixels(view, cam, radius)
+    # GTAO sees what is on screen: pixels whose ball of radius R projects inside the image
+    p_view = frame.positions(pixels)
+    world = p_view @ cam.world_to_view()[:3, :3] + cam.eye
+    corners = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)])
+    image, _ = cam.project((world[:, None, :] + radius * corners[None]).reshape(-1, 3))
+    image = image.reshape(len(pixels), len(corners), 2)
+    on_screen = ((image >= 0) & (image < [cam.width, cam.height])).all(axis=(1, 2))
+    pick = np.flatnonzero(on_screen & (distance > 0.05 * radius) & (distance < radius))[::37]
+    got = gtao.ao(frame, pixels[pick], radius, 64, steps, 0.0, False, 4)
+    exact = _corner_exact(distance[pick], radius)
+    # the horizon found by T steps is low by at most the angle between two samples at the
+    # radius (as in the crease test above): 2 x 2 / T; the slice integrand is at most 1
+    assert (np.abs(got - exact) <= 2 * 2 / steps).all(), np.abs(got - exact).max()
+    assert len(pick) >= 10 and exact.min() < 0.7
+
+
 @pytest.mark.parametrize("range_check", ["plane", "depth"])
 def test_crytek_at_a_crease_counts_the_samples_behind_the_visible_surface(range_check):
     mesh, cam = _crease()

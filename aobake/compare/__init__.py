@@ -21,6 +21,11 @@ coverage, the texels both cover).  Every metric is over those n points of the er
   the reference's own noise does not explain (the candidate's noise is part of it;
   ``candidate_noise_rms`` says how much, when the candidate has a stderr).
 
+A camera view (an ``aobake view`` EXR as the reference; the candidate another view of the
+same camera or another tool's image of its pixels) is compared per covered pixel, and
+``screen`` holds its screen-space scores (``aobake.compare.screen``: interior and depth-edge
+band, SSIM, stderr units, raw and after the best gain); None for other files.
+
 Values the metrics cannot have (no stderr in the reference, an infinite PSNR) are None, so
 the record is strict JSON.  The library logs and never prints; ``main`` is the command.
 
@@ -50,6 +55,7 @@ from aobake.compare.matching import (POSITION_TOLERANCE, match_vertices, positio
                                      tie_features)
 from aobake.compare.parsing import Unreadable
 from aobake.compare.readers import read_table
+from aobake.compare.screen import format_screen, is_view, score_view
 from aobake.compare.settings import check_same_quantity
 from aobake.compare.values import TEXEL_SUFFIXES, VERTEX_SUFFIXES, Values, kind, pick, target_of
 from aobake.errors import InputError
@@ -71,13 +77,16 @@ CONVENTIONS = {
 
 
 def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_key: str | None = None,
-            candidate_convention: str = "ao", heatmap=None) -> dict:
+            candidate_convention: str = "ao", heatmap=None,
+            reference_key: str | None = None) -> dict:
     """Compare ``candidate_path`` against ``reference_path`` for ``quantity`` ('ao' | 'obscurance').
 
     candidate_key : the candidate's array (NPZ), vertex property (PLY), attribute (GLB) or
       channel (image) holding the quantity, when it is not aobake's name for it
     candidate_convention : 'ao' (1 = open) | 'occlusion' (the candidate holds 1 - value)
     heatmap : path of a .ply (per vertex) or .png (per texel) to write the error to
+    reference_key : the reference's array / channel when it is not aobake's name for the
+      quantity (a view's ``ao_unbounded``); its stderr is ``<key>_stderr`` where there is one
 
     Returns one record, always with the same keys (see the module docstring for the metrics;
     None where a value does not exist).  Raises ``InputError`` naming the file and the
@@ -94,7 +103,10 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
     heatmap = None if heatmap is None else Path(heatmap)
     if heatmap is not None:
         check_path(heatmap, target, (reference_path, candidate_path))
-    reference = read(reference_path, quantity)
+    for name, key in (("candidate_key", candidate_key), ("reference_key", reference_key)):
+        if key is not None and not isinstance(key, str):
+            raise InputError(f"{name} must be a name (str), got {key!r}")
+    reference = read(reference_path, quantity, key=reference_key)
     candidate = read(candidate_path, quantity, key=candidate_key, role="candidate")
     if candidate.target != reference.target:
         raise InputError(f"{candidate_path}: holds {kind(candidate.target)}, but the reference "
@@ -136,6 +148,10 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
     warnings += extra.pop("warnings")
     notes = reference.notes + candidate.notes + extra.pop("notes")
     result.update(extra)
+    result["screen"] = None
+    if target == "texels" and is_view(reference):  # a camera view: scored as screen-space AO
+        result["screen"] = score_view(reference, candidate, where)
+        result["matched_by"] = "pixel"
     result["heatmap"], result["heatmap_scale"] = None, None
     result["warnings"] = warnings
     result["notes"] = notes
@@ -275,7 +291,7 @@ def format_table(result: dict) -> str:
         return format(value, spec) if abs(value) < 1e6 else format(value, ".6g")
 
     where = {"order": "vertices (same order)", "position": "vertices (matched by position)",
-             "texel": "covered texels"}[result["matched_by"]]
+             "texel": "covered texels", "pixel": "covered pixels of a camera view"}[result["matched_by"]]
     rows = [
         ("rmse", num(result["rmse"])),
         ("bias (candidate - reference)", num(result["bias"], "+.6f")),
@@ -296,6 +312,8 @@ def format_table(result: dict) -> str:
         lines.append(f"  ({result['n_uncovered_in_candidate']} texels the reference covers are "
                      "not covered by the candidate: left out)")
     lines += [f"  note: {text}" for text in result["notes"]]
+    if result.get("screen"):
+        lines += format_screen(result["screen"])
     if result["heatmap"]:
         lines.append(f"  heatmap: {result['heatmap']} (full colour at |error| = "
                      f"{result['heatmap_scale']:.4g})")
@@ -310,6 +328,9 @@ def format_table(result: dict) -> str:
 @click.option("--candidate-key", metavar="NAME", default=None,
               help="The candidate's NPZ array / PLY property / GLB attribute / image channel "
                    "holding the quantity, when it is not aobake's name for it.")
+@click.option("--reference-key", metavar="NAME", default=None,
+              help="The reference's array / channel to compare against, when not aobake's "
+                   "name for the quantity (a view's ao_unbounded); NAME_stderr is its stderr.")
 @click.option("--candidate-convention", type=click.Choice(tuple(CONVENTIONS)), default="ao",
               show_default=True,
               help="occlusion: the candidate holds 1 - AO (libigl); compared as 1 - value.")
@@ -317,20 +338,24 @@ def format_table(result: dict) -> str:
               help="Write the error (candidate - reference) in a blue-white-red map: "
                    ".ply per vertex, .png per texel.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of the table.")
-def main(reference, candidate, quantity, candidate_key, candidate_convention, heatmap, as_json):
+def main(reference, candidate, quantity, candidate_key, reference_key, candidate_convention,
+         heatmap, as_json):
     """Compare CANDIDATE against REFERENCE: RMSE, bias, max error, PSNR and how much of the
     difference the reference's own noise explains.
 
     Both are per-vertex files (.npz, .ply, .glb; vertices matched by position) or lightmaps
-    (.exr, .png, .tif; the texels the reference covers).  The candidate may come from
-    another tool (see --candidate-key, --candidate-convention).  Uniform- and
+    (.exr, .png, .tif; the texels the reference covers).  A camera view from aobake view is
+    compared per covered pixel and scored as screen-space AO as well: interior and
+    depth-edge band, SSIM, stderr units, raw and after the best gain.  The candidate may come
+    from another tool (see --candidate-key, --candidate-convention).  Uniform- and
     cosine-weighted AO are different quantities and are not compared.
     """
     from aobake.cli_common import guarded  # the CLI's contract: errors, signals, exit codes
 
     def run():
         result = compare(reference, candidate, quantity, candidate_key=candidate_key,
-                         candidate_convention=candidate_convention, heatmap=heatmap)
+                         candidate_convention=candidate_convention, heatmap=heatmap,
+                         reference_key=reference_key)
         click.echo(json.dumps(result, allow_nan=False) if as_json else format_table(result))
 
     guarded(False, run)

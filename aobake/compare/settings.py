@@ -27,6 +27,9 @@ def check_same_quantity(reference: Values, candidate: Values, quantity: str) -> 
                          f"{reference.path} {rw}-weighted {quantity}: different quantities, which "
                          "no conversion relates (bake both with the same --weighting)")
     keys = _SAME_QUANTITY + (("tau",) if quantity == "obscurance" else ())
+    views = all(isinstance(v.metadata.get("camera"), dict) for v in (reference, candidate))
+    if views:  # a view's AO is about the geometric normal facing the eye, whatever --normals
+        keys = tuple(k for k in keys if k not in ("max_distance", "normals")) + ("reach",)
     warnings = []
     for key in keys:
         # resolved values (scene units) where the report has them: '10%' of the same mesh agrees
@@ -41,6 +44,11 @@ def check_same_quantity(reference: Values, candidate: Values, quantity: str) -> 
 
 
 def _setting(metadata: dict, key: str):
+    if key == "reach":  # how far a view's method sees: a screen method's radius, else the rays'
+        parameters = metadata.get("parameters")
+        if isinstance(parameters, dict) and str(parameters.get("reads", "")).startswith("G-buffer"):
+            return parameters.get("radius")
+        return _setting(metadata, "max_distance")
     for part in ("parameters", "config"):
         section = metadata.get(part)
         if isinstance(section, dict) and key in section:

@@ -32,6 +32,8 @@ class Values:
     key : the array / property / attribute / channel the value was read from
     warnings : what the reader could not honour (e.g. a GLB's node transforms)
     notes : what was assumed to read it (grey vertex colours taken as the quantity)
+    columns : every channel of a camera view's image (name -> (H, W)), its G-buffer; None
+      for other files
     """
 
     path: Path
@@ -46,6 +48,7 @@ class Values:
     key: str = ""
     warnings: list = field(default_factory=list)
     notes: list = field(default_factory=list)
+    columns: dict | None = None
 
 
 def kind(target: str) -> str:
@@ -99,6 +102,9 @@ def pick(path: Path, table: Table, quantity: str, key, role: str, target: str) -
     if name == standard:  # aobake's own names: its stderr sits beside it
         error_name = getattr(q.error, table.naming)
         error_name = error_name[0] if isinstance(error_name, tuple) else error_name
+    else:  # another channel of aobake's (a view's ao_unbounded): NAME_stderr beside it
+        error_name = f"{name}_stderr" if table.metadata else None
+    if error_name is not None:
         if error_name in columns:
             stderr = _scalar(path, error_name, columns[error_name], target)
             if stderr.shape != value.shape:
@@ -118,8 +124,9 @@ def pick(path: Path, table: Table, quantity: str, key, role: str, target: str) -
                 (table.faces.min() < 0 or table.faces.max() >= n):
             raise InputError(f"{path}: faces index vertices {table.faces.min()}.."
                              f"{table.faces.max()}, but there are {n}")
+    view = target == "texels" and isinstance(table.metadata.get("camera"), dict)
     return Values(path, target, value, stderr, table.positions, table.normals, table.faces, mask,
-                  table.metadata, name, notes=notes)
+                  table.metadata, name, notes=notes, columns=columns if view else None)
 
 
 #: each format's names of a vertex colour (PLY properties, the glTF attribute)

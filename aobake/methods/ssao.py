@@ -8,7 +8,7 @@ gives the same arrays.  On vertices, texels or query points (no G-buffer) they a
 refused.  The screen-space methods are deterministic (no stderr, no rays); the height-field
 truth casts rays against the depth buffer and reports its standard error like the
 ray-traced truth.  The algorithms are in ``aobake.screen`` (crytek, shanmugam, gtao,
-refine, heightfield); conventions and numbers: docs/ssao.md.
+refine, heightfield); conventions and numbers: docs/screen-space.md.
 """
 
 from __future__ import annotations
@@ -132,7 +132,7 @@ class ScreenMethod:
                 "pattern": s.ssao_pattern, "blur": s.ssao_blur,
                 "blur_depth_pixels": s.ssao_blur_depth,
                 "blur_normal_degrees": s.ssao_blur_normal,
-                "reads": "G-buffer only: depth, view-space normals, camera (docs/ssao.md)"}
+                "reads": "G-buffer only: depth, view-space normals, camera (docs/screen-space.md)"}
 
     def record(self, estimates: Estimates) -> dict:
         return {"parameters": self.parameters()}

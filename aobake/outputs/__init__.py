@@ -99,7 +99,7 @@ def metadata(result) -> dict:
     report = result.report
     meta = {"conventions": report["conventions"], "config": report["config"],
             "parameters": report["parameters"], "versions": report["versions"]}
-    for section in ("texture", "camera"):
+    for section in ("texture", "camera", "truths"):
         if section in report:
             meta[section] = report[section]
     return meta

@@ -11,7 +11,7 @@
 - ``options``: the settings records;
 - ``score``: RMSE, bias, PSNR, SSIM against a truth, by region, raw and after the best gain.
 
-Conventions: docs/ssao.md.
+Conventions: docs/screen-space.md.
 """
 
 from aobake.screen.gbuffer import Frame, GBuffer

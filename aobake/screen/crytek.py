@@ -60,7 +60,7 @@ from aobake.screen.gbuffer import Frame, depth_step
 NORMALISATIONS = ("double", "crytek", "none")
 #: range checks (module docstring)
 RANGE_CHECKS = ("plane", "depth")
-#: the value an open flat wall gets under each normalisation (docs/ssao.md), where the
+#: the value an open flat wall gets under each normalisation (docs/screen-space.md), where the
 #: ball's image lies on the image (off it, samples count as open): with the plane check
 #: exactly one sample of each antipodal pair is occluded (the facet keeps those in front
 #: open, those behind are less than R below the plane), so A = 1/2 exactly at any viewing

@@ -32,7 +32,7 @@ def sphere_kernel(samples: int) -> np.ndarray:
     radius and direction are not correlated), so a sample stands for an equal share of the
     ball's volume; then their mirror images; an odd count adds the centre.  The pairs are
     why a flat wall is exact: any plane through the centre has one of each pair on either
-    side (docs/ssao.md, "Crytek").
+    side (docs/screen-space.md, "Crytek").
     """
     m = samples // 2
     i = np.arange(m, dtype=np.float64)

@@ -40,7 +40,7 @@ import numpy as np
 from aobake.screen import kernels
 from aobake.screen.gbuffer import Frame
 
-#: the value an open flat wall gets (docs/ssao.md): exactly 1
+#: the value an open flat wall gets (docs/screen-space.md): exactly 1
 FLAT_VALUE = 1.0
 #: pixels per block (pixels x samples arrays)
 BLOCK = 16384
