@@ -1,12 +1,12 @@
 """Screen-space AO scored against its truths: Crytek, Shanmugam-Arikan and GTAO on views of the
-still life and the Stanford bunny, per setting, with pictures (docs/ssao.md).
+still life, the Stanford bunny and the ogre (named views), per setting, with pictures (docs/screen-space.md).
 
     python benchmarks/bench_ssao.py [--quick] [--size 320x240] [--truth-rays 256]
                                     [--hf-rays 64] [--json PATH] [--img-dir docs/img]
 
-Per view: one ``aobake.bake_view`` with ``--truth-rays`` rays at max distance R (the
+Per view: one view with ``--truth-rays`` rays at max distance R (the
 methods' radius: 5% of the scene's diagonal) gives the G-buffer and the bounded truth;
-one more gives the unbounded AO; the height-field truth (``aobake.screen.heightfield``,
+the unbounded AO comes in the same run (``aobake.bake_view_truths``, ``aobake view --truths``); the height-field truth (``aobake.screen.heightfield``,
 ``--hf-rays`` rays) is computed twice from the same G-buffer, infinitely thick ("hf") and
 R thick ("hfR", the height field the methods' range checks assume).  Every method reads
 only the G-buffer; each setting is timed on one thread (``method.image``: the whole image,
@@ -41,18 +41,25 @@ from aobake.screen.options import CrytekOptions, GtaoOptions, SsaoOptions  # noq
 
 STILL_LIFE = ROOT / "assets" / "still_life.obj"
 BUNNY = ROOT.parent / "shared" / "meshes" / "stanford-bunny.obj"
+OGRE = ROOT.parent / "shared" / "meshes" / "ogre.obj"
 RADIUS_PERCENT = 5.0
 
-#: name -> (mesh, look (None: the default three-quarter view), ground plane, what it shows)
+#: name -> (mesh, look (None: the default three-quarter view), ground plane, what it shows);
+#: the named views of docs/screen-space.md
 VIEWS = {
     "overview": (STILL_LIFE, None, False, "the still life, default camera"),
-    "box": (STILL_LIFE, dict(look_from=(0.55, 1.05, 0.25), look_at=(0.5, 0.05, -0.5)), False,
-            "into the open box: deep creases"),
-    "knot": (STILL_LIFE, dict(look_from=(-0.2, 0.3, 1.45), look_at=(-0.45, 0.12, 0.45)),
-             False, "the torus knot from low down: thin occluders, a grazing floor"),
-    "edge": (STILL_LIFE, dict(look_from=(-0.05, 0.55, 0.55), look_at=(-0.05, 0.2, -0.45)),
-             False, "the sphere cut by the image's left edge: off-screen occluders"),
+    "crease": (STILL_LIFE, dict(look_from=(0.55, 1.05, 0.25), look_at=(0.5, 0.05, -0.5)),
+               False, "into the open box: deep creases"),
+    "thin": (STILL_LIFE, dict(look_from=(-0.2, 0.3, 1.45), look_at=(-0.45, 0.12, 0.45)),
+             False, "the torus knot from low down: thin occluders"),
+    "screen-edge": (STILL_LIFE, dict(look_from=(-0.05, 0.55, 0.55),
+                                     look_at=(-0.05, 0.2, -0.45)),
+                    False, "the sphere cut by the image's left edge: off-screen occluders"),
+    "grazing": (STILL_LIFE, dict(look_from=(-0.98, 0.06, 0.95), look_at=(0.6, 0.02, -0.5)),
+                False, "the floor seen at 2-4 degrees past the knot: a grazing view"),
     "bunny": (BUNNY, None, True, "the Stanford bunny on a ground plane"),
+    "ogre": (OGRE, dict(look_from=(10.0, 26.0, 34.0), look_at=(0.0, 19.0, 0.0)), False,
+             "the ogre's upper body: a scanned character's folds"),
 }
 
 
@@ -143,11 +150,12 @@ def run_view(name, size, truth_rays, hf_rays, img_dir, quick):
     mesh, look, ground, what = VIEWS[name]
     scene = load_scene(mesh)
     radius = RADIUS_PERCENT / 100 * scene.diagonal
-    kw = dict(size=size, look=look, ground_plane=ground, rays=truth_rays)
     clock = time.perf_counter()
-    bounded = aobake.bake_view(mesh, max_distance=radius, **kw)
-    unbounded = aobake.bake_view(mesh, **kw)
+    # both truths and the G-buffer in one run (aobake view --truths)
+    bounded = aobake.bake_view_truths(mesh, size=size, look=look, ground_plane=ground,
+                                      rays=truth_rays, ssao_radius=radius)
     truth_s = time.perf_counter() - clock
+    unbounded_ao = bounded.channels["ao_unbounded"]
     image = GBuffer.from_view(bounded)
     frame = image.frame()
     covered = bounded.covered
@@ -161,12 +169,12 @@ def run_view(name, size, truth_rays, hf_rays, img_dir, quick):
            "size": list(size), "pixels": int(covered.sum()), "truth_rays": truth_rays,
            "hf_rays": hf_rays, "truth_s": truth_s, "hf_s": hf_s,
            "mean_ao": {"bounded": float(truth[covered].mean()),
-                       "unbounded": float(unbounded.channels["ao"][covered].mean()),
+                       "unbounded": float(unbounded_ao[covered].mean()),
                        "hf": float(hf["ao"][covered].mean()),
                        "hfR": float(hf_r["ao"][covered].mean())},
            "truths": {}, "rows": []}
     for label, other, se in (("hf", hf, hf["ao_stderr"]), ("hfR", hf_r, hf_r["ao_stderr"]),
-                             ("unbounded", unbounded.channels["ao"], None)):
+                             ("unbounded", unbounded_ao, None)):
         values = other["ao"] if isinstance(other, dict) else other
         out["truths"][label] = score.score(truth, values, covered, edges, truth_se)
     images = {}
