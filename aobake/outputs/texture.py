@@ -110,7 +110,7 @@ def prepare_atlas_mesh(path, result, metadata: dict):
     raise OutputError(f"{path}: unsupported mesh format for --mesh-out; use .obj or .glb")
 
 
-def _write_glb(path, result, value, metadata: dict) -> None:
+def _write_glb(path, result, value, metadata: dict, orm=None) -> None:
     """The atlas mesh with the AO map as occlusionTexture, keeping the input's materials
     (one primitive per material, each with its base colour and the shared AO texture).
 
@@ -123,12 +123,25 @@ def _write_glb(path, result, value, metadata: dict) -> None:
     atlas = result.atlas
     base_uv = atlas.base_uv
     textured = any(m["base_color_png"] is not None for m in atlas.materials or [])
-    if base_uv is None and textured:
+    if base_uv is None and textured and not atlas.uv_set:
         base_uv = atlas.uv  # own UVs: the base colour textures use the same coordinates
+    uv_sets = None
+    if atlas.uv_set:  # --uv-set N: the map on TEXCOORD_N, the input's other sets kept
+        uv_sets = dict(atlas.other_uv)
+        uv_sets[atlas.uv_set] = atlas.uv
+        if sorted(uv_sets) != list(range(len(uv_sets))):
+            raise OutputError(f"{path}: UV sets {sorted(uv_sets)} are not TEXCOORD_0.."
+                              f"{len(uv_sets) - 1} (glTF numbers them without gaps)")
+        uv_sets = [uv_sets[k] for k in range(len(uv_sets))]
+        base_uv = None
     # glTF reads occlusion from R; the gutters are already dilated, so alpha
     # (coverage) is not needed by viewers and is left opaque.
-    png = image.png_bytes(value, np.ones_like(value), bit_depth=8, r_only=True)
+    if orm is None:
+        png = image.png_bytes(value, np.ones_like(value), bit_depth=8, r_only=True)
+    else:  # the packed map: R occlusion, G roughness, B metalness
+        png = image.rgb_png_bytes(orm, bit_depth=8)
     glb.write_textured(path, atlas.positions, atlas.faces, atlas.normals, atlas.uv, png,
                        metadata, base_uv=base_uv, materials=atlas.materials,
                        face_material=atlas.face_material,
-                       occlusion_wrap=atlas.wrap)
+                       occlusion_wrap=atlas.wrap, uv_sets=uv_sets, occlusion_set=atlas.uv_set,
+                       packed_orm=orm is not None)
