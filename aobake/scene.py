@@ -81,7 +81,8 @@ class Scene:
     normals_source: str = "angle"
     warnings: list = field(default_factory=list)
     #: the input's materials (base colour only), kept for lightmap GLBs: a list of
-    #: {"name": str, "base_color_png": bytes | None, "base_color_factor": [r, g, b, a] | None},
+    #: {"name": str, "base_color_png": bytes | None, "base_color_factor": [r, g, b, a] | None,
+    #: "metallic_roughness_png": bytes | None (glTF: G roughness, B metalness; for --orm)},
     #: or None when the input has none (or no UVs to map them with)
     materials: list | None = None
     #: (f,) int64 index into ``materials`` of each face (None with ``materials``)
@@ -417,7 +418,8 @@ def _png_bytes(image) -> bytes:
 
 
 def _white(name: str) -> dict:
-    return {"name": name, "base_color_png": None, "base_color_factor": None}
+    return {"name": name, "base_color_png": None, "base_color_factor": None,
+            "metallic_roughness_png": None}
 
 
 def _read_mtl(path: Path, names: list) -> dict:
@@ -485,6 +487,9 @@ def _trimesh_material(mesh, index: int) -> dict:
     try:
         if texture is not None:
             out["base_color_png"] = _png_bytes(texture)
+        roughness = getattr(material, "metallicRoughnessTexture", None)
+        if roughness is not None:  # G roughness, B metalness: what --orm packs beside AO
+            out["metallic_roughness_png"] = _png_bytes(roughness)
         if factor is not None:
             factor = np.asarray(factor)
             # trimesh stores colours as uint8 (0-255); floats are already in [0, 1].
@@ -503,7 +508,8 @@ def _trimesh_materials(meshes) -> tuple[list, np.ndarray]:
         material = _trimesh_material(mesh, len(materials))
         # By content: trimesh's scene dump may copy one shared material per node.
         factor = material["base_color_factor"]
-        key = (material["name"], material["base_color_png"], tuple(factor) if factor else None)
+        key = (material["name"], material["base_color_png"], tuple(factor) if factor else None,
+               material["metallic_roughness_png"])
         if key not in index:
             index[key] = len(materials)
             materials.append(material)

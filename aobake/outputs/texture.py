@@ -64,30 +64,54 @@ def _lines(line: str, rows: np.ndarray) -> list[str]:
             for block in (rows[i:i + _OBJ_BLOCK] for i in range(0, len(rows), _OBJ_BLOCK))]
 
 
-def write_texture(path, result, metadata: dict, *, half=False, bit_depth=8, r_only=False) -> None:
-    """Write ``result`` (a TexelResult) to ``path`` chosen by extension."""
+#: the EXR channels of an ORM-packed lightmap (``--orm``), beside the bake's own
+ORM_CHANNELS = ("orm.R", "orm.G", "orm.B")
+
+
+def orm_map(result, orm_from=None) -> tuple[np.ndarray, dict]:
+    """(orm (H, W, 3) float64, its metadata entry) of a lightmap (``aobake.outputs.orm``)."""
+    from aobake.outputs import orm
+
+    value, name = _map(result)
+    packed, source = orm.pack(result, value, orm_from)
+    return packed, {"R": name, "G": "roughness", "B": "metalness", "G_B_from": source}
+
+
+def write_texture(path, result, metadata: dict, *, half=False, bit_depth=8, r_only=False,
+                  orm=False, orm_from=None) -> None:
+    """Write ``result`` (a TexelResult) to ``path`` chosen by extension; ``orm``: packed as
+    R occlusion, G roughness, B metalness (G/B from ``orm_from``, see ``outputs.orm``)."""
     from aobake.outputs import image
 
     suffix = Path(path).suffix.lower()
+    packed = None
+    if orm or orm_from is not None:
+        packed, entry = orm_map(result, orm_from)
+        metadata = dict(metadata, orm=entry)
     if suffix == ".exr":
-        image.write_exr(path, result.channels, metadata, half=half)
+        channels = result.channels
+        if packed is not None:
+            channels = dict(channels, **{c: packed[..., i] for i, c in enumerate(ORM_CHANNELS)})
+        image.write_exr(path, channels, metadata, half=half)
+    elif suffix in image.LDR_SUFFIXES and packed is not None:
+        image.write_rgb(path, packed, bit_depth=bit_depth, metadata=dict(metadata, map="orm"))
     elif suffix in image.LDR_SUFFIXES:
         value, name = _map(result)
         image.write_ldr(path, value, result.channels["coverage"], bit_depth=bit_depth,
                         r_only=r_only, metadata=dict(metadata, map=name))
     elif suffix == ".glb":
-        _write_glb(path, result, _map(result)[0], metadata)
+        _write_glb(path, result, _map(result)[0], metadata, packed)
     else:
         raise OutputError(f"{path}: unsupported lightmap format {suffix!r}; "
                           f"use one of {', '.join(('.exr', *image.LDR_SUFFIXES, '.glb'))}")
 
 
-def write_atlas_mesh(path, result, metadata: dict) -> None:
+def write_atlas_mesh(path, result, metadata: dict, orm=False, orm_from=None) -> None:
     """Write the atlas mesh (OBJ with the atlas UVs, or GLB with the occlusion texture)."""
-    prepare_atlas_mesh(path, result, metadata)()
+    prepare_atlas_mesh(path, result, metadata, orm, orm_from)()
 
 
-def prepare_atlas_mesh(path, result, metadata: dict):
+def prepare_atlas_mesh(path, result, metadata: dict, orm=False, orm_from=None):
     """``write_atlas_mesh`` in two steps: returns the function that writes the file.
 
     An OBJ's text is formatted on a thread from now on, so it overlaps whatever is written
@@ -106,6 +130,10 @@ def prepare_atlas_mesh(path, result, metadata: dict):
         pool.shutdown(wait=False)  # its one thread ends with the task
         return lambda: _write_lines(path, text.result())
     if suffix == ".glb":
+        if orm or orm_from is not None:  # the same packed map as --out's
+            packed, entry = orm_map(result, orm_from)
+            return lambda: _write_glb(path, result, _map(result)[0], dict(metadata, orm=entry),
+                                      packed)
         return lambda: _write_glb(path, result, _map(result)[0], metadata)
     raise OutputError(f"{path}: unsupported mesh format for --mesh-out; use .obj or .glb")
 
