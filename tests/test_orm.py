@@ -43,7 +43,8 @@ def _stored(pixels, bits):
 
 
 @pytest.mark.parametrize("bits", [8, 16])
-def test_orm_png_is_ao_in_r_and_the_source_in_g_b(two_sets, roughness_metal, tmp_path, bits):  # noqa: F811
+def test_orm_png_is_ao_in_r_and_the_source_in_g_b(two_sets, roughness_metal,  # noqa: F811
+                                                   tmp_path, bits):
     source, mr = roughness_metal
     out = tmp_path / "orm.png"
     result = run_cli(two_sets, "--out", out, "--uv-set", 1, "--orm-from", source,
@@ -110,8 +111,8 @@ def _orm_glb(two_sets, roughness_metal, tmp_path):  # noqa: F811
     return out
 
 
-def test_orm_glb_wires_one_image_to_occlusion_and_metallic_roughness(two_sets, roughness_metal,  # noqa: F811
-                                                                     tmp_path):
+def test_orm_glb_wires_one_image_to_occlusion_and_metallic_roughness(  # noqa: F811
+        two_sets, roughness_metal, tmp_path):
     out = _orm_glb(two_sets, roughness_metal, tmp_path)
     gltf, binary = read_glb(out)
     material = gltf["materials"][0]
