@@ -226,6 +226,10 @@ def _run(mesh, out, target, run, quiet, config, files):
                                 report=files["report"], quantities=config.quantities,
                                 inputs=(config.source, config.cage, files["orm_from"]),
                                 orm=files["orm"])
+    if files["orm_from"] is not None and config.texel_density is None:
+        from aobake.outputs.orm import check_source
+
+        check_source(files["orm_from"], config.resolution)  # before the bake, not after
     if config.keep_distances and where.out.suffix.lower() != ".npz":
         raise click.UsageError(f"--keep-distances needs an .npz --out (got {where.out.name})")
     if config.denoise and (where.target != "texels" or where.out.suffix.lower() != ".exr"):

@@ -19,6 +19,7 @@ from conftest import run_cli
 from readers import read_glb, read_image, read_view
 from test_uvsets import FACES, POSITIONS, SET0, SET1, two_sets  # noqa: F401 (a fixture)
 
+import aobake
 from aobake.outputs import glb, image
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -98,6 +99,13 @@ def test_orm_source_of_another_size_is_refused(two_sets, tmp_path):  # noqa: F81
     result = run_cli(two_sets, "--out", out, "--uv-set", 1, "--orm-from", small, *BAKE)
     assert result.exit_code == 1 and "Traceback" not in result.output
     assert f"is {N // 2}x{N // 2}, the lightmap {N}x{N}" in result.output
+    assert not out.exists() and "rays in" not in result.output  # refused before baking
+    from aobake.outputs import write  # the library's writer checks it after a bake too
+    from aobake.errors import OutputError
+
+    baked = aobake.bake_texels(two_sets, resolution=N, rays=4, uv_set=1)
+    with pytest.raises(OutputError, match=f"the lightmap {N}x{N}"):
+        write(baked, out, orm_from=small)
     assert not out.exists()
     result = run_cli(two_sets, "--out", tmp_path / "v.ply", "--orm")
     assert result.exit_code == 1 and "--orm packs a lightmap" in result.output

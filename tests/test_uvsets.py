@@ -103,6 +103,19 @@ def test_uv_set_1_bakes_into_texcoord_1_and_writes_it_back(two_sets, tmp_path):
     assert not np.array_equal(via_set0.channels["coverage"], via_gltf.channels["coverage"])
 
 
+def test_uv_set_of_a_gltf_with_an_external_buffer(two_sets, tmp_path):
+    # the same file as .gltf JSON + .bin: the same bits as the GLB
+    gltf, binary = read_glb(two_sets)
+    (tmp_path / "scene.bin").write_bytes(binary)
+    gltf["buffers"] = [{"byteLength": len(binary), "uri": "scene.bin"}]
+    (tmp_path / "scene.gltf").write_text(json.dumps(gltf))
+    options = dict(resolution=16, rays=16, normals="angle", uv_set=1)
+    text = aobake.bake_texels(tmp_path / "scene.gltf", **options)
+    binary = aobake.bake_texels(two_sets, **options)
+    np.testing.assert_array_equal(text.channels["ao"], binary.channels["ao"])
+    assert text.report["texture"]["uv_set"] == 1
+
+
 def test_missing_uv_set_and_obj_are_refused_clearly(two_sets, tmp_path):
     result = run_cli(two_sets, "--out", tmp_path / "a.exr", "--uv-set", 2)
     assert result.exit_code == 1

@@ -53,6 +53,28 @@ def pack(result, value: np.ndarray, orm_from=None) -> tuple[np.ndarray, str]:
     return orm, source
 
 
+def check_source(path, resolution) -> None:
+    """Refuse an ``orm_from`` texture whose size is not ``resolution`` (width, height) before
+    a bake (the header alone is read); OutputError naming it."""
+    import OpenImageIO as oiio
+
+    source = oiio.ImageInput.open(str(path))
+    if source is None:
+        raise OutputError(f"{path}: cannot read the ORM source ({oiio.geterror()})")
+    try:
+        spec = source.spec()
+        size, channels = (spec.width, spec.height), spec.nchannels
+    finally:
+        source.close()
+    if channels < 3:
+        raise OutputError(f"{path}: has {channels} channels; an ORM / metallic-roughness "
+                          "texture needs G (roughness) and B (metalness)")
+    if tuple(size) != tuple(resolution):
+        raise OutputError(f"{path}: is {size[0]}x{size[1]}, the lightmap {resolution[0]}x"
+                          f"{resolution[1]}; G and B are copied texel for texel, not "
+                          f"resampled: bake with --resolution {size[0]}x{size[1]}")
+
+
 def _read(path, width: int, height: int) -> np.ndarray:
     """(H, W, 2) G and B of a texture file, checked against the lightmap's size."""
     from aobake.compare.parsing import Unreadable, read_pixels
