@@ -89,7 +89,9 @@ def run(
     timings: dict = {}
     start = clock = time.perf_counter()
     phase("loading")
-    scene = load_scene(mesh, config.normals, config.fix_normals)
+    # the lightmap's UV set is read where the map is baked into the mesh's own UVs
+    scene = load_scene(mesh, config.normals, config.fix_normals,
+                       config.uv_set if getattr(target, "name", None) == "texels" else 0)
     timings["load_s"] = time.perf_counter() - clock
 
     warnings: list = []

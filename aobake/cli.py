@@ -138,12 +138,21 @@ def _with(options):
               help="PNG/TIFF integer depth: value = round(clip(x, 0, 1) * (2^bits - 1)).")
 @click.option("--r-only", is_flag=True,
               help="PNG/TIFF: AO in R only (glTF occlusion convention) instead of R, G and B.")
+@click.option("--orm", is_flag=True,
+              help="Lightmap: pack as ORM, R = AO, G = roughness, B = metalness (PNG/TIFF: "
+                   "RGB; EXR: orm.R/G/B channels added; GLB: one image as occlusionTexture and "
+                   "metallicRoughnessTexture). G/B from --orm-from, else the glTF input's "
+                   "metallicRoughnessTexture, else roughness 1, metalness 0.")
+@click.option("--orm-from", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              default=None,
+              help="The texture whose G (roughness) and B (metalness) --orm copies, laid out "
+                   "in the baked UVs and of the lightmap's size (implies --orm).")
 @click.option("--report", "report_path", type=click.Path(dir_okay=False, path_type=Path),
               help="Write the JSON report (configuration, parameters, statistics) here.")
 @click.option("--quiet", is_flag=True, help="No progress bar or warnings.")
 @click.version_option(package_name="aobake")
-def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, report_path, quiet,
-         method, executor, workers, chunk_points, scheduler, **config):
+def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, orm, orm_from,
+         report_path, quiet, method, executor, workers, chunk_points, scheduler, **config):
     """Bake ambient occlusion of MESH (OBJ, PLY, STL, OFF, GLB/glTF) per vertex or into a
     UV lightmap, written to --out."""
     source = click.get_current_context().get_parameter_source("resolution")
@@ -155,7 +164,7 @@ def main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, report_p
                workers=workers, chunk_points=chunk_points, scheduler=scheduler)
     guarded(quiet, _run, mesh, out, target, run, quiet, given(config),
              dict(mesh_out=mesh_out, report=report_path, half=half, bit_depth=int(bit_depth),
-                  r_only=r_only))
+                  r_only=r_only, orm=orm or orm_from is not None, orm_from=orm_from))
 
 
 def entry() -> None:
@@ -215,7 +224,12 @@ def _run(mesh, out, target, run, quiet, config, files):
     config = aobake.BakeConfig(**config)  # validated before any file is touched
     where = aobake.outputs.plan(out, target, mesh=mesh, mesh_out=files["mesh_out"],
                                 report=files["report"], quantities=config.quantities,
-                                inputs=(config.source, config.cage))
+                                inputs=(config.source, config.cage, files["orm_from"]),
+                                orm=files["orm"])
+    if files["orm_from"] is not None and config.texel_density is None:
+        from aobake.outputs.orm import check_source
+
+        check_source(files["orm_from"], config.resolution)  # before the bake, not after
     if config.keep_distances and where.out.suffix.lower() != ".npz":
         raise click.UsageError(f"--keep-distances needs an .npz --out (got {where.out.name})")
     if config.denoise and (where.target != "texels" or where.out.suffix.lower() != ".exr"):

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -81,7 +81,8 @@ class Scene:
     normals_source: str = "angle"
     warnings: list = field(default_factory=list)
     #: the input's materials (base colour only), kept for lightmap GLBs: a list of
-    #: {"name": str, "base_color_png": bytes | None, "base_color_factor": [r, g, b, a] | None},
+    #: {"name": str, "base_color_png": bytes | None, "base_color_factor": [r, g, b, a] | None,
+    #: "metallic_roughness_png": bytes | None (glTF: G roughness, B metalness; for --orm)},
     #: or None when the input has none (or no UVs to map them with)
     materials: list | None = None
     #: (f,) int64 index into ``materials`` of each face (None with ``materials``)
@@ -100,6 +101,12 @@ class Scene:
     #: (f,) bool the faces that block rays (``aobake.groups``: the others are baked but cast
     #: nothing), or None: every face does
     occluding: np.ndarray | None = field(default=None, repr=False)
+    #: which of the input's UV sets ``uv`` is (glTF ``TEXCOORD_<uv_set>``; 0 for every other
+    #: format, whose one set is 0)
+    uv_set: int = 0
+    #: with ``uv_set`` > 0: every UV set of the glTF input, {k: (v, 2) float64 per vertex,
+    #: OBJ convention} (``uv`` is ``uv_sets[uv_set]``), kept for the lightmap GLB; else None
+    uv_sets: dict | None = field(default=None, repr=False)
 
     def __post_init__(self):
         """Shapes and index ranges checked, also for a Scene built directly (``make_scene``
@@ -411,7 +418,8 @@ def _png_bytes(image) -> bytes:
 
 
 def _white(name: str) -> dict:
-    return {"name": name, "base_color_png": None, "base_color_factor": None}
+    return {"name": name, "base_color_png": None, "base_color_factor": None,
+            "metallic_roughness_png": None}
 
 
 def _read_mtl(path: Path, names: list) -> dict:
@@ -479,6 +487,9 @@ def _trimesh_material(mesh, index: int) -> dict:
     try:
         if texture is not None:
             out["base_color_png"] = _png_bytes(texture)
+        roughness = getattr(material, "metallicRoughnessTexture", None)
+        if roughness is not None:  # G roughness, B metalness: what --orm packs beside AO
+            out["metallic_roughness_png"] = _png_bytes(roughness)
         if factor is not None:
             factor = np.asarray(factor)
             # trimesh stores colours as uint8 (0-255); floats are already in [0, 1].
@@ -497,7 +508,8 @@ def _trimesh_materials(meshes) -> tuple[list, np.ndarray]:
         material = _trimesh_material(mesh, len(materials))
         # By content: trimesh's scene dump may copy one shared material per node.
         factor = material["base_color_factor"]
-        key = (material["name"], material["base_color_png"], tuple(factor) if factor else None)
+        key = (material["name"], material["base_color_png"], tuple(factor) if factor else None,
+               material["metallic_roughness_png"])
         if key not in index:
             index[key] = len(materials)
             materials.append(material)
@@ -505,17 +517,37 @@ def _trimesh_materials(meshes) -> tuple[list, np.ndarray]:
     return materials, np.concatenate(per_mesh)
 
 
-def _load_with_trimesh(path: Path):
-    """(vertices, faces, normals | None, uv | None, (materials, face_material) | None) for
-    non-OBJ formats via trimesh."""
+def _load_with_trimesh(path: Path, uv_set: int = 0):
+    """(vertices, faces, normals | None, uv | None, (materials, face_material) | None, names,
+    uv_sets | None) for non-OBJ formats via trimesh.
+
+    uv_set > 0 (glTF / GLB only): ``uv`` is ``TEXCOORD_<uv_set>`` and ``uv_sets`` every set
+    the file's triangle primitives all have, {k: (v, 2) float64} (``aobake.uvsets``).
+    """
     import trimesh
 
+    source, kind, every = str(path), None, None
+    if uv_set:
+        from aobake import uvsets
+
+        source, kind, every = uvsets.aliased(path)
+        if uv_set not in every:
+            raise uvsets.missing_set_error(path, uv_set, every, uvsets.sets_of(
+                uvsets.read_json(path)[0])[1])
     try:
         # trimesh's parsers cast whatever a corrupt file holds (NaN, overflow) with numpy
         # warnings; make_scene validates every value, so the warnings tell the user nothing.
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore")
-            loaded = trimesh.load(str(path), process=False)
+            if kind == "gltf":  # its buffers and images beside it
+                from trimesh.resolvers import FilePathResolver
+
+                loaded = trimesh.load(source, file_type=kind, process=False,
+                                      resolver=FilePathResolver(str(path)))
+            elif kind is not None:
+                loaded = trimesh.load(source, file_type=kind, process=False)
+            else:
+                loaded = trimesh.load(source, process=False)
     except Exception as exc:  # trimesh raises many types for corrupt files
         raise InputError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from None
     if isinstance(loaded, trimesh.Scene):
@@ -549,9 +581,19 @@ def _load_with_trimesh(path: Path):
         vertices, inverse = np.unique(vertices, axis=0, return_inverse=True)
         faces = inverse.reshape(-1)[faces]
         normals = []
+    sets = None
+    if uv_set:
+        from aobake import uvsets
+
+        sets = {}
+        for k in every:
+            per_mesh = [uvsets.mesh_uv(m, k) for m in meshes]
+            if any(uv is None for uv in per_mesh):  # a primitive trimesh did not load as given
+                raise InputError(f"{path}: cannot read TEXCOORD_{k} of every mesh")
+            sets[k] = np.concatenate(per_mesh)
     return (vertices, faces, np.concatenate(normals) if normals else None,
             np.concatenate(uvs) if uvs else None, _trimesh_materials(meshes) if uvs else None,
-            names)
+            names, sets)
 
 
 def _trimesh_names(meshes) -> dict:
@@ -573,16 +615,22 @@ def _trimesh_names(meshes) -> dict:
     return out
 
 
-def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn") -> Scene:
+def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn",
+               uv_set: int = 0) -> Scene:
     """Load a path or an in-memory mesh into a :class:`Scene`.
 
     source : str | PathLike | trimesh.Trimesh | trimesh.Scene | Scene (returned as it is)
     fix_normals : "warn" | "fix" | "off", see :func:`make_scene`
+    uv_set : which UV set becomes ``Scene.uv``: glTF ``TEXCOORD_<uv_set>`` (InputError naming
+    the sets the file has when it lacks it); every other format has set 0 alone
     Raises InputError (naming the file and the problem) for a missing file, an
     unsupported extension, a corrupt or empty file or invalid geometry.
     """
     if isinstance(source, Scene):
         return source
+    if uv_set and not isinstance(source, (str, os.PathLike)):
+        raise InputError(f"uv_set {uv_set}: an in-memory mesh has one UV set; pass the "
+                         "glTF file (or give the Scene its uv)")
     if not isinstance(source, (str, os.PathLike)):
         import trimesh
 
@@ -606,6 +654,9 @@ def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn") ->
         raise InputError(f"{path}: no such file")
     if path.stat().st_size == 0:
         raise InputError(f"{path}: file is empty")
+    if uv_set and suffix not in (".gltf", ".glb"):
+        raise InputError(f"{path}: a {suffix} file has one UV set (set 0); --uv-set {uv_set} "
+                         "needs a glTF or GLB input (TEXCOORD_<N>)")
     if suffix == ".obj":
         from aobake.obj import read_obj
 
@@ -619,8 +670,15 @@ def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn") ->
                           uv=data.uv if has_uv else None, faces_uv=data.faces_uv, source=str(path),
                           warnings=data.warnings, materials=materials, face_material=face_material,
                           fix_normals=fix_normals, names=names)
-    vertices, faces, normals, uv, materials, names = _load_with_trimesh(path)
+    vertices, faces, normals, uv, materials, names, sets = _load_with_trimesh(path, uv_set)
     materials, face_material = materials or (None, None)
-    return make_scene(vertices, faces, normals, normals_mode, uv=uv, source=str(path),
-                      materials=materials, face_material=face_material, fix_normals=fix_normals,
-                      names=names)
+    if sets is not None:
+        uv = sets[uv_set]
+        if materials is None:  # no TEXCOORD_0 for trimesh: the materials have no UVs either
+            materials = face_material = None
+    scene = make_scene(vertices, faces, normals, normals_mode, uv=uv, source=str(path),
+                       materials=materials, face_material=face_material,
+                       fix_normals=fix_normals, names=names)
+    if sets is not None:
+        scene = replace(scene, uv_set=uv_set, uv_sets=sets)
+    return scene

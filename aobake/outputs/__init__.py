@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from aobake.errors import OutputError
-from aobake.outputs.registry import MESH_OUTPUTS, WRITERS, WriteOptions, default_target, writer_for
+from aobake.outputs.registry import (MESH_OUTPUTS, WRITERS, WriteOptions, default_target,
+                                     suffixes, writer_for)
 
 __all__ = ["MESH_OUTPUTS", "Outputs", "WRITERS", "WriteOptions", "default_target", "metadata",
            "plan", "write", "write_vertices"]
@@ -38,16 +39,26 @@ class Outputs:
 
 
 def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=None,
-         quantities=None, inputs=()) -> Outputs:
+         quantities=None, inputs=(), orm: bool = False) -> Outputs:
     """Resolve and check a bake's output paths before baking (fail before any work).
 
-    target : 'vertices' | 'texels' | None (from the extension); mesh : the input path, which
+    target : 'vertices' | 'texels' | None (from the extension; texels with ``orm``); mesh : the input path, which
     no output may overwrite; quantities : what will be baked (an image needs ao or
     obscurance).  Raises OutputError naming the path and the problem.
     """
     out = Path(out)
-    target = target or default_target(out)
+    # an ORM map is a lightmap: --orm makes a .glb --out one without --target texels
+    target = target or ("texels" if orm else default_target(out))
+    if orm and out.suffix.lower() not in suffixes("texels"):
+        raise OutputError(f"{out}: --orm packs a lightmap: write one of "
+                          f"{', '.join(suffixes('texels'))}")
     writer_for(out, target)  # the format exists for this target
+    if orm and target != "texels":
+        raise OutputError(f"{out}: --orm packs a lightmap (--target texels), not a "
+                          f"{target} bake")
+    if orm and out.suffix.lower() in (".png", ".tif", ".tiff") and quantities is not None \
+            and "ao" not in quantities and "obscurance" not in quantities:
+        raise OutputError(f"{out}: an ORM map's R is ao or obscurance; add -q ao")
     if target in ("texels", "view") and quantities is not None \
             and out.suffix.lower() != ".exr" \
             and not {"ao", "obscurance"} & set(quantities):
@@ -106,13 +117,14 @@ def metadata(result) -> dict:
 
 
 def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_depth: int = 8,
-          r_only: bool = False, mesh=None) -> list[Path]:
+          r_only: bool = False, mesh=None, orm: bool = False, orm_from=None) -> list[Path]:
     """Write ``result`` (BakeResult or TexelResult) to ``out``, as the CLI does.
 
     mesh_out : where the mesh of a lightmap's new atlas goes (.obj or .glb; default
     ``<out>.obj`` when the atlas is new; given explicitly it is always written);
     report : path of the JSON report (with the list of files written); half, bit_depth,
-    r_only : see :class:`WriteOptions`; mesh : the input path (never overwritten).
+    r_only, orm, orm_from : see :class:`WriteOptions` (``orm_from`` implies ``orm``); mesh :
+    the input path (never overwritten).
     Returns the paths written, ``out`` first.
     """
     from aobake.outputs.atomic import transaction
@@ -120,9 +132,12 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
     from aobake.outputs.texture import prepare_atlas_mesh
 
     _check_write_arguments(result, out, mesh_out, report, half, bit_depth, r_only)
+    orm = orm or orm_from is not None
     target = result.target  # each result says what made it: no guessing from its attributes
-    where = plan(out, target, mesh=mesh, mesh_out=mesh_out, report=report)
-    options = WriteOptions(half=half, bit_depth=int(bit_depth), r_only=r_only)
+    where = plan(out, target, mesh=mesh, mesh_out=mesh_out, report=report, orm=orm,
+                 inputs=() if orm_from is None else (orm_from,))
+    options = WriteOptions(half=half, bit_depth=int(bit_depth), r_only=r_only, orm=orm,
+                           orm_from=None if orm_from is None else str(orm_from))
     meta = metadata(result)
     written = [where.out]
     # One transaction: the files appear together once all are written, or none does.
@@ -131,7 +146,8 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
     clock = time.perf_counter()
     write_mesh = None  # the atlas mesh's writer, its text formatted while `out` is written
     if where.mesh_out is not None and (result.atlas.new or where.mesh_out_given):
-        write_mesh = prepare_atlas_mesh(where.mesh_out, result, meta)
+        write_mesh = prepare_atlas_mesh(where.mesh_out, result, meta, options.orm,
+                                        options.orm_from)
     with transaction():
         with _naming(where.out):
             writer_for(where.out, target).write(where.out, result, meta, options)

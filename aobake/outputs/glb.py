@@ -133,6 +133,9 @@ def write_textured(
     materials: Sequence[Mapping] | None = None,
     face_material: np.ndarray | None = None,
     occlusion_wrap: str = "clamp",
+    uv_sets: Sequence[np.ndarray] | None = None,
+    occlusion_set: int = 0,
+    packed_orm: bool = False,
 ) -> None:
     """Write a mesh whose materials carry the baked AO atlas as their occlusion texture.
 
@@ -158,6 +161,12 @@ def write_textured(
       one primitive per material that has faces (the vertex attributes are shared)
     occlusion_wrap : "clamp" (CLAMP_TO_EDGE) or "repeat" (REPEAT: the mesh's own UVs
       reach outside [0, 1] and the map was baked wrapped)
+    uv_sets : instead of ``atlas_uv`` / ``base_uv``: every UV set, (n, 2) float each (OBJ
+      convention), written as TEXCOORD_0.. in order; the occlusion texture reads set
+      ``occlusion_set`` (``atlas_uv`` must equal it), a base colour texture set 0
+    packed_orm : the occlusion PNG is an ORM map (R occlusion, G roughness, B metalness):
+      it is also the ``metallicRoughnessTexture`` (factors 1, so the texture's values are
+      the material's), as glTF intends for packed maps
 
     The occlusion texture samples with linear filtering and no mipmaps (mips
     would average texels of unrelated charts) and clamps to the edge unless
@@ -174,6 +183,16 @@ def write_textured(
     occlusion_png = _check_png("occlusion_png", occlusion_png)
     if base_uv is not None:
         base_uv = _check_uv("base_uv", base_uv, n)
+    if uv_sets is not None:
+        if base_uv is not None:
+            raise ValueError("give uv_sets or base_uv, not both")
+        uv_sets = [_check_uv(f"uv_sets[{i}]", uv, n) for i, uv in enumerate(uv_sets)]
+        if not 0 <= occlusion_set < len(uv_sets) or \
+                not np.array_equal(uv_sets[occlusion_set], atlas_uv):
+            raise ValueError(f"occlusion_set {occlusion_set} must index the set equal to "
+                             "atlas_uv")
+    elif occlusion_set:
+        raise ValueError("occlusion_set needs uv_sets")
     if materials is None:
         if face_material is not None:
             raise ValueError("face_material needs materials")
@@ -194,7 +213,7 @@ def write_textured(
     for material in materials:
         png, factor = material.get("base_color_png"), material.get("base_color_factor")
         if png is not None:
-            if base_uv is None:
+            if base_uv is None and uv_sets is None:
                 raise ValueError("base_color_png needs base_uv (the UVs it is mapped with)")
             png = _check_png("base_color_png", png)
         rgba = [1.0, 1.0, 1.0, 1.0]
@@ -207,18 +226,25 @@ def write_textured(
     gltf = _new_gltf(metadata)
     blob = bytearray()
     attributes = _add_geometry(gltf, blob, positions, fields.get("normals"))
-    uv_sets = [atlas_uv] if base_uv is None else [base_uv, atlas_uv]
+    if uv_sets is None:
+        uv_sets = [atlas_uv] if base_uv is None else [base_uv, atlas_uv]
+        occlusion_set = len(uv_sets) - 1
     for i, uv in enumerate(uv_sets):
         attributes[f"TEXCOORD_{i}"] = _add_accessor(gltf, blob, _flip_v(uv), _ARRAY_BUFFER)
-    occlusion = _add_texture(gltf, blob, occlusion_png, _WRAPS[occlusion_wrap], "occlusion")
+    occlusion = _add_texture(gltf, blob, occlusion_png, _WRAPS[occlusion_wrap],
+                             "orm" if packed_orm else "occlusion")
     parts = []
     for index in np.unique(face_material):  # materials without faces are not written
         name, png, rgba = checked[index]
         pbr = _white_pbr()
         pbr["baseColorFactor"] = rgba
+        if packed_orm:  # one image, as glTF packs it: G roughness, B metalness
+            pbr.update(metallicFactor=1.0, roughnessFactor=1.0,
+                       metallicRoughnessTexture={"index": occlusion,
+                                                 "texCoord": occlusion_set})
         material = {
             "name": name,
-            "occlusionTexture": {"index": occlusion, "texCoord": len(uv_sets) - 1},
+            "occlusionTexture": {"index": occlusion, "texCoord": occlusion_set},
             "pbrMetallicRoughness": pbr,
         }
         if png is not None:

@@ -213,10 +213,41 @@ def write_ldr(path, value, coverage, bit_depth: int = 8, r_only: bool = False,
     metadata : as in ``write_exr``; also stored as JSON in ImageDescription.
     """
     _check_bit_depth(bit_depth)
+    pixels = _ldr_pixels(value, coverage, bit_depth, r_only)
+    _write_ldr_pixels(path, pixels, bit_depth, metadata)
+
+
+def write_rgb(path, rgb, alpha=None, bit_depth: int = 8,
+              metadata: Mapping[str, Any] | None = None) -> None:
+    """Write a [0, 1] (H, W, 3) float image as RGB (or RGBA with ``alpha`` (H, W) float in
+    [0, 1]) PNG or TIFF, quantised as :func:`write_ldr` does (linear data, no sRGB curve):
+    an ORM map (R occlusion, G roughness, B metalness) or a diagnostic picture."""
+    _check_bit_depth(bit_depth)
+    rgb = np.asarray(rgb, dtype=np.float64)
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"rgb must be (H, W, 3), got {rgb.shape}")
+    planes = [quantize(rgb[..., c], bit_depth) for c in range(3)]
+    if alpha is not None:
+        if np.shape(alpha) != rgb.shape[:2]:
+            raise ValueError(f"alpha must be {rgb.shape[:2]}, got {np.shape(alpha)}")
+        planes.append(quantize(alpha, bit_depth))
+    _write_ldr_pixels(path, np.stack(planes, axis=-1), bit_depth, metadata)
+
+
+def rgb_png_bytes(rgb, bit_depth: int = 8) -> bytes:
+    """:func:`write_rgb`'s PNG as bytes (e.g. an ORM map to embed in a GLB)."""
+    with tempfile.TemporaryDirectory(prefix="aobake-png-") as tmp, outside_transaction():
+        path = Path(tmp, "image.png")
+        write_rgb(path, rgb, bit_depth=bit_depth)
+        return path.read_bytes()
+
+
+def _write_ldr_pixels(path, pixels: np.ndarray, bit_depth: int,
+                      metadata: Mapping[str, Any] | None) -> None:
+    """(H, W, 3 or 4) uint8/uint16 pixels to a PNG/TIFF, tagged linear, alpha unassociated."""
     suffix = Path(path).suffix.lower()
     if suffix not in LDR_SUFFIXES:
         raise ValueError(f"{path}: LDR images must end in {', '.join(LDR_SUFFIXES)}")
-    pixels = _ldr_pixels(value, coverage, bit_depth, r_only)
     oiio = _oiio()
     attrs: dict[str, Any] = {
         "oiio:UnassociatedAlpha": 1,
@@ -228,7 +259,8 @@ def write_ldr(path, value, coverage, bit_depth: int = 8, r_only: bool = False,
     meta = _metadata_attributes(metadata)
     attrs.update(meta)
     attrs["ImageDescription"] = meta["aobake:metadata"]
-    _write(path, pixels, oiio.UINT8 if bit_depth == 8 else oiio.UINT16, ("R", "G", "B", "A"), attrs)
+    _write(path, pixels, oiio.UINT8 if bit_depth == 8 else oiio.UINT16,
+           ("R", "G", "B", "A")[:pixels.shape[2]], attrs)
 
 
 def png_bytes(value, coverage, bit_depth: int = 8, r_only: bool = True,

@@ -20,17 +20,21 @@ from typing import Callable
 import numpy as np
 
 from aobake.errors import OutputError
-from aobake.outputs.texture import write_texture
+from aobake.outputs.texture import ORM_CHANNELS, write_texture
 from aobake.quantities import FIELDS
 
 
 @dataclass(frozen=True)
 class WriteOptions:
-    """half : EXR half floats; bit_depth : PNG/TIFF 8 or 16; r_only : PNG/TIFF AO in R only."""
+    """half : EXR half floats; bit_depth : PNG/TIFF 8 or 16; r_only : PNG/TIFF AO in R only;
+    orm : a lightmap packed as ORM (``aobake.outputs.orm``); orm_from : the texture whose G
+    and B it copies (None: the input's metallicRoughnessTexture, else "empty")."""
 
     half: bool = False
     bit_depth: int = 8
     r_only: bool = False
+    orm: bool = False
+    orm_from: str | None = None
 
 
 @dataclass(frozen=True)
@@ -73,7 +77,7 @@ def _vertex(module_name: str):
 
 def _texture(path, result, metadata, options):
     write_texture(path, result, metadata, half=options.half, bit_depth=options.bit_depth,
-                  r_only=options.r_only)
+                  r_only=options.r_only, orm=options.orm, orm_from=options.orm_from)
 
 
 def _names(names) -> str:
@@ -101,7 +105,8 @@ def _exr_contents() -> str:
     denoised = [f"{name}{suffix}" for name in ("ao", "obscurance")
                 for suffix in ("_denoised", "_denoised_stderr")]
     return (f"float32 (`--half`) channels {_names([*channels, 'coverage'])} (with `--denoise` "
-            f"also {_names(denoised)}); configuration in the header")
+            f"also {_names(denoised)}; with `--orm` also {_names(ORM_CHANNELS)}); "
+            "configuration in the header")
 
 
 #: every output format, in the README's order
@@ -114,13 +119,16 @@ WRITERS = (
     Writer(".glb", "points", _vertex("glb"), "per vertex", _glb_contents, _POINTS),
     Writer(".exr", "image", _texture, "lightmap", _exr_contents, _IMAGES),
     Writer(".png", "image", _texture, "lightmap",
-           lambda: "AO in RGB (`--r-only`: R), coverage in alpha, 8/16 bit (`--bit-depth`)",
+           lambda: "AO in RGB (`--r-only`: R), coverage in alpha, 8/16 bit (`--bit-depth`); "
+                   "`--orm`: RGB = AO, roughness, metalness",
            _IMAGES),
     Writer(".tif", "image", _texture, "lightmap", lambda: "as `.png`", _IMAGES),
     Writer(".tiff", "image", _texture, "lightmap", lambda: "as `.png`", _IMAGES),
     Writer(".glb", "image", _texture, "lightmap",
            lambda: "the atlas mesh with the AO map as `occlusionTexture` of every input "
-                   "material (each keeps its base colour; one primitive per material)",
+                   "material (each keeps its base colour; one primitive per material); "
+                   "`--uv-set N`: on `TEXCOORD_N`, the other sets kept; `--orm`: one ORM "
+                   "image as `occlusionTexture` and `metallicRoughnessTexture`",
            ("texels",)),
 )
 

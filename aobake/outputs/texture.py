@@ -64,30 +64,54 @@ def _lines(line: str, rows: np.ndarray) -> list[str]:
             for block in (rows[i:i + _OBJ_BLOCK] for i in range(0, len(rows), _OBJ_BLOCK))]
 
 
-def write_texture(path, result, metadata: dict, *, half=False, bit_depth=8, r_only=False) -> None:
-    """Write ``result`` (a TexelResult) to ``path`` chosen by extension."""
+#: the EXR channels of an ORM-packed lightmap (``--orm``), beside the bake's own
+ORM_CHANNELS = ("orm.R", "orm.G", "orm.B")
+
+
+def orm_map(result, orm_from=None) -> tuple[np.ndarray, dict]:
+    """(orm (H, W, 3) float64, its metadata entry) of a lightmap (``aobake.outputs.orm``)."""
+    from aobake.outputs import orm
+
+    value, name = _map(result)
+    packed, source = orm.pack(result, value, orm_from)
+    return packed, {"R": name, "G": "roughness", "B": "metalness", "G_B_from": source}
+
+
+def write_texture(path, result, metadata: dict, *, half=False, bit_depth=8, r_only=False,
+                  orm=False, orm_from=None) -> None:
+    """Write ``result`` (a TexelResult) to ``path`` chosen by extension; ``orm``: packed as
+    R occlusion, G roughness, B metalness (G/B from ``orm_from``, see ``outputs.orm``)."""
     from aobake.outputs import image
 
     suffix = Path(path).suffix.lower()
+    packed = None
+    if orm or orm_from is not None:
+        packed, entry = orm_map(result, orm_from)
+        metadata = dict(metadata, orm=entry)
     if suffix == ".exr":
-        image.write_exr(path, result.channels, metadata, half=half)
+        channels = result.channels
+        if packed is not None:
+            channels = dict(channels, **{c: packed[..., i] for i, c in enumerate(ORM_CHANNELS)})
+        image.write_exr(path, channels, metadata, half=half)
+    elif suffix in image.LDR_SUFFIXES and packed is not None:
+        image.write_rgb(path, packed, bit_depth=bit_depth, metadata=dict(metadata, map="orm"))
     elif suffix in image.LDR_SUFFIXES:
         value, name = _map(result)
         image.write_ldr(path, value, result.channels["coverage"], bit_depth=bit_depth,
                         r_only=r_only, metadata=dict(metadata, map=name))
     elif suffix == ".glb":
-        _write_glb(path, result, _map(result)[0], metadata)
+        _write_glb(path, result, _map(result)[0], metadata, packed)
     else:
         raise OutputError(f"{path}: unsupported lightmap format {suffix!r}; "
                           f"use one of {', '.join(('.exr', *image.LDR_SUFFIXES, '.glb'))}")
 
 
-def write_atlas_mesh(path, result, metadata: dict) -> None:
+def write_atlas_mesh(path, result, metadata: dict, orm=False, orm_from=None) -> None:
     """Write the atlas mesh (OBJ with the atlas UVs, or GLB with the occlusion texture)."""
-    prepare_atlas_mesh(path, result, metadata)()
+    prepare_atlas_mesh(path, result, metadata, orm, orm_from)()
 
 
-def prepare_atlas_mesh(path, result, metadata: dict):
+def prepare_atlas_mesh(path, result, metadata: dict, orm=False, orm_from=None):
     """``write_atlas_mesh`` in two steps: returns the function that writes the file.
 
     An OBJ's text is formatted on a thread from now on, so it overlaps whatever is written
@@ -106,11 +130,15 @@ def prepare_atlas_mesh(path, result, metadata: dict):
         pool.shutdown(wait=False)  # its one thread ends with the task
         return lambda: _write_lines(path, text.result())
     if suffix == ".glb":
+        if orm or orm_from is not None:  # the same packed map as --out's
+            packed, entry = orm_map(result, orm_from)
+            return lambda: _write_glb(path, result, _map(result)[0], dict(metadata, orm=entry),
+                                      packed)
         return lambda: _write_glb(path, result, _map(result)[0], metadata)
     raise OutputError(f"{path}: unsupported mesh format for --mesh-out; use .obj or .glb")
 
 
-def _write_glb(path, result, value, metadata: dict) -> None:
+def _write_glb(path, result, value, metadata: dict, orm=None) -> None:
     """The atlas mesh with the AO map as occlusionTexture, keeping the input's materials
     (one primitive per material, each with its base colour and the shared AO texture).
 
@@ -123,12 +151,25 @@ def _write_glb(path, result, value, metadata: dict) -> None:
     atlas = result.atlas
     base_uv = atlas.base_uv
     textured = any(m["base_color_png"] is not None for m in atlas.materials or [])
-    if base_uv is None and textured:
+    if base_uv is None and textured and not atlas.uv_set:
         base_uv = atlas.uv  # own UVs: the base colour textures use the same coordinates
+    uv_sets = None
+    if atlas.uv_set:  # --uv-set N: the map on TEXCOORD_N, the input's other sets kept
+        uv_sets = dict(atlas.other_uv)
+        uv_sets[atlas.uv_set] = atlas.uv
+        if sorted(uv_sets) != list(range(len(uv_sets))):
+            raise OutputError(f"{path}: UV sets {sorted(uv_sets)} are not TEXCOORD_0.."
+                              f"{len(uv_sets) - 1} (glTF numbers them without gaps)")
+        uv_sets = [uv_sets[k] for k in range(len(uv_sets))]
+        base_uv = None
     # glTF reads occlusion from R; the gutters are already dilated, so alpha
     # (coverage) is not needed by viewers and is left opaque.
-    png = image.png_bytes(value, np.ones_like(value), bit_depth=8, r_only=True)
+    if orm is None:
+        png = image.png_bytes(value, np.ones_like(value), bit_depth=8, r_only=True)
+    else:  # the packed map: R occlusion, G roughness, B metalness
+        png = image.rgb_png_bytes(orm, bit_depth=8)
     glb.write_textured(path, atlas.positions, atlas.faces, atlas.normals, atlas.uv, png,
                        metadata, base_uv=base_uv, materials=atlas.materials,
                        face_material=atlas.face_material,
-                       occlusion_wrap=atlas.wrap)
+                       occlusion_wrap=atlas.wrap, uv_sets=uv_sets, occlusion_set=atlas.uv_set,
+                       packed_orm=orm is not None)

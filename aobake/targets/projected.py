@@ -95,7 +95,8 @@ class _Projecting:
     def _load(self, config, timings, warnings, phase) -> tuple[Scene, Cage]:
         phase("loading")
         clock = time.perf_counter()
-        low = load_scene(self.low_source, config.normals, config.fix_normals)
+        low = load_scene(self.low_source, config.normals, config.fix_normals,
+                         config.uv_set if self.name == "projected_texels" else 0)
         if self.cage_source is None:
             cage = offset_cage(low, self.cage_offset)
         else:  # the user's winding is the cage's: no repair may renumber its corners

@@ -58,7 +58,8 @@ class TexelTarget:
         atlas, bake_uv, bake_faces_uv, check, samples = make_atlas(
             scene, config.unwrap, width, height, config.padding, config.texel_samples,
             config.seed, threads, warnings, phases, compiled, phase or (lambda name: None),
-            texel_density=config.texel_density)
+            texel_density=config.texel_density, uv_overlap=config.uv_overlap,
+            overlap_mask=config.overlap_mask)
         timings["uv_check_s"] = phases["uv_check_s"]
         timings["unwrap_s"] = phases["unwrap_s"]
         clock = time.perf_counter()
@@ -128,7 +129,7 @@ class TexelTarget:
         width, height = state["size"]  # config.resolution, or chosen for config.texel_density
         texture = _texture_stats(images, covered, filled, shared, width, height, config.padding,
                                  config.texel_samples, state["atlas"], state["check"],
-                                 config.bent_space)
+                                 config.bent_space, config.uv_overlap)
         texture["seams"] = seam_info or {"mode": config.seams}
         texture["denoise"] = _denoise_stats(images, covered, quantities) if config.denoise \
             else None
@@ -202,7 +203,7 @@ def _to_tangent(scene, uv, faces_uv, samples, normals, bent):
 
 
 def _texture_stats(channels, covered, filled, shared, width, height, padding, k, atlas, check,
-                   bent_space):
+                   bent_space, uv_overlap="atlas"):
     stats = {
         "width": width,
         "height": height,
@@ -220,8 +221,13 @@ def _texture_stats(channels, covered, filled, shared, width, height, padding, k,
         "uv_check": None if check is None else {
             "valid": check.valid, "out_of_range_faces": check.out_of_range_faces,
             "overlapping_texels": check.overlapping_texels, "mirrored_faces": check.mirrored_faces,
+            "bakeable": check.bakeable,
             "message": check.message},
         "bent_space": bent_space,
+        # the input's UV set the map belongs to (glTF TEXCOORD_<uv_set>), and what
+        # overlapping own UVs got
+        "uv_set": atlas.uv_set,
+        "uv_overlap": uv_overlap,
         "convention": "row 0 is the top of the image (v = 1); texel (r, c) centre at "
                       "u = (c + 0.5) / W, v = 1 - (r + 0.5) / H",
     }

@@ -17,7 +17,7 @@ from aobake.targets.texels.packing import MAX_RESOLUTION
 from aobake.targets.texels.raster import rasterize
 from aobake.targets.texels.unwrap import discard_prestarted
 from aobake.targets.texels.unwrap import unwrap as xatlas_unwrap
-from aobake.targets.texels.uvcheck import check_uvs, wrap_uvs
+from aobake.targets.texels.uvcheck import check_uvs, find_overlap, wrap_uvs
 
 #: rough bytes held per texel sample (sample record, point, normal, estimates): for the memory check
 _BYTES_PER_SAMPLE = 320
@@ -42,7 +42,11 @@ class Atlas:
     packing_compiled : bool | None whether a new atlas's charts were packed by the compiled
     kernels (False: the numpy reference; None: no new atlas),
     charting : str | None which xatlas charted a new atlas ("aobake._xatlas", built from
-    third_party/xatlas, or "xatlas", the package: the same charts; None: no new atlas).
+    third_party/xatlas, or "xatlas", the package: the same charts; None: no new atlas),
+    uv_set : int the input's UV set the map belongs to (``--uv-set``): a GLB writes ``uv``
+    as TEXCOORD_<uv_set>,
+    other_uv : {k: (m, 2) float64} | None with uv_set > 0, the input's other UV sets at the
+    atlas vertices (OBJ convention), written unchanged beside it.
     """
 
     positions: np.ndarray
@@ -59,6 +63,8 @@ class Atlas:
     size: tuple | None = None
     packing_compiled: bool | None = None
     charting: str | None = None
+    uv_set: int = 0
+    other_uv: dict | None = None
 
 
 def check_texture_budget(width: int, height: int, texel_samples: int) -> int:
@@ -128,9 +134,50 @@ def check_density_budget(scene, texel_density: float, texel_samples: int) -> Non
                          f"{side}x{side}: {exc}") from None
 
 
+#: face pairs an overlap refusal names (the mask shows them all)
+_PAIRS_SHOWN = 5
+
+
+def _refusal(scene, layout, width, height, check, mask_path) -> InputError:
+    """The error of ``--uv-overlap refuse``: counts, the first overlapping face pairs (0-based
+    face indices of the input), and the mask written to ``mask_path`` if given."""
+    overlap = find_overlap(scene.uv, scene.faces_uv, width, height, layout)
+    pairs = ", ".join(f"{a}&{b}" for a, b in overlap.pairs[:_PAIRS_SHOWN])
+    more = len(overlap.pairs) - _PAIRS_SHOWN
+    where = ""
+    if mask_path is not None:
+        from aobake.outputs import image
+
+        shared = overlap.shared
+        rgb = np.zeros(shared.shape + (3,))
+        rgb[shared == 1] = 0.5
+        rgb[shared >= 2] = (1.0, 0.0, 0.0)
+        image.write_rgb(mask_path, rgb, metadata={"overlap_texels": overlap.texels,
+                                                  "convention": "red: texel centre covered "
+                                                  "by 2+ faces; grey: by one"})
+        where = f"; the overlap is drawn in {mask_path} (red)"
+    return InputError(
+        f"{scene.source}: the own UVs overlap (--uv-overlap refuse): {overlap.texels} of "
+        f"{width}x{height} texels are covered by more than one face, {len(overlap.faces)} "
+        f"faces overlap ({overlap.mirrored} of them mirrored in UV; {check.mirrored_faces} "
+        f"mirrored faces in all); face pairs sharing texels (0-based): {pairs}"
+        f"{f' and {more} more' if more > 0 else ''}{where}. Bake a new atlas (--uv-overlap "
+        "atlas) or the mean of the shared surfaces (--uv-overlap average)")
+
+
+def _other_sets(scene, source_vertex) -> dict:
+    """Atlas fields for the input's other UV sets (``Atlas.uv_set``, ``Atlas.other_uv``)."""
+    if not scene.uv_set:
+        return {}
+    return {"uv_set": scene.uv_set,
+            "other_uv": {k: uv[source_vertex] for k, uv in scene.uv_sets.items()
+                         if k != scene.uv_set}}
+
+
 def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_samples: int,
                seed: int, threads: int, warnings: list, timings: dict, compiled: bool | None,
-               phase=lambda name: None, texel_density: float | None = None):
+               phase=lambda name: None, texel_density: float | None = None,
+               uv_overlap: str = "atlas", overlap_mask: str | None = None):
     """Choose the UVs to bake into (the mesh's own when valid, wrapped into [0, 1] where
     they stray out of it, else a fresh xatlas atlas) and rasterise them.
 
@@ -142,6 +189,10 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
     rasteriser and a new atlas's packer in the compiled kernels (True), in numpy (False), or
     when built (None); ``atlas.packing_compiled`` records which packed.
     Fills ``timings`` with uv_check_s, unwrap_s and raster_s.
+    uv_overlap : what overlapping own UVs get (``LightmapOptions.uv_overlap``): "atlas" (a
+    new atlas, unless ``unwrap`` is "never"), "refuse" (InputError naming the overlap;
+    ``overlap_mask``, a .png path, gets a picture of it first) or "average" (baked as
+    they are when overlap is their only fault: shared texels average their surfaces).
     """
     if texel_density is not None:
         check_density_budget(scene, texel_density, texel_samples)
@@ -177,19 +228,30 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
             clock = time.perf_counter()
             check = check_uvs(scene.uv, scene.faces_uv, width, height, layout=layout)
         timings["uv_check_s"] = wrap_s + time.perf_counter() - clock
+    accept = False  # own UVs baked although they overlap (--uv-overlap average)
+    if check is not None and unwrap != "always" and check.overlapping_texels:
+        if uv_overlap == "refuse":
+            raise _refusal(scene, layout, width, height, check, overlap_mask)
+        if uv_overlap == "average" and check.bakeable:
+            warnings.append(f"{scene.source}: baking the overlapping own UVs as asked "
+                            f"(--uv-overlap average): {check.message}; each shared texel is "
+                            "the mean of the surfaces that share it")
+            accept = True
     if unwrap == "never":
         if scene.faces_uv is None:
             raise InputError(f"{scene.source}: mesh has no UVs and --no-unwrap was given")
         if not check.valid:
             warnings.append(f"{scene.source}: baking into the mesh's own UVs although {check.message}")
-    use_own = scene.faces_uv is not None and unwrap != "always" and (check.valid or unwrap == "never")
+    use_own = scene.faces_uv is not None and unwrap != "always" and (
+        check.valid or unwrap == "never" or accept)
     if use_own:
         discard_prestarted()
         keys, faces = split_corners(scene.faces, scene.faces_uv)
         atlas = Atlas(scene.vertices[keys[:, 0]], scene.vertex_normals[keys[:, 0]], faces,
                       scene.uv[keys[:, 1]], None, keys[:, 0], new=False, materials=scene.materials,
                       face_material=scene.face_material,
-                      wrap="repeat" if layout.wrapped else "clamp", size=(width, height))
+                      wrap="repeat" if layout.wrapped else "clamp", size=(width, height),
+                      **_other_sets(scene, keys[:, 0]))
         return atlas, scene.uv, scene.faces_uv, check, samples
     if scene.faces_uv is not None and unwrap == "auto":
         warnings.append(f"{scene.source}: the mesh's UVs cannot be baked ({check.message}); "
@@ -225,5 +287,8 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
                   materials=scene.materials if base_uv is not None else None,
                   face_material=scene.face_material if base_uv is not None else None,
                   charts=unwrapped.charts, size=(width, height),
-                  packing_compiled=unwrapped.packing_compiled, charting=unwrapped.charting)
+                  packing_compiled=unwrapped.packing_compiled, charting=unwrapped.charting,
+                  **_other_sets(scene, source))
+    if atlas.uv_set:  # the new atlas takes the chosen set's place; the input's sets stay
+        atlas.base_uv = None
     return atlas, unwrapped.uv, unwrapped.faces, check, raster(unwrapped.uv, unwrapped.faces)

@@ -11,6 +11,10 @@ from aobake.options import setting
 UNWRAP = ("auto", "always", "never")
 BENT_SPACES = ("object", "tangent")
 SEAMS = ("erase", "off")
+#: what to do when the mesh's own UVs overlap (a texel centre covered twice): make a new
+#: atlas (the default, as before), refuse (an error that shows the overlap), or bake the
+#: own UVs anyway with shared texels averaging the surfaces that share them
+UV_OVERLAP = ("atlas", "refuse", "average")
 DEFAULT_RESOLUTION = (1024, 1024)
 
 
@@ -38,6 +42,16 @@ def parse_resolution(value) -> tuple[int, int]:
     return width, height
 
 
+def _path(value) -> str:
+    from pathlib import Path
+
+    if not isinstance(value, (str, Path)) or not str(value):
+        raise InputError(f"overlap_mask must be a file path, got {value!r}")
+    if Path(value).suffix.lower() != ".png":
+        raise InputError(f"overlap_mask {value}: the overlap mask is a .png")
+    return str(value)
+
+
 @dataclass(frozen=True)
 class LightmapOptions:
     """The lightmap target's settings (ignored by the other targets)."""
@@ -62,6 +76,21 @@ class LightmapOptions:
         "auto", "choice", "Always make a new xatlas atlas / never (fail without usable UVs). "
         "Default: the mesh's own UVs when valid for baking, else a new atlas.",
         section="texels", choices=UNWRAP, flags=("--unwrap/--no-unwrap",))
+    uv_set: int = setting(
+        0, "int", "Which UV set of the input to bake into: glTF TEXCOORD_N (1 is the lightmap "
+        "set engines use); a .glb output puts the map on that set (occlusionTexture.texCoord "
+        "= N) and keeps the others. OBJ and the other formats have set 0 only.",
+        section="texels", low=0, high=255)
+    uv_overlap: str = setting(
+        "atlas", "choice", "When the own UVs overlap (a texel covered by two faces, e.g. a "
+        "mirrored half sharing an island): atlas (bake a new xatlas atlas), refuse (exit 1 "
+        "naming the overlapping faces; --overlap-mask writes them as an image), or average "
+        "(bake the own UVs; a shared texel is the mean of its surfaces, with a warning).",
+        section="texels", choices=UV_OVERLAP)
+    overlap_mask: str | None = setting(
+        None, "parsed", "With --uv-overlap refuse: write a PNG of the own UVs' overlap "
+        "(red: texels covered twice or more, grey: once) to this path before refusing.",
+        section="texels", optional=True, parse=_path, show_default=False)
     bent_space: str = setting(
         "object", "choice", "Lightmap bent normals in object space or tangent space "
         "(MikkTSpace-style frames of the atlas UVs).", section="texels", choices=BENT_SPACES)
@@ -80,3 +109,6 @@ class LightmapOptions:
         # one question
         if self.texel_density is not None and self.resolution != DEFAULT_RESOLUTION:
             raise InputError("give a resolution or a texel density, not both")
+        if self.overlap_mask is not None and self.uv_overlap != "refuse":
+            raise InputError("overlap_mask is written when --uv-overlap refuse refuses; "
+                             f"got uv_overlap={self.uv_overlap!r}")

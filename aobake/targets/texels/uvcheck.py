@@ -58,6 +58,9 @@ class UVCheck:
         Wrapped faces crossing a border of [0, 1]^2, rastered on both sides of it.
     oversized_faces : int
         Faces wider or taller than one tile, or with non-finite corners (not wrappable).
+    bakeable : bool
+        Valid but for the overlap: wrappable and covering something (``--uv-overlap
+        average`` bakes such UVs as they are).
     """
 
     valid: bool
@@ -69,6 +72,57 @@ class UVCheck:
     wrapped: bool = False
     split_faces: int = 0
     oversized_faces: int = 0
+    bakeable: bool = False
+
+
+@dataclass(frozen=True)
+class Overlap:
+    """Where a mesh's own UVs overlap: what ``--uv-overlap refuse`` shows.
+
+    shared : (height, width) int32  triangles covering each texel centre (>= 2: overlap)
+    faces : (k,) int64              input faces covering an overlapping texel centre, sorted
+    pairs : (p, 2) int64            distinct pairs of different input faces sharing a texel
+                                    centre (at each such texel, its faces in order paired
+                                    with their neighbours), each row sorted, rows in order
+    mirrored : int                  how many of ``faces`` are mirrored in UV (the minority
+                                    orientation): a mirrored half stacked on its twin
+    """
+
+    shared: np.ndarray
+    faces: np.ndarray
+    pairs: np.ndarray
+    mirrored: int
+
+    @property
+    def texels(self) -> int:
+        """Texel centres covered by two or more triangles."""
+        return int(np.count_nonzero(self.shared >= 2))
+
+
+def find_overlap(uv, faces, width: int, height: int, layout: WrappedUVs | None = None) -> Overlap:
+    """The faces and face pairs that share texel centres of a width x height image, by the
+    bake's own coverage rule (a K = 1 rasterisation of the wrapped layout: exactly the
+    overlap ``check_uvs`` counts).  uv : (n, 2) float, OBJ convention; faces : (f, 3) int."""
+    uv, faces = _check_uv_faces(uv, faces, width, height)
+    if layout is None:
+        layout = wrap_uvs(uv, faces)
+    samples = layout.to_faces(rasterize(layout.uv, layout.faces, width, height,
+                                        texel_samples=1))
+    hot = (samples.shared.reshape(-1)[samples.texel] >= 2) & ~samples.is_fallback
+    texel, face = samples.texel[hot], samples.face[hot]  # sorted by texel
+    # each texel's distinct faces in order; neighbours in that order make the pairs (every
+    # pair where two faces stack, the usual case; a chain where more do)
+    span = int(face.max(initial=0)) + 1
+    texel, face = np.divmod(np.unique(texel * span + face), span)
+    same = texel[1:] == texel[:-1]
+    pairs = np.unique(np.sort(np.column_stack([face[:-1][same], face[1:][same]]), axis=1),
+                      axis=0).astype(np.int64).reshape(-1, 2)
+    involved = np.unique(face)
+    area = _signed_uv_area(uv, faces)
+    sign = np.sign(area)
+    minority = -1.0 if np.count_nonzero(sign > 0) >= np.count_nonzero(sign < 0) else 1.0
+    mirrored = int(np.count_nonzero(sign[involved] == minority))
+    return Overlap(samples.shared, involved, pairs, mirrored)
 
 
 @dataclass(frozen=True)
@@ -220,4 +274,5 @@ def check_uvs(uv, faces, width: int, height: int, shared: np.ndarray | None = No
         wrapped=layout.wrapped,
         split_faces=layout.split_faces,
         oversized_faces=layout.oversized_faces,
+        bakeable=wrappable and not empty,
     )

@@ -1,0 +1,124 @@
+"""Every UV set of a glTF / GLB file (``TEXCOORD_0``, ``TEXCOORD_1``, ...), read through trimesh.
+
+trimesh reads ``TEXCOORD_0`` alone (and only for primitives with a material), but it keeps
+any vertex attribute whose name starts with ``_`` as it is.  So the file's JSON is given to
+trimesh with one alias per UV set, ``_AOBAKE_TEXCOORD_k`` -> the accessor of ``TEXCOORD_k``,
+added to every triangle primitive that has the set; each loaded mesh then carries its sets
+in ``mesh.vertex_attributes``, in the same vertex order as its positions (trimesh loads
+with ``process=False``: no vertex is merged or dropped).  Nothing else in the file changes.
+
+UVs are returned in the OBJ convention (v = 0 at the bottom of the image), as everywhere in
+aobake: glTF's (u, v) becomes (u, 1 - v).  Normalised integer UVs (KHR_mesh_quantization)
+are scaled to [0, 1] as the glTF spec says.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from aobake.errors import InputError
+
+#: the alias prefix of a UV set in the attributes handed to trimesh
+ALIAS = "_AOBAKE_TEXCOORD_"
+_SET = re.compile(r"^TEXCOORD_(\d+)$")
+_TRIANGLES = (4, 5)  # TRIANGLES, TRIANGLE_STRIP: what trimesh loads as meshes
+#: normalised integer component types -> their largest value (glTF 2.0, 3.11)
+_NORMALISED = {5121: 255.0, 5123: 65535.0}
+
+
+def read_json(path: Path) -> tuple[dict, bytes | None]:
+    """(the glTF JSON, the GLB's BIN chunk or None) of a .gltf or .glb file."""
+    data = path.read_bytes()
+    if data[:4] == b"glTF":
+        try:
+            length, kind = struct.unpack_from("<II", data, 12)
+            if kind != 0x4E4F534A:
+                raise ValueError("first chunk is not JSON")
+            header = json.loads(data[20:20 + length])
+            rest = data[20 + length:]
+            binary = None
+            if len(rest) >= 8:
+                blen, bkind = struct.unpack_from("<II", rest, 0)
+                binary = rest[8:8 + blen] if bkind == 0x004E4942 else None
+        except (struct.error, ValueError, UnicodeDecodeError) as exc:
+            raise InputError(f"{path}: cannot read GLB ({exc})") from None
+        return header, binary
+    try:
+        return json.loads(data), None
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read glTF JSON ({exc})") from None
+
+
+def sets_of(header: dict) -> tuple[list[int], list[int]]:
+    """(sets every triangle primitive has, sets some triangle primitive has), sorted."""
+    every, some = None, set()
+    for mesh in header.get("meshes", []):
+        for primitive in mesh.get("primitives", []):
+            if primitive.get("mode", 4) not in _TRIANGLES:
+                continue
+            have = {int(m.group(1)) for m in map(_SET.match, primitive.get("attributes", {}))
+                    if m}
+            some |= have
+            every = have if every is None else every & have
+    return sorted(every or ()), sorted(some)
+
+
+def aliased(path: Path) -> tuple[io.BytesIO, str, list[int]]:
+    """The file's bytes with every UV set aliased for trimesh (module docstring).
+
+    Returns (file object, file type "glb" | "gltf", the sets every triangle primitive has).
+    """
+    header, binary = read_json(path)
+    every, _ = sets_of(header)
+    for mesh in header.get("meshes", []):
+        for primitive in mesh.get("primitives", []):
+            attributes = primitive.get("attributes", {})
+            for name in list(attributes):
+                match = _SET.match(name)
+                if match:
+                    attributes[ALIAS + match.group(1)] = attributes[name]
+    text = json.dumps(header).encode("utf-8")
+    if binary is None and path.read_bytes()[:4] != b"glTF":
+        return io.BytesIO(text), "gltf", every
+    text += b" " * (-len(text) % 4)
+    chunks = struct.pack("<II", len(text), 0x4E4F534A) + text
+    if binary is not None:
+        binary = binary + b"\0" * (-len(binary) % 4)
+        chunks += struct.pack("<II", len(binary), 0x004E4942) + binary
+    head = struct.pack("<4sII", b"glTF", 2, 12 + len(chunks))
+    return io.BytesIO(head + chunks), "glb", every
+
+
+def mesh_uv(mesh, k: int) -> np.ndarray | None:
+    """(v, 2) float64 UV set ``k`` of one loaded trimesh mesh (OBJ convention), or None."""
+    attributes = getattr(mesh, "vertex_attributes", None) or {}
+    values = attributes.get(ALIAS + str(k))
+    if values is None:
+        return None
+    uv = np.asarray(values)
+    if uv.ndim != 2 or uv.shape[1] != 2 or len(uv) != len(mesh.vertices):
+        return None
+    if uv.dtype.kind in "iu":  # normalised integers (the only integer UVs glTF allows)
+        uv = uv.astype(np.float64) / float(np.iinfo(uv.dtype).max)
+    uv = uv.astype(np.float64)
+    return np.column_stack([uv[:, 0], 1.0 - uv[:, 1]])
+
+
+def missing_set_error(path, n: int, every: list[int], some: list[int]) -> InputError:
+    """The error for a UV set the file does not have (on every primitive)."""
+    if n in some:
+        return InputError(f"{path}: TEXCOORD_{n} is missing on some of its triangle "
+                          f"primitives (every primitive has {_names(every)}): --uv-set {n} "
+                          "needs it on all of them")
+    return InputError(f"{path}: has no TEXCOORD_{n} for --uv-set {n} (its UV sets: "
+                      f"{_names(some)})")
+
+
+def _names(sets: list[int]) -> str:
+    return ", ".join(f"TEXCOORD_{k}" for k in sets) or "none"
