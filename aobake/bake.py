@@ -99,6 +99,9 @@ def run(
                              f"--method {method} builds from every face of the scene")
         applied = groups.apply(scene, selection)
         scene, target = applied.scene, groups.GroupedTarget(target, applied)
+    extend = getattr(getattr(target, "inner", target), "extend_scene", None)
+    if extend is not None:  # occluders beside the scene's faces (a high-to-low low mesh)
+        scene = extend(scene, config, timings)
     occluder_stage.check(scene)  # its errors first, not after the target's work
     rays_per_point = target.rays_per_point(config)
     compiled = _native.kernels() is not None  # decided once, on this thread

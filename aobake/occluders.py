@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from aobake.backends import BACKENDS
+from aobake.backends.extra import FrontBeyond
 from aobake.backends.plane import PlaneOccluder
 from aobake.backends.union import Union
 from aobake.constants import AXES, OFFSET_ULPS
@@ -35,7 +36,9 @@ class Occluders:
     backend : the triangle backend (``BACKENDS[config.backend]``), union : backend plus
     ground plane (``Union``), backend_name : str, ground : {"axis", "height"} | None,
     faces : (k,) int64 the scene face of each of the backend's triangles when only some
-    faces occlude (``Scene.occluding``), or None: the backend holds every face, in order.
+    faces occlude (``Scene.occluding``), or None: the backend holds every face, in order;
+    extras : the report's record of ``Scene.extra_occluders`` (members of ``union`` only:
+    primary and cage rays never see them).
     """
 
     center: np.ndarray
@@ -47,6 +50,7 @@ class Occluders:
     backend_name: str
     ground: dict | None
     faces: np.ndarray | None = None
+    extras: tuple = ()
 
     def to_local(self, points: np.ndarray) -> np.ndarray:
         """(n, 3) float64 scene units -> (n, 3) float64 local units."""
@@ -96,6 +100,8 @@ class Occluders:
             params["ground_plane"] = dict(self.ground)
         if self.faces is not None:
             params["occluding_faces"] = int(len(self.faces))
+        if self.extras:
+            params["extra_occluders"] = [dict(extra) for extra in self.extras]
         return params
 
 
@@ -147,10 +153,24 @@ def build(scene, config) -> Occluders:
     local[unused] = 0.0
     normals = scene.face_normals if subset is None else scene.face_normals[subset]
     backend = BACKENDS[config.backend](local, faces, normals, step)
-    members, ground = [backend], None
+    members, ground, extras = [backend], None, []
+    for extra in scene.extra_occluders:  # before the ground plane: ``nearest`` takes it last
+        faces_extra = np.asarray(extra.faces, dtype=np.int64)
+        vertices_extra = np.asarray(extra.vertices, dtype=np.float64)
+        corners = vertices_extra[faces_extra]
+        cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        length = np.linalg.norm(cross, axis=1)
+        extra_normals = np.divide(cross, length[:, None], out=np.zeros_like(cross),
+                                  where=length[:, None] > 0)
+        member = BACKENDS[config.backend]((vertices_extra - center) * scale, faces_extra,
+                                          extra_normals, step)
+        members.append(FrontBeyond(member, extra.skip * scale))
+        extras.append({"name": extra.name, "faces": int(len(faces_extra)),
+                       "skip": float(extra.skip),
+                       "rule": "front faces only, beyond skip from the ray's origin"})
     if config.ground_plane:
         axis = AXES.index(config.up_axis)
         ground = {"axis": config.up_axis, "height": float(lo[axis])}
         members.append(PlaneOccluder(axis, (ground["height"] - center[axis]) * scale))
     return Occluders(center, scale, step, scene.diagonal, backend, Union(members),
-                     config.backend, ground, subset)
+                     config.backend, ground, subset, tuple(extras))

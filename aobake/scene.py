@@ -58,6 +58,22 @@ QUANTISED_FRACTION = 1e-3
 
 
 @dataclass(frozen=True)
+class ExtraOccluder:
+    """Triangles that block a bake's rays beside the scene's own faces.
+
+    name : what they are (the report's), vertices : (v, 3) float64 scene units, faces :
+    (f, 3) int64, skip : float scene units: a hit counts only beyond this distance from the
+    ray's origin, and only on a front face (the ray travels against the face's normal), so
+    a surface the baked points lie on or just under does not shadow them (docs/studio.md).
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    skip: float = 0.0
+
+
+@dataclass(frozen=True)
 class Scene:
     """One triangle scene in float64, as baked.
 
@@ -100,6 +116,10 @@ class Scene:
     #: (f,) bool the faces that block rays (``aobake.groups``: the others are baked but cast
     #: nothing), or None: every face does
     occluding: np.ndarray | None = field(default=None, repr=False)
+    #: triangles that occlude but are not the scene's faces (:class:`ExtraOccluder`: a
+    #: high-to-low bake's low mesh with ``--low-occludes``): never baked, never hit by a
+    #: primary or cage ray, only by the method's rays
+    extra_occluders: tuple = field(default=(), repr=False)
 
     def __post_init__(self):
         """Shapes and index ranges checked, also for a Scene built directly (``make_scene``
