@@ -62,6 +62,9 @@ def make_fields(mesh, seed=0):
         "bent_normal": bent / np.linalg.norm(bent, axis=1, keepdims=True),
         "bent_normal_stderr": 0.1 * rng.random(n),
         "rays": rng.integers(1, 1 << 20, n),
+        "missed": rng.integers(0, 2, n).astype(np.uint8),
+        "back_hit": rng.integers(0, 2, n).astype(np.uint8),
+        "projection_distance": 0.1 * rng.normal(size=n),
     }
     for name in ("ao", "obscurance", "indirect"):
         value, se = rng.random(n), 0.05 * rng.random(n)
@@ -158,6 +161,7 @@ def test_ply_own_parse(tmp_path, mesh):
         ["float", "indirect"], ["float", "indirect_stderr"],
         ["float", "indirect_ci_low"], ["float", "indirect_ci_high"],
         ["int", "rays"],
+        ["int", "missed"], ["int", "back_hit"], ["float", "projection_distance"],
         ["uchar", "red"], ["uchar", "green"], ["uchar", "blue"],
         ["list", "uchar", "int", "vertex_indices"],
     ]  # fmt: skip

@@ -100,3 +100,31 @@ def test_without_the_flag_nothing_occludes_and_the_low_floor_never_does():
 def test_low_occludes_needs_from():
     with pytest.raises(aobake.InputError, match="--low-occludes"):
         aobake.BakeConfig(low_occludes=True)
+
+
+def test_per_vertex_outputs_hold_the_projection(tmp_path):
+    from readers import read_ply
+
+    # the plate's four vertices miss the source (their cage rays run upwards)
+    result = bake(low(lift=0.02), rays=8)
+    projection = result.projection
+    assert (~projection.hit).sum() == 4
+    npz = np.load(aobake.write(result, tmp_path / "ao.npz")[0])
+    vertex, _, _ = read_ply(aobake.write(result, tmp_path / "ao.ply")[0])
+    for stored in (npz, vertex):
+        np.testing.assert_array_equal(stored["missed"], ~projection.hit)
+        np.testing.assert_array_equal(stored["back_hit"], projection.back)
+        distance = np.asarray(stored["projection_distance"], dtype=np.float64)
+        assert np.isfinite(distance).all()
+        np.testing.assert_allclose(distance[projection.hit], projection.distance[projection.hit],
+                                   rtol=1e-7, atol=0)
+        assert (distance[~projection.hit] == 0).all()
+        # the floor grid lies 0.02 above the source: each hit 0.02 below the low surface
+        np.testing.assert_allclose(distance[:25], -0.02, rtol=1e-6)
+    assert npz["missed"].dtype == np.uint8 and npz["projection_distance"].dtype == np.float32
+    # a source inside out: every hit is on a back face, and said so per vertex
+    flipped = make_scene(source().vertices, source().faces[:, ::-1], normals_mode="angle",
+                         fix_normals="off")
+    back = bake_projected(low(), flipped, per="vertices", cage_offset=CAGE, rays=8,
+                          threads=THREADS)
+    assert (back.back_hit[:25] == 1).all() and (back.missed[:25] == 0).all()

@@ -278,7 +278,8 @@ class ProjectedVertexTarget(_Projecting):
             warnings.append(dark)
         normals = per_vertex.normals
         rays = None if estimates.rays is None else estimates.rays[inverse]
-        result = ProjectedBakeResult(low.vertices, low.faces, normals, rays, values,
+        result = ProjectedBakeResult(low.vertices, low.faces, normals, rays,
+                                     {**values, **projection_fields(per_vertex)},
                                      projection=per_vertex, low=low)
         cast = None if estimates.rays is None else int(estimates.rays.astype(np.int64).sum())
         return Finished(result, values, rays, len(low.vertices), cast=cast,
@@ -301,6 +302,16 @@ def bake_projected(low, source, config=None, *, per: str = "texels", cage_offset
     target = targets[per](low, cage_offset=cage_offset, cage=cage, low_occludes=low_occludes)
     return run(_config(config, options), source, target, threads=threads,
                progress=progress, **run_kw)
+
+
+def projection_fields(projection: Projection) -> dict:
+    """The per-vertex outputs' projection fields (``quantities.PROJECTION_FIELDS``): missed
+    (n,) uint8 1 where nothing was projected, back_hit (n,) uint8, projection_distance (n,)
+    float64 the height L - t (scene units), 0 where missed: never NaN or inf."""
+    hit = projection.hit
+    return {"missed": (~hit).astype(np.uint8),
+            "back_hit": (projection.back & hit).astype(np.uint8),
+            "projection_distance": np.where(hit, projection.distance, 0.0)}
 
 
 def occluder_skip(low: Scene, cage: Cage) -> float:
