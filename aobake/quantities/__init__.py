@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from aobake.quantities import ao, bent_normal, indirect, obscurance
+from aobake.quantities import ao, bent_normal, indirect, obscurance, thickness
 from aobake.quantities.base import Field, Quantity, Traced
 
 #: name -> Quantity, in canonical (output) order
 QUANTITIES: dict[str, Quantity] = {
     q.name: q for q in (ao.QUANTITY, obscurance.QUANTITY, bent_normal.QUANTITY,
-                        indirect.QUANTITY)
+                        indirect.QUANTITY, thickness.QUANTITY)
 }
 
 NORMALS = Field("normals", 3, np.float64, ("nx", "ny", "nz"), None, (),
