@@ -96,9 +96,11 @@ class Scene:
     source: str = "<memory>"
     normals_source: str = "angle"
     warnings: list = field(default_factory=list)
-    #: the input's materials (base colour only), kept for lightmap GLBs: a list of
-    #: {"name": str, "base_color_png": bytes | None, "base_color_factor": [r, g, b, a] | None},
-    #: or None when the input has none (or no UVs to map them with)
+    #: the input's materials (base colour and alpha mode only), kept for lightmap GLBs and
+    #: alpha-cutout occluders: a list of {"name": str, "base_color_png": bytes | None,
+    #: "base_color_factor": [r, g, b, a] | None, "alpha_mode": "OPAQUE" | "MASK" | "BLEND",
+    #: "alpha_cutoff": float (glTF's, default 0.5)}, or None when the input has none (or no
+    #: UVs to map them with)
     materials: list | None = None
     #: (f,) int64 index into ``materials`` of each face (None with ``materials``)
     face_material: np.ndarray | None = None
@@ -431,7 +433,8 @@ def _png_bytes(image) -> bytes:
 
 
 def _white(name: str) -> dict:
-    return {"name": name, "base_color_png": None, "base_color_factor": None}
+    return {"name": name, "base_color_png": None, "base_color_factor": None,
+            "alpha_mode": "OPAQUE", "alpha_cutoff": 0.5}
 
 
 def _read_mtl(path: Path, names: list) -> dict:
@@ -496,6 +499,12 @@ def _trimesh_material(mesh, index: int) -> dict:
     if texture is None:
         texture = getattr(material, "image", None)
     factor = getattr(material, "baseColorFactor", None)
+    mode = getattr(material, "alphaMode", None)
+    if isinstance(mode, str) and mode.upper() in ("OPAQUE", "MASK", "BLEND"):
+        out["alpha_mode"] = mode.upper()
+    cutoff = getattr(material, "alphaCutoff", None)
+    if cutoff is not None and math.isfinite(float(cutoff)):
+        out["alpha_cutoff"] = float(cutoff)
     try:
         if texture is not None:
             out["base_color_png"] = _png_bytes(texture)
@@ -517,7 +526,8 @@ def _trimesh_materials(meshes) -> tuple[list, np.ndarray]:
         material = _trimesh_material(mesh, len(materials))
         # By content: trimesh's scene dump may copy one shared material per node.
         factor = material["base_color_factor"]
-        key = (material["name"], material["base_color_png"], tuple(factor) if factor else None)
+        key = (material["name"], material["base_color_png"], tuple(factor) if factor else None,
+               material["alpha_mode"], material["alpha_cutoff"])
         if key not in index:
             index[key] = len(materials)
             materials.append(material)

@@ -5,7 +5,7 @@ Not (yet) part of ``BakeConfig``: a record of its own, made and checked like the
 (``aobake.options``), which the command line turns into a target and a selection:
 
     aobake LOW.obj --from HIGH.obj --out ao.exr [--cage-offset D | --cage CAGE.obj]
-           [--low-occludes] [--exclude NAME ...] [--receive-only NAME ...] [--occluder-only NAME ...]
+           [--low-occludes] [--alpha-cutout] [--exclude NAME ...] [--receive-only NAME ...] [--occluder-only NAME ...]
 
 With ``--from`` the positional mesh is the low mesh (where the values are stored: its UVs
 for an image, its vertices for .ply/.npz/.glb) and ``--from`` the source, the pipeline's
@@ -59,6 +59,10 @@ class StudioOptions:
         False, "flag", "With --from: MESH (the low mesh) occludes too, beside the source: its "
         "front faces beyond twice the cage's reach from each point (docs/studio.md).",
         section="studio")
+    alpha_cutout: bool = setting(
+        False, "flag", "Alpha-tested occluders: faces whose glTF material has alphaMode MASK "
+        "let rays through where their base colour's alpha (texture x factor) is below "
+        "alphaCutoff (docs/studio.md).", section="studio")
     exclude: tuple = setting(
         (), "parsed", "Faces whose object/group/node/mesh/material name matches this glob "
         "('material:glass*' for one kind) neither occlude nor are baked (repeatable).",
