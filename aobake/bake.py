@@ -22,6 +22,7 @@ from typing import Callable
 from aobake import _native, groups
 from aobake import occluders as occluder_stage
 from aobake import report as reports
+from aobake.backends.cutout import cutout_faces
 from aobake.config import BakeConfig
 from aobake.errors import InputError
 from aobake.executors import EXECUTORS, Job
@@ -102,6 +103,16 @@ def run(
                              f"--method {method} builds from every face of the scene")
         applied = groups.apply(scene, selection)
         scene, target = applied.scene, groups.GroupedTarget(target, applied)
+    if config.alpha_cutout:
+        if not METHODS[method].casts_rays:
+            raise InputError(f"--alpha-cutout needs rays that pass cut-out texels; --method "
+                             f"{method} builds from every face of the scene")
+        if cutout_faces(scene) is None:
+            warnings.append(f"{scene.source}: --alpha-cutout: no material has alphaMode MASK "
+                            "(with UVs): nothing is cut out")
+    extend = getattr(getattr(target, "inner", target), "extend_scene", None)
+    if extend is not None:  # occluders beside the scene's faces (a high-to-low low mesh)
+        scene = extend(scene, config, timings)
     occluder_stage.check(scene)  # its errors first, not after the target's work
     rays_per_point = target.rays_per_point(config)
     compiled = _native.kernels() is not None  # decided once, on this thread

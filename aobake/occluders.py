@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from aobake.backends import BACKENDS
+from aobake.backends.cutout import MAX_LAYERS, CutoutOccluder, cutout_faces
+from aobake.backends.extra import FrontBeyond
 from aobake.backends.plane import PlaneOccluder
 from aobake.backends.union import Union
 from aobake.constants import AXES, OFFSET_ULPS
@@ -35,7 +37,10 @@ class Occluders:
     backend : the triangle backend (``BACKENDS[config.backend]``), union : backend plus
     ground plane (``Union``), backend_name : str, ground : {"axis", "height"} | None,
     faces : (k,) int64 the scene face of each of the backend's triangles when only some
-    faces occlude (``Scene.occluding``), or None: the backend holds every face, in order.
+    faces occlude (``Scene.occluding``), or None: the backend holds every face, in order;
+    extras : the report's record of ``Scene.extra_occluders`` (members of ``union`` only:
+    primary and cage rays never see them); cutout : the ``CutoutOccluder`` of the
+    alpha-tested faces (``--alpha-cutout``: then not in ``backend``), or None.
     """
 
     center: np.ndarray
@@ -47,6 +52,8 @@ class Occluders:
     backend_name: str
     ground: dict | None
     faces: np.ndarray | None = None
+    extras: tuple = ()
+    cutout: object = None
 
     def to_local(self, points: np.ndarray) -> np.ndarray:
         """(n, 3) float64 scene units -> (n, 3) float64 local units."""
@@ -67,6 +74,11 @@ class Occluders:
         prim = prim.astype(np.int64)
         if self.faces is not None:  # the backend's triangles are a subset: scene indices
             prim = np.where(prim >= 0, self.faces[np.maximum(prim, 0)], -1)
+        if self.cutout is not None:  # the first opaque texel of the alpha-tested faces
+            tc, pc = self.cutout.intersect(origins, directions, limit)
+            nearer = (pc >= 0) & (tc < t)
+            t = np.where(nearer, tc, t).astype(np.float32)
+            prim = np.where(nearer, self.cutout.scene_faces[np.maximum(pc, 0)], prim)
         ground = np.zeros(len(t), dtype=bool)
         if self.ground is not None:
             plane = self.union.occluders[-1]
@@ -96,6 +108,14 @@ class Occluders:
             params["ground_plane"] = dict(self.ground)
         if self.faces is not None:
             params["occluding_faces"] = int(len(self.faces))
+        if self.extras:
+            params["extra_occluders"] = [dict(extra) for extra in self.extras]
+        if self.cutout is not None:
+            params["alpha_cutout"] = {
+                "faces": int(len(self.cutout.scene_faces)),
+                "rule": "glTF alphaMode MASK: a hit passes where alpha < alphaCutoff; alpha = "
+                        "baseColorTexture alpha (bilinear, repeat) x baseColorFactor alpha",
+                "max_layers": MAX_LAYERS}
         return params
 
 
@@ -146,11 +166,45 @@ def build(scene, config) -> Occluders:
     unused[faces.ravel()] = False
     local[unused] = 0.0
     normals = scene.face_normals if subset is None else scene.face_normals[subset]
+    cut = cutout_faces(scene) if getattr(config, "alpha_cutout", False) else None
+    cutout = None
+    if cut is not None:  # the alpha-tested faces in a member of their own
+        index = np.arange(len(scene.faces)) if subset is None else subset
+        keep, cut_here = index[~cut[index]], index[cut[index]]
+        if len(cut_here):
+            uv = scene.uv[scene.faces_uv[cut_here]]
+            cutout = CutoutOccluder(
+                BACKENDS[config.backend](local, scene.faces[cut_here],
+                                         scene.face_normals[cut_here], step),
+                local, scene.faces[cut_here], scene.face_normals[cut_here], uv,
+                scene.face_material[cut_here], scene.materials, step, cut_here)
+            subset = keep
+            if len(keep):
+                faces, normals = scene.faces[keep], scene.face_normals[keep]
+            else:  # every face is cut out: the main backend holds one degenerate triangle
+                faces, normals = np.zeros((1, 3), dtype=np.int64), np.zeros((1, 3))
+                subset = np.full(1, -1, dtype=np.int64)
     backend = BACKENDS[config.backend](local, faces, normals, step)
-    members, ground = [backend], None
+    members, ground, extras = [backend], None, []
+    if cutout is not None:
+        members.append(cutout)
+    for extra in scene.extra_occluders:  # before the ground plane: ``nearest`` takes it last
+        faces_extra = np.asarray(extra.faces, dtype=np.int64)
+        vertices_extra = np.asarray(extra.vertices, dtype=np.float64)
+        corners = vertices_extra[faces_extra]
+        cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        length = np.linalg.norm(cross, axis=1)
+        extra_normals = np.divide(cross, length[:, None], out=np.zeros_like(cross),
+                                  where=length[:, None] > 0)
+        member = BACKENDS[config.backend]((vertices_extra - center) * scale, faces_extra,
+                                          extra_normals, step)
+        members.append(FrontBeyond(member, extra.skip * scale))
+        extras.append({"name": extra.name, "faces": int(len(faces_extra)),
+                       "skip": float(extra.skip),
+                       "rule": "front faces only, beyond skip from the ray's origin"})
     if config.ground_plane:
         axis = AXES.index(config.up_axis)
         ground = {"axis": config.up_axis, "height": float(lo[axis])}
         members.append(PlaneOccluder(axis, (ground["height"] - center[axis]) * scale))
     return Occluders(center, scale, step, scene.diagonal, backend, Union(members),
-                     config.backend, ground, subset)
+                     config.backend, ground, subset, tuple(extras), cutout)

@@ -46,10 +46,10 @@ class RayGenerator:
     """Makes the rays of chunks of points for one sampler, weighting and seed."""
 
     def __init__(self, samples: SampleSet, weighting: str, seed: int, compiled: bool | None = None,
-                 stage: int = 0):
+                 stage: int = 0, key: int | None = None):
         """``compiled``: use the compiled kernel (default: when built, not forced off and the
         sampler and weighting have a kernel case); ``stage``: the key stream
-        (``samplers.point_key``)."""
+        (``samplers.point_key``); ``key``: another stream's key instead (the inward rays')."""
         has_case = samples.kernel is not None and weighting in _WEIGHTING_CODES
         self._kernels = _native.kernels() if compiled in (None, True) and has_case else None
         if compiled and self._kernels is None:
@@ -57,7 +57,7 @@ class RayGenerator:
         #: True when the compiled kernel builds the rays (recorded in reports)
         self.compiled = self._kernels is not None
         self.samples, self.weighting, self.seed = samples, weighting, seed
-        self._key = point_key(seed, stage)
+        self._key = point_key(seed, stage) if key is None else key
 
     def rays(self, origins: np.ndarray, normals: np.ndarray, point_ids: np.ndarray,
              j0: int = 0, count: int | None = None) -> Rays:

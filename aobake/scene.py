@@ -58,6 +58,22 @@ QUANTISED_FRACTION = 1e-3
 
 
 @dataclass(frozen=True)
+class ExtraOccluder:
+    """Triangles that block a bake's rays beside the scene's own faces.
+
+    name : what they are (the report's), vertices : (v, 3) float64 scene units, faces :
+    (f, 3) int64, skip : float scene units: a hit counts only beyond this distance from the
+    ray's origin, and only on a front face (the ray travels against the face's normal), so
+    a surface the baked points lie on or just under does not shadow them (docs/studio.md).
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    skip: float = 0.0
+
+
+@dataclass(frozen=True)
 class Scene:
     """One triangle scene in float64, as baked.
 
@@ -80,10 +96,12 @@ class Scene:
     source: str = "<memory>"
     normals_source: str = "angle"
     warnings: list = field(default_factory=list)
-    #: the input's materials (base colour only), kept for lightmap GLBs: a list of
-    #: {"name": str, "base_color_png": bytes | None, "base_color_factor": [r, g, b, a] | None,
-    #: "metallic_roughness_png": bytes | None (glTF: G roughness, B metalness; for --orm)},
-    #: or None when the input has none (or no UVs to map them with)
+    #: the input's materials (base colour and alpha mode only), kept for lightmap GLBs and
+    #: alpha-cutout occluders: a list of {"name": str, "base_color_png": bytes | None,
+    #: "base_color_factor": [r, g, b, a] | None, "metallic_roughness_png": bytes | None (glTF:
+    #: G roughness, B metalness; for --orm), "alpha_mode": "OPAQUE" | "MASK" | "BLEND",
+    #: "alpha_cutoff": float (glTF's, default 0.5)}, or None when the input has none (or no
+    #: UVs to map them with)
     materials: list | None = None
     #: (f,) int64 index into ``materials`` of each face (None with ``materials``)
     face_material: np.ndarray | None = None
@@ -107,6 +125,10 @@ class Scene:
     #: with ``uv_set`` > 0: every UV set of the glTF input, {k: (v, 2) float64 per vertex,
     #: OBJ convention} (``uv`` is ``uv_sets[uv_set]``), kept for the lightmap GLB; else None
     uv_sets: dict | None = field(default=None, repr=False)
+    #: triangles that occlude but are not the scene's faces (:class:`ExtraOccluder`: a
+    #: high-to-low bake's low mesh with ``--low-occludes``): never baked, never hit by a
+    #: primary or cage ray, only by the method's rays
+    extra_occluders: tuple = field(default=(), repr=False)
 
     def __post_init__(self):
         """Shapes and index ranges checked, also for a Scene built directly (``make_scene``
@@ -419,7 +441,7 @@ def _png_bytes(image) -> bytes:
 
 def _white(name: str) -> dict:
     return {"name": name, "base_color_png": None, "base_color_factor": None,
-            "metallic_roughness_png": None}
+            "metallic_roughness_png": None, "alpha_mode": "OPAQUE", "alpha_cutoff": 0.5}
 
 
 def _read_mtl(path: Path, names: list) -> dict:
@@ -484,6 +506,16 @@ def _trimesh_material(mesh, index: int) -> dict:
     if texture is None:
         texture = getattr(material, "image", None)
     factor = getattr(material, "baseColorFactor", None)
+    mode = getattr(material, "alphaMode", None)
+    if isinstance(mode, str) and mode.upper() in ("OPAQUE", "MASK", "BLEND"):
+        out["alpha_mode"] = mode.upper()
+    cutoff = getattr(material, "alphaCutoff", None)
+    try:
+        if cutoff is not None and math.isfinite(float(cutoff)):
+            out["alpha_cutoff"] = float(cutoff)
+    except (TypeError, ValueError):  # a hand-edited cutoff that is not a number
+        log.warning("alpha cutoff %r of material %r is not a number: 0.5 kept", cutoff,
+                    out["name"])
     try:
         if texture is not None:
             out["base_color_png"] = _png_bytes(texture)
@@ -509,7 +541,8 @@ def _trimesh_materials(meshes) -> tuple[list, np.ndarray]:
         # By content: trimesh's scene dump may copy one shared material per node.
         factor = material["base_color_factor"]
         key = (material["name"], material["base_color_png"], tuple(factor) if factor else None,
-               material["metallic_roughness_png"])
+               material["metallic_roughness_png"], material["alpha_mode"],
+               material["alpha_cutoff"])
         if key not in index:
             index[key] = len(materials)
             materials.append(material)

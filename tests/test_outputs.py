@@ -62,6 +62,11 @@ def make_fields(mesh, seed=0):
         "bent_normal": bent / np.linalg.norm(bent, axis=1, keepdims=True),
         "bent_normal_stderr": 0.1 * rng.random(n),
         "rays": rng.integers(1, 1 << 20, n),
+        "missed": rng.integers(0, 2, n).astype(np.uint8),
+        "back_hit": rng.integers(0, 2, n).astype(np.uint8),
+        "projection_distance": 0.1 * rng.normal(size=n),
+        "thickness": 2 * rng.random(n),
+        "thickness_stderr": 0.05 * rng.random(n),
     }
     for name in ("ao", "obscurance", "indirect"):
         value, se = rng.random(n), 0.05 * rng.random(n)
@@ -157,7 +162,9 @@ def test_ply_own_parse(tmp_path, mesh):
         ["float", "bent_normal_stderr"],
         ["float", "indirect"], ["float", "indirect_stderr"],
         ["float", "indirect_ci_low"], ["float", "indirect_ci_high"],
+        ["float", "thickness"], ["float", "thickness_stderr"],
         ["int", "rays"],
+        ["int", "missed"], ["int", "back_hit"], ["float", "projection_distance"],
         ["uchar", "red"], ["uchar", "green"], ["uchar", "blue"],
         ["list", "uchar", "int", "vertex_indices"],
     ]  # fmt: skip
@@ -271,7 +278,7 @@ def test_glb_round_trip(tmp_path, mesh):
         "POSITION", "NORMAL", "COLOR_0", "_AO", "_AO_STDERR", "_AO_CI_LOW", "_AO_CI_HIGH",
         "_OBSCURANCE", "_OBSCURANCE_STDERR", "_OBSCURANCE_CI_LOW", "_OBSCURANCE_CI_HIGH",
         "_BENT_NORMAL", "_BENT_NORMAL_STDERR", "_INDIRECT", "_INDIRECT_STDERR",
-        "_INDIRECT_CI_LOW", "_INDIRECT_CI_HIGH", "_RAYS",
+        "_INDIRECT_CI_LOW", "_INDIRECT_CI_HIGH", "_THICKNESS", "_THICKNESS_STDERR", "_RAYS",
     }  # fmt: skip
     assert gltf["scenes"][gltf["scene"]]["nodes"] == [0]
     assert gltf["nodes"][0]["mesh"] == 0

@@ -21,13 +21,28 @@ class Union:
 
     def trace(self, query: str, origins, directions, tmax):
         """(occluded (n,) bool, distance (n,) float32 | None) of ``query`` over all occluders."""
+        if not QUERIES[query]:
+            return self._occluded(query, origins, directions, tmax), None
         results = [getattr(occluder, query)(origins, directions, tmax) for occluder in self.occluders]
-        if QUERIES[query]:
-            distance = results[0]
-            for d in results[1:]:
-                distance = np.minimum(distance, d)
-            return np.isfinite(distance), distance
-        occluded = results[0]
-        for o in results[1:]:
-            occluded = occluded | o
-        return occluded, None
+        distance = results[0]
+        for d in results[1:]:
+            distance = np.minimum(distance, d)
+        return np.isfinite(distance), distance
+
+    def _occluded(self, query, origins, directions, tmax) -> np.ndarray:
+        """(n,) bool any member blocks the ray; a ``selective`` member (a dear one: alpha
+        cutouts) is asked only about the rays the members before it left open."""
+        occluded = None
+        for occluder in self.occluders:
+            if occluded is not None and getattr(occluder, "selective", False):
+                open_rays = np.flatnonzero(~occluded)
+                if len(open_rays):
+                    occluded = occluded.copy()  # a member's own array: never written to
+                    limit = np.asarray(tmax)
+                    limit = limit[open_rays] if limit.ndim else limit
+                    occluded[open_rays] = getattr(occluder, query)(
+                        origins[open_rays], directions[open_rays], limit)
+                continue
+            blocked = getattr(occluder, query)(origins, directions, tmax)
+            occluded = blocked if occluded is None else (occluded | blocked)
+        return occluded

@@ -16,6 +16,9 @@ name                 shape        dtype     meaning
 ``bent_normal``      (n, 3)       float32   mean unoccluded direction
 ``bent_normal_stderr`` (n,)       float32   angular standard error of ``bent_normal`` (radians)
 ``rays``             (n,)         int32     rays cast for each vertex
+``missed``           (n,)         uint8     high-to-low (``--from``): 1 where the vertex's cage ray missed the source
+``back_hit``         (n,)         uint8     high-to-low: 1 where it hit the back of a source face
+``projection_distance`` (n,)      float32   high-to-low: height L - t of the projected point above the low surface (scene units); 0 where missed
 ``metadata``         ()           str       JSON text: conventions and configuration
 ``ray_distances``    (p, r)       float32   --keep-distances: every ray's hit distance (local units: scene units x ``parameters.trace_scale``; ``RAY_MISS`` = -1 on a miss) of the p traced points
 ``ray_point``        (n,)         int32     --keep-distances: row of ``ray_distances`` of each vertex

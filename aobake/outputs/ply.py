@@ -15,6 +15,9 @@ Layout (properties appear only for the fields that were computed, in this order)
     property float bent_normal_x (and _y, _z)          if bent_normal
     property float bent_normal_stderr                  if bent_normal (radians)
     property int rays                                  if rays
+    property int missed                                high-to-low (--from): 1 = cage ray missed
+    property int back_hit                              high-to-low: 1 = hit a back face
+    property float projection_distance                 high-to-low: height above the low mesh, 0 if missed
     property uchar red           (and green, blue)     always
     element face f
     property list uchar int vertex_indices

@@ -86,13 +86,15 @@ def _names(names) -> str:
 
 def _npz_contents() -> str:
     return (f"{_names(['positions', 'faces', *FIELDS])} (as computed; `rays` int32, "
-            "estimates float32), `metadata` (JSON)")
+            "estimates float32; with `--from` the projection: `missed`, `back_hit` uint8, "
+            "`projection_distance` float32, 0 where missed), `metadata` (JSON)")
 
 
 def _ply_contents() -> str:
     props = [p for f in FIELDS.values() for p in f.ply]
-    return (f"the mesh (positions float64) with properties {_names(props)} (float32; `rays` "
-            "int32) and 8-bit colours `round(255 * ao)`")
+    return (f"the mesh (positions float64) with properties {_names(props)} (float32; `rays`, "
+            "`missed`, `back_hit` int32; the last three with `--from`) and 8-bit colours "
+            "`round(255 * ao)`")
 
 
 def _glb_contents() -> str:

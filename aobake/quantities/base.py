@@ -49,7 +49,10 @@ class Traced:
     confidence : the two-sided level of the intervals (0.95),
     max_distance : the max distance in scene units (0: every ray misses by definition),
     path : (k, R, m) float64 each ray's path sample (``aobake.paths``: albedo^k when it
-    escapes after k bounces, else 0) | None (when no quantity needs paths), albedo : rho.
+    escapes after k bounces, else 0) | None (when no quantity needs paths), albedo : rho,
+    inward : (k, R, m) float64 the inward rays' distances from the point to the first
+    surface behind it, scene units, a miss counted as ``cap`` | None (when no quantity
+    needs inward rays: ``quantities.thickness``), cap : that cap (scene units).
     """
 
     directions: np.ndarray
@@ -63,6 +66,8 @@ class Traced:
     max_distance: float = float("inf")
     path: np.ndarray | None = None
     albedo: float = 0.0
+    inward: np.ndarray | None = None
+    cap: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -85,7 +90,10 @@ class Quantity:
         optionally in tangent space)
     needs_distance : True when it needs closest-hit distances (dearer queries)
     needs_paths : True when it needs each ray's path beyond its first hit (``aobake.paths``)
+    needs_inward : True when it needs rays into the inward hemisphere (about -n) and their
+        distances (``Traced.inward``); its ``no_information`` then takes ``cap=``
     kernels : the compiled stages its estimator uses (for the report)
+    bounds : (low, high) the range of a scalar value (what image steps clip to)
     summary : (value, error) over sampled points -> report dict
     """
 
@@ -100,6 +108,8 @@ class Quantity:
     texel: str = "scalar"
     needs_distance: bool = False
     needs_paths: bool = False
+    needs_inward: bool = False
+    bounds: tuple = (0.0, 1.0)
     kernels: tuple = ()
     summary: Callable | None = field(default=None)
     interval: tuple = ()

@@ -45,6 +45,8 @@ PIECE_RAYS = 1 << 16
 STREAM_POINT = 0x5EED_0004
 #: hash stream of the final stage of a --tolerance bake (independent of its pilot's rays)
 STREAM_FINAL = 0x5EED_0005
+#: hash stream of the inward rays (``-q thickness``), one per stage (STAGE_STRIDE apart)
+STREAM_INWARD = 0x5EED_0007
 #: uint64 salts of the two sample dimensions (u0: elevation, u1: azimuth)
 #: the distance between the streams of successive --tolerance stages
 STAGE_STRIDE = 0x1_0000
@@ -108,6 +110,12 @@ def point_key(seed: int, stage: int = 0) -> int:
     # stage 1 is the final stage; 2, 3, ... the further stages of points it left wider
     # than the tolerance, each from a stream of its own
     return hash_key(seed, STREAM_FINAL + STAGE_STRIDE * (stage - 1))
+
+
+def inward_key(seed: int, stage: int = 0) -> int:
+    """The bake's uint64 key of the per-point stream of inward rays (``-q thickness``) at
+    ``stage`` (as :func:`point_key`'s): independent of the outward rays'."""
+    return hash_key(seed, STREAM_INWARD + STAGE_STRIDE * stage)
 
 
 def replicate_keys(key: int, point_ids: np.ndarray, groups: int) -> np.ndarray:

@@ -37,7 +37,7 @@ from aobake import _native
 from aobake.errors import InputError
 from aobake.groups import dark_warning
 from aobake.results import BakeResult, TexelResult
-from aobake.scene import Scene, load_scene
+from aobake.scene import ExtraOccluder, Scene, load_scene
 from aobake.targets.base import Finished, SamplePoints
 from aobake.targets.projected_cage import (Cage, Projection, mesh_cage, offset_cage,
                                            parse_offset, project)
@@ -83,17 +83,47 @@ class ProjectedBakeResult(BakeResult):
 class _Projecting:
     """What both targets share: the low mesh, the cage, the projection's report."""
 
-    def __init__(self, low, *, cage_offset=None, cage=None):
+    def __init__(self, low, *, cage_offset=None, cage=None, low_occludes=False):
         if cage is not None and cage_offset is not None:
             raise InputError("give a cage offset or a cage mesh, not both")
         self.low_source = low
         self.cage_source = cage
         self.cage_offset = None if cage is not None else parse_offset(
             DEFAULT_CAGE_OFFSET if cage_offset is None else cage_offset)
+        self.low_occludes = bool(low_occludes)
         self.receivers = None  # set by aobake.groups for the faces that may receive
+        self._loaded = None  # (low, cage, seconds) when extend_scene loaded them first
+
+    def _load_both(self, config, warnings) -> tuple[Scene, Cage]:
+        low = load_scene(self.low_source, config.normals, config.fix_normals)
+        if self.cage_source is None:
+            cage = offset_cage(low, self.cage_offset)
+        else:  # the user's winding is the cage's: no repair may renumber its corners
+            cage = mesh_cage(low, load_scene(self.cage_source, "angle", "off"), warnings)
+        return low, cage
+
+    def extend_scene(self, scene, config, timings) -> Scene:
+        """The pipeline's scene with the low mesh among its occluders when
+        ``low_occludes`` (``aobake.backends.extra``: front faces only, beyond
+        :func:`occluder_skip` of each ray's origin); else ``scene`` itself."""
+        if not self.low_occludes:
+            return scene
+        clock = time.perf_counter()
+        pending: list = []
+        low, cage = self._load_both(config, pending)
+        self._loaded = (low, cage, time.perf_counter() - clock, pending)
+        extra = ExtraOccluder(f"low mesh {low.source}", low.vertices, low.faces,
+                              occluder_skip(low, cage))
+        return replace(scene, extra_occluders=(*scene.extra_occluders, extra))
 
     def _load(self, config, timings, warnings, phase) -> tuple[Scene, Cage]:
         phase("loading")
+        if self._loaded is not None:
+            low, cage, seconds, pending = self._loaded
+            warnings.extend(pending)
+            warnings.extend(low.warnings)
+            timings["load_low_s"] = seconds
+            return low, cage
         clock = time.perf_counter()
         low = load_scene(self.low_source, config.normals, config.fix_normals,
                          config.uv_set if self.name == "projected_texels" else 0)
@@ -249,7 +279,8 @@ class ProjectedVertexTarget(_Projecting):
             warnings.append(dark)
         normals = per_vertex.normals
         rays = None if estimates.rays is None else estimates.rays[inverse]
-        result = ProjectedBakeResult(low.vertices, low.faces, normals, rays, values,
+        result = ProjectedBakeResult(low.vertices, low.faces, normals, rays,
+                                     {**values, **projection_fields(per_vertex)},
                                      projection=per_vertex, low=low)
         cast = None if estimates.rays is None else int(estimates.rays.astype(np.int64).sum())
         return Finished(result, values, rays, len(low.vertices), cast=cast,
@@ -257,10 +288,11 @@ class ProjectedVertexTarget(_Projecting):
 
 
 def bake_projected(low, source, config=None, *, per: str = "texels", cage_offset=None,
-                   cage=None, threads: int | None = None, progress=None, **options):
+                   cage=None, low_occludes: bool = False, threads: int | None = None, progress=None, **options):
     """Bake the AO of ``source`` (the high-poly mesh: a path, trimesh mesh or Scene) onto
     ``low``'s UVs (``per="texels"``) or vertices (``per="vertices"``) through a cage
-    (``cage_offset`` or ``cage``, see :class:`ProjectedTexelTarget`).  ``options`` are
+    (``cage_offset`` or ``cage``, see :class:`ProjectedTexelTarget`); ``low_occludes``: the
+    low mesh occludes too.  ``options`` are
     BakeConfig fields and ``aobake.bake.run``'s keywords (method, executor, ...)."""
     from aobake.bake import _config, _split, run
 
@@ -268,9 +300,30 @@ def bake_projected(low, source, config=None, *, per: str = "texels", cage_offset
     if per not in targets:
         raise InputError(f"per must be one of {sorted(targets)}, got {per!r}")
     options, run_kw = _split(options)
-    target = targets[per](low, cage_offset=cage_offset, cage=cage)
+    target = targets[per](low, cage_offset=cage_offset, cage=cage, low_occludes=low_occludes)
     return run(_config(config, options), source, target, threads=threads,
                progress=progress, **run_kw)
+
+
+def projection_fields(projection: Projection) -> dict:
+    """The per-vertex outputs' projection fields (``quantities.PROJECTION_FIELDS``): missed
+    (n,) uint8 1 where nothing was projected, back_hit (n,) uint8, projection_distance (n,)
+    float64 the height L - t (scene units), 0 where missed: never NaN or inf."""
+    hit = projection.hit
+    return {"missed": (~hit).astype(np.uint8),
+            "back_hit": (projection.back & hit).astype(np.uint8),
+            "projection_distance": np.where(hit, projection.distance, 0.0)}
+
+
+def occluder_skip(low: Scene, cage: Cage) -> float:
+    """The distance (scene units) within which the low mesh does not occlude a ray of its own
+    bake (``--low-occludes``): the longest cage ray, 2 L, L the largest distance between a
+    used low vertex and its cage vertex.  A projected point lies within L of the low surface
+    along its ray (its height, in [-L, L]): a ray of its bake that dips below the low
+    surface's tangent plane (where the source's normal differs from the low mesh's) meets
+    that surface within 2 L when it dips by 30 degrees or more."""
+    gap = np.linalg.norm(cage.positions[low.used] - low.vertices[low.used], axis=1)
+    return 2.0 * float(gap.max()) if len(gap) else 0.0
 
 
 def _sizes(scene, projection: Projection) -> np.ndarray:

@@ -5,7 +5,7 @@ Not (yet) part of ``BakeConfig``: a record of its own, made and checked like the
 (``aobake.options``), which the command line turns into a target and a selection:
 
     aobake LOW.obj --from HIGH.obj --out ao.exr [--cage-offset D | --cage CAGE.obj]
-           [--exclude NAME ...] [--receive-only NAME ...] [--occluder-only NAME ...]
+           [--low-occludes] [--alpha-cutout] [--exclude NAME ...] [--receive-only NAME ...] [--occluder-only NAME ...]
 
 With ``--from`` the positional mesh is the low mesh (where the values are stored: its UVs
 for an image, its vertices for .ply/.npz/.glb) and ``--from`` the source, the pipeline's
@@ -55,6 +55,14 @@ class StudioOptions:
         None, "parsed", "With --from: a cage mesh with MESH's topology (same vertices and "
         "triangles) instead of --cage-offset.", section="studio", optional=True, parse=_path,
         show_default=False)
+    low_occludes: bool = setting(
+        False, "flag", "With --from: MESH (the low mesh) occludes too, beside the source: its "
+        "front faces beyond twice the cage's reach from each point (docs/studio.md).",
+        section="studio")
+    alpha_cutout: bool = setting(
+        False, "flag", "Alpha-tested occluders: faces whose glTF material has alphaMode MASK "
+        "let rays through where their base colour's alpha (texture x factor) is below "
+        "alphaCutoff (docs/studio.md).", section="studio")
     exclude: tuple = setting(
         (), "parsed", "Faces whose object/group/node/mesh/material name matches this glob "
         "('material:glass*' for one kind) neither occlude nor are baked (repeatable).",
@@ -78,6 +86,9 @@ class StudioOptions:
         if self.source is None and (self.cage is not None or self.cage_offset is not None):
             raise InputError("--cage-offset and --cage shape the projection of --from: give "
                              "--from HIGH")
+        if self.source is None and self.low_occludes:
+            raise InputError("--low-occludes adds the low mesh of --from to the occluders: "
+                             "give --from HIGH")
 
     def target(self, per: str, low):
         """The high-to-low target storing values per ``per`` ("texels" | "vertices") of the
@@ -87,7 +98,8 @@ class StudioOptions:
         from aobake.targets.projected import ProjectedTexelTarget, ProjectedVertexTarget
 
         kind = {"texels": ProjectedTexelTarget, "vertices": ProjectedVertexTarget}[per]
-        return kind(low, cage_offset=self.cage_offset, cage=self.cage)
+        return kind(low, cage_offset=self.cage_offset, cage=self.cage,
+                    low_occludes=self.low_occludes)
 
     def selection(self):
         """The ``aobake.groups.Selection`` of the group patterns (falsy when none)."""

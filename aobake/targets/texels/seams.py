@@ -611,13 +611,15 @@ class SeamChannel:
     error: str
     direction: bool = False
     counted: bool = True
+    #: the range an adjusted scalar is clipped to (the quantity's: thickness is unbounded)
+    bounds: tuple = (0.0, 1.0)
 
     @classmethod
     def of(cls, quantity) -> "SeamChannel":
         """The texel channels of a Quantity."""
         direction = quantity.texel == "direction"
         values = tuple(quantity.value.exr) if direction else (quantity.value.exr[0],)
-        return cls(values, quantity.error.exr[0], direction)
+        return cls(values, quantity.error.exr[0], direction, bounds=quantity.bounds)
 
 
 @dataclass(frozen=True)
@@ -700,7 +702,7 @@ def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
     prepared : ``prepare``'s result for this mesh, used when made for the same covered
     texels and padding (else the system is made here), threads : the solve's (at most one
     per THREAD_UNKNOWNS unknowns; the same bits for any number).
-    Adjusted AO and obscurance are clipped to [0, 1].  Returns None when there is nothing to
+    Adjusted scalars are clipped to their quantity's range (AO and obscurance [0, 1]).  Returns None when there is nothing to
     erase.
     """
     covered = np.asarray(covered, dtype=bool)
@@ -734,7 +736,7 @@ def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
             length = np.linalg.norm(x, axis=1, keepdims=True)
             x = np.divide(x, length, out=np.zeros_like(x), where=length > 0)
         else:
-            x = np.clip(x, 0.0, 1.0)
+            x = np.clip(x, *channel.bounds)
         for i, name in enumerate(names):
             images[name][rows, cols] = x[:, i]
         if not channel.counted:

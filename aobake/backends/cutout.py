@@ -1,0 +1,173 @@
+"""Alpha-cutout occluders (``--alpha-cutout``): a ray passes through cut-out texels.
+
+A face whose glTF material has ``alphaMode`` MASK occludes only where its alpha is at least
+the material's ``alphaCutoff`` (glTF's default 0.5); elsewhere a ray goes on.  The alpha at a
+hit is the base-colour texture's alpha at the hit's UV times the base-colour factor's alpha
+(glTF's definition; COLOR_0's alpha is not read), the texture sampled **bilinearly** on its
+full-resolution level with **repeat** wrapping (glTF's default sampler; a
+sampler's NEAREST or clamp modes are not read), texel centres at (i + 0.5) / W.
+
+Embree (through embreex) has no filter callbacks, so the cutout faces get their own scene:
+each query casts closest-hit rays at them, looks the alpha up at each hit (barycentrics of the
+hit point recomputed in float64 from the triangle, so any backend serves), and recasts only the
+rays that hit a cut-out texel, from just past the hit (``step``, the back-face step), up to
+:data:`MAX_LAYERS` times (a ray still crossing cut-out texels then counts as blocked there, as
+``--backfaces ignore`` does).  Every other face stays in the main backend at full speed; the
+union (``aobake.backends.union``) asks this member only about rays the others left open.
+"""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+
+#: cut-out layers a ray crosses before it counts as blocked where it is
+MAX_LAYERS = 64
+
+
+def decode_alpha(png: bytes | None) -> np.ndarray | None:
+    """(H, W) float32 alpha in [0, 1] of PNG/JPEG bytes (row 0 = the image's top), or None."""
+    if png is None:
+        return None
+    from PIL import Image
+
+    with Image.open(io.BytesIO(png)) as image:
+        rgba = np.asarray(image.convert("RGBA"))
+    return (rgba[..., 3].astype(np.float32) / np.float32(255.0))
+
+
+def bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """(n,) float64 bilinear lookups of ``image`` (H, W) at ``uv`` (n, 2) float64 (OBJ
+    convention: v = 0 at the image's bottom), repeat wrapping, texel centres at
+    ((i + 0.5) / W, 1 - (j + 0.5) / H)."""
+    height, width = image.shape
+    x = uv[:, 0] * width - 0.5
+    y = (1.0 - uv[:, 1]) * height - 0.5
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = x - x0, y - y0
+    x0 = np.mod(x0.astype(np.int64), width)
+    y0 = np.mod(y0.astype(np.int64), height)
+    x1, y1 = (x0 + 1) % width, (y0 + 1) % height
+    a = image.astype(np.float64)
+    return ((1 - fx) * (1 - fy) * a[y0, x0] + fx * (1 - fy) * a[y0, x1]
+            + (1 - fx) * fy * a[y1, x0] + fx * fy * a[y1, x1])
+
+
+def cutout_faces(scene) -> np.ndarray | None:
+    """(f,) bool the faces of ``scene`` whose material is alpha-tested (MASK), or None when
+    none is (or the scene has no materials: they need UVs)."""
+    if scene.materials is None or scene.face_material is None:
+        return None
+    masked = np.array([m.get("alpha_mode") == "MASK" for m in scene.materials], dtype=bool)
+    cut = masked[scene.face_material]
+    return cut if cut.any() else None
+
+
+class CutoutOccluder:
+    """The alpha-tested faces of a scene in their own backend.
+
+    backend : a ``TriangleBackend`` of those faces (local frame), vertices : (v, 3) float64
+    local, faces : (k, 3) int64, face_normals : (k, 3) float64, uv : (k, 3, 2) float64 each
+    corner's UV, material : (k,) int64 index into ``materials`` (the scene's dicts), step :
+    float local units stepped past a cut-out hit, scene_faces : (k,) int64 each face's
+    index in the scene.  Queries as ``aobake.backends.base`` (front ones: a back-facing hit
+    passes too); ``intersect`` -> (t, prim) of the first opaque hit, prim in 0..k-1.
+    """
+
+    name = "alpha_cutout"
+    #: the union may hand it only the rays the members before it left open (boolean queries)
+    selective = True
+
+    def __init__(self, backend, vertices, faces, face_normals, uv, material, materials,
+                 step, scene_faces):
+        self.backend = backend
+        self.corners = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]  # (k, 3, 3)
+        self.normals = np.asarray(face_normals, dtype=np.float64)
+        self.uv = np.asarray(uv, dtype=np.float64)
+        self.material = np.asarray(material, dtype=np.int64)
+        self.step = np.float32(step)
+        self.scene_faces = np.asarray(scene_faces, dtype=np.int64)
+        used = np.unique(self.material)
+        self.alpha = {int(i): decode_alpha(materials[i].get("base_color_png")) for i in used}
+        self.factor = np.ones(len(materials))
+        self.cutoff = np.full(len(materials), 0.5)
+        for i, m in enumerate(materials):
+            factor = m.get("base_color_factor")
+            if factor is not None:
+                self.factor[i] = float(factor[3])
+            self.cutoff[i] = float(m.get("alpha_cutoff", 0.5))
+
+    def alpha_at(self, prim: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """(n,) float64 the alpha at ``points`` (n, 3) float64 local on faces ``prim`` (n,)."""
+        c = self.corners[prim]
+        e1, e2, q = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0], points - c[:, 0]
+        d11, d12, d22 = (np.einsum("ij,ij->i", a, b) for a, b in ((e1, e1), (e1, e2), (e2, e2)))
+        q1, q2 = np.einsum("ij,ij->i", q, e1), np.einsum("ij,ij->i", q, e2)
+        det = d11 * d22 - d12 * d12
+        safe = np.where(det > 0, det, 1.0)
+        b1 = (d22 * q1 - d12 * q2) / safe
+        b2 = (d11 * q2 - d12 * q1) / safe
+        bary = np.stack([1.0 - b1 - b2, b1, b2], axis=1)
+        uv = np.einsum("ik,ikc->ic", bary, self.uv[prim])
+        material = self.material[prim]
+        alpha = self.factor[material].copy()
+        for index, image in self.alpha.items():
+            if image is None:
+                continue
+            rows = material == index
+            if rows.any():
+                alpha[rows] *= bilinear(image, uv[rows])
+        return alpha
+
+    def march(self, origins, directions, tmax, front: bool = False):
+        """(t (n,) float32 the first opaque hit's distance, inf on a miss; prim (n,) int64
+        its face, -1 on a miss) of local float32 rays, passing cut-out texels (and, with
+        ``front``, back-facing hits)."""
+        n = len(origins)
+        result = np.full(n, np.inf, dtype=np.float32)
+        prim_out = np.full(n, -1, dtype=np.int64)
+        travelled = np.zeros(n, dtype=np.float32)
+        limit = np.broadcast_to(np.asarray(tmax, dtype=np.float32), (n,))
+        org = np.array(origins, dtype=np.float32)
+        directions = np.asarray(directions, dtype=np.float32)
+        active = np.arange(n)
+        for _ in range(MAX_LAYERS):
+            if not len(active):
+                break
+            # a zero (not negative) limit once a ray has stepped to its end: a miss
+            remaining = np.maximum(limit[active] - travelled[active], np.float32(0))
+            t, prim = self.backend.intersect(org[active], directions[active], remaining)
+            hit = prim >= 0
+            idx, t, prim = active[hit], t[hit], prim[hit].astype(np.int64)
+            d = directions[idx].astype(np.float64)
+            points = org[idx].astype(np.float64) + t.astype(np.float64)[:, None] * d
+            solid = self.alpha_at(prim, points) >= self.cutoff[self.material[prim]]
+            if front:
+                solid &= np.einsum("ij,ij->i", self.normals[prim], d) <= 0
+            result[idx[solid]] = travelled[idx[solid]] + t[solid]
+            prim_out[idx[solid]] = prim[solid]
+            through = ~solid
+            advance = t[through] + self.step
+            ahead = idx[through]
+            travelled[ahead] += advance
+            org[ahead] += advance[:, None] * directions[ahead]
+            active = ahead
+        result[active] = travelled[active]  # still crossing cut-out texels: blocked there
+        return result, prim_out
+
+    def distance(self, origins, directions, tmax) -> np.ndarray:
+        return self.march(origins, directions, tmax)[0]
+
+    def occluded(self, origins, directions, tmax) -> np.ndarray:
+        return np.isfinite(self.distance(origins, directions, tmax))
+
+    def front_distance(self, origins, directions, tmax) -> np.ndarray:
+        return self.march(origins, directions, tmax, front=True)[0]
+
+    def front_occluded(self, origins, directions, tmax) -> np.ndarray:
+        return np.isfinite(self.front_distance(origins, directions, tmax))
+
+    def intersect(self, origins, directions, tmax):
+        """(t (n,) float32, prim (n,) int64 -1 on a miss) of the first opaque hit."""
+        return self.march(origins, directions, tmax)

@@ -1,0 +1,231 @@
+"""Alpha-cutout occluders (``--alpha-cutout``): glTF materials with alphaMode MASK let rays
+through where the base colour's alpha is below alphaCutoff.
+
+The scene (a glTF written here, PNG textures embedded): an opaque floor and, at height
+HEIGHT over it, a square plate with a checkerboard alpha texture of 1-texel squares.
+Sampled bilinearly, such a checker's alpha is 1/2 exactly on the texel edges, so at the
+cutoff 1/2 the opaque part is exactly the checker's opaque squares (``test_bilinear_...``).
+
+* with the option, a floor point's AO is 1 - sum of Lambert's form factors of the opaque
+  squares (about half the plate's), within a Bonferroni bound of the reported stderr;
+* without it, the plate occludes fully: AO = 1 - the plate's form factor;
+* a texture opaque in its top half occludes with the plate's half the top row maps to (glTF
+  UVs: v = 0 at the image's top), and a base-colour factor alpha below the cutoff cuts the
+  whole face out;
+* the cut-out bake is bit-identical for threads and executors; primary rays (a view) pass
+  cut-out texels too.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+
+import numpy as np
+import pytest
+
+import aobake
+from aobake.backends.cutout import bilinear
+from analytic import dof_for, polygon_form_factor, polygon_form_factors, z_bound
+
+FWER = 1e-4
+THREADS = 2
+#: the plate: half-width HALF at HEIGHT, a CHECKER x CHECKER texel checkerboard over it
+HALF, HEIGHT, CHECKER = 1.0, 0.5, 32
+RAYS = 4096
+
+
+def png(alpha: np.ndarray) -> bytes:
+    """(H, W) uint8 alpha -> RGBA PNG bytes (white)."""
+    from PIL import Image
+
+    rgba = np.full(alpha.shape + (4,), 255, dtype=np.uint8)
+    rgba[..., 3] = alpha
+    buffer = io.BytesIO()
+    Image.fromarray(rgba, "RGBA").save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def write_gltf(path, parts) -> str:
+    """A .gltf with embedded buffers and images: parts are dicts of vertices (v, 3), faces
+    (f, 3), uv (v, 2) in glTF's convention (v = 0 at the image's top) and material {alphaMode,
+    alphaCutoff (optional), factor, png (optional)}."""
+    blob, views, accessors, meshes, materials, images, textures = (bytearray(), [], [], [], [],
+                                                                   [], [])
+
+    def add(array, target, component, kind):
+        array = np.ascontiguousarray(array)
+        blob.extend(b"\0" * (-len(blob) % 4))
+        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": array.nbytes,
+                      "target": target})
+        blob.extend(array.tobytes())
+        accessor = {"bufferView": len(views) - 1, "componentType": component,
+                    "count": len(array), "type": kind}
+        if kind == "VEC3":
+            accessor.update(min=array.min(0).tolist(), max=array.max(0).tolist())
+        accessors.append(accessor)
+        return len(accessors) - 1
+
+    for i, part in enumerate(parts):
+        primitive = {"attributes": {
+            "POSITION": add(part["vertices"].astype(np.float32), 34962, 5126, "VEC3"),
+            "TEXCOORD_0": add(part["uv"].astype(np.float32), 34962, 5126, "VEC2")},
+            "indices": add(part["faces"].astype(np.uint32).ravel(), 34963, 5125, "SCALAR"),
+            "material": i}
+        given = part["material"]
+        material = {"name": f"material{i}", "alphaMode": given["alphaMode"],
+                    "pbrMetallicRoughness": {"baseColorFactor": given.get("factor",
+                                                                          [1, 1, 1, 1])}}
+        if "alphaCutoff" in given:
+            material["alphaCutoff"] = given["alphaCutoff"]
+        if given.get("png") is not None:
+            images.append({"uri": "data:image/png;base64,"
+                                  + base64.b64encode(given["png"]).decode()})
+            textures.append({"source": len(images) - 1})
+            material["pbrMetallicRoughness"]["baseColorTexture"] = {"index": len(textures) - 1}
+        materials.append(material)
+        meshes.append({"name": f"mesh{i}", "primitives": [primitive]})
+    gltf = {"asset": {"version": "2.0"}, "scene": 0,
+            "scenes": [{"nodes": list(range(len(parts)))}],
+            "nodes": [{"mesh": i, "name": f"node{i}"} for i in range(len(parts))],
+            "meshes": meshes, "materials": materials, "accessors": accessors,
+            "bufferViews": views,
+            "buffers": [{"byteLength": len(blob), "uri": "data:application/octet-stream;base64,"
+                         + base64.b64encode(bytes(blob)).decode()}]}
+    if images:
+        gltf["images"], gltf["textures"] = images, textures
+    with open(path, "w") as handle:
+        json.dump(gltf, handle)
+    return str(path)
+
+
+def square(half, z, down=False):
+    """(vertices, faces, uv) of a square [-half, half]^2 at height z; glTF UVs: u along x,
+    v = 0 at y = +half (the image's top row over the +y edge)."""
+    v = np.array([[-half, -half, z], [half, -half, z], [half, half, z], [-half, half, z]])
+    uv = np.array([[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    return v, faces[:, ::-1] if down else faces, uv
+
+
+def checker() -> np.ndarray:
+    """(CHECKER, CHECKER) uint8 alpha: 255 where row + column is even (row 0 = image top)."""
+    i, j = np.indices((CHECKER, CHECKER))
+    return np.where((i + j) % 2 == 0, 255, 0).astype(np.uint8)
+
+
+def scene_file(tmp_path, alpha=None, factor=(1, 1, 1, 1), cutoff=0.5, name="scene.gltf"):
+    fv, ff, fuv = square(3.0, 0.0)
+    pv, pf, puv = square(HALF, HEIGHT, down=True)
+    plate = {"alphaMode": "MASK", "factor": list(factor)}
+    if cutoff is not None:
+        plate["alphaCutoff"] = cutoff
+    if alpha is not None:
+        plate["png"] = png(alpha)
+    return write_gltf(tmp_path / name, [
+        dict(vertices=fv, faces=ff, uv=fuv, material={"alphaMode": "OPAQUE"}),
+        dict(vertices=pv, faces=pf, uv=puv, material=plate)])
+
+
+def floor_points():
+    g = np.linspace(-0.35, 0.35, 3)
+    x, y = np.meshgrid(g, g + 0.05)
+    points = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    return points, np.tile([0.0, 0.0, 1.0], (len(points), 1))
+
+
+def opaque_squares(alpha: np.ndarray) -> list:
+    """The plate's squares (4 corners each) under opaque texels (row 0 at y = +HALF)."""
+    n = alpha.shape[0]
+    size = 2 * HALF / n
+    out = []
+    for row, col in zip(*np.nonzero(alpha >= 128)):
+        x0, y1 = -HALF + col * size, HALF - row * size
+        out.append(np.array([[x0, y1 - size, HEIGHT], [x0 + size, y1 - size, HEIGHT],
+                             [x0 + size, y1, HEIGHT], [x0, y1, HEIGHT]]))
+    return out
+
+
+def exact_ao(points, normals, polygons) -> np.ndarray:
+    return 1.0 - sum(polygon_form_factors(points, normals, p) for p in polygons)
+
+
+def bake(path, **options):
+    points, normals = floor_points()
+    return aobake.bake_points(path, points, normals, rays=RAYS, threads=THREADS, **options)
+
+
+def within_error(result, exact, tests):
+    k = z_bound(tests, dof_for("sobol", RAYS), FWER)
+    error = np.abs(result.ao - exact)
+    assert (error <= k * result.ao_stderr).all(), (error / result.ao_stderr).max()
+
+
+def test_bilinear_checker_is_the_checker_at_one_half():
+    alpha = checker().astype(np.float64) / 255.0
+    rng = np.random.default_rng(0)
+    uv = rng.random((20000, 2))
+    col = np.floor(uv[:, 0] * CHECKER).astype(int)
+    row = np.floor((1.0 - uv[:, 1]) * CHECKER).astype(int)
+    looked = bilinear(alpha, uv)
+    np.testing.assert_array_equal(looked >= 0.5, alpha[row, col] >= 0.5)
+
+
+def test_a_checker_plate_occludes_its_opaque_squares_exactly(tmp_path):
+    path = scene_file(tmp_path, checker())
+    points, normals = floor_points()
+    result = bake(path, alpha_cutout=True)
+    squares = opaque_squares(checker())
+    exact = exact_ao(points, normals, squares)
+    full = exact_ao(points, normals, [square(HALF, HEIGHT)[0]])
+    # about half the plate's cosine-weighted measure, not the plate's, not nothing
+    np.testing.assert_allclose(1 - exact, (1 - full) / 2, rtol=0.05)
+    within_error(result, exact, 2 * len(points))
+    assert result.report["parameters"]["alpha_cutout"]["faces"] == 2
+    plain = bake(path)
+    within_error(plain, full, 2 * len(points))
+    assert "alpha_cutout" not in plain.report["parameters"]
+
+
+def test_uv_orientation_and_the_factor_alpha(tmp_path):
+    top = np.zeros((8, 8), dtype=np.uint8)
+    top[:4] = 255  # the image's top half: over the plate's +y half
+    points, normals = floor_points()
+    half = np.array([[-HALF, 0.0, HEIGHT], [HALF, 0.0, HEIGHT], [HALF, HALF, HEIGHT],
+                     [-HALF, HALF, HEIGHT]])
+    result = bake(scene_file(tmp_path, top, cutoff=None, name="top.gltf"), alpha_cutout=True)
+    within_error(result, exact_ao(points, normals, [half]), 2 * len(points))
+    # no texture, factor alpha 0.4 < 0.5: the plate is cut out entirely (AO 1 exactly)
+    clear = bake(scene_file(tmp_path, None, factor=(1, 1, 1, 0.4), name="clear.gltf"),
+                 alpha_cutout=True)
+    assert (clear.ao == 1.0).all()
+
+
+def test_bit_identical_for_threads_and_executors(tmp_path):
+    path = scene_file(tmp_path, checker())
+    points, normals = floor_points()
+    one = aobake.bake_points(path, points, normals, rays=256, alpha_cutout=True, threads=1,
+                             quantities=("ao", "obscurance"))
+    for options in ({"threads": 2, "chunk_rays": 300},
+                    {"executor": "processes", "workers": 2, "chunk_points": 4}):
+        other = aobake.bake_points(path, points, normals, rays=256, alpha_cutout=True,
+                                   quantities=("ao", "obscurance"), **options)
+        for name in ("ao", "obscurance", "ao_stderr"):
+            np.testing.assert_array_equal(getattr(other, name), getattr(one, name))
+
+
+def test_primary_rays_pass_cut_out_texels_and_bad_setups_are_said(tmp_path):
+    path = scene_file(tmp_path, checker())
+    view = aobake.bake_view(path, look={"look_from": (0.0, 0.0, 3.0),
+                                        "look_at": (0.0, 0.0, 0.0)},
+                            size=(64, 64), fov=20.0, rays=4, alpha_cutout=True, threads=THREADS)
+    depth = view.channels["depth"][view.covered]  # 3 - 0.5 on the plate, 3 on the floor
+    # the plate covers the view: about half its pixels see the floor through it
+    assert 0.3 < np.mean(depth > 3 - HEIGHT / 2) < 0.7
+    plain = aobake.bake_view(path, look={"look_from": (0.0, 0.0, 3.0),
+                                         "look_at": (0.0, 0.0, 0.0)},
+                             size=(64, 64), fov=20.0, rays=4, threads=THREADS)
+    assert (plain.channels["depth"][plain.covered] < 3 - HEIGHT / 2).all()
+    with pytest.raises(aobake.InputError, match="--alpha-cutout"):
+        aobake.bake_points(path, *floor_points(), rays=4, alpha_cutout=True, method="discs")
