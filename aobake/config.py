@@ -122,6 +122,10 @@ class CommonOptions:
         "embree", "choice", "Tracing backend: embree, or reference (float64 numpy, every ray "
         "against every triangle: slow, for validating on small scenes).",
         choices=tuple(BACKENDS))
+    embree_mode: str = setting(
+        "robust", "choice", "Embree's traversal: robust (watertight: no ray slips between two "
+        "triangles sharing an edge) or fast (Embree's default flags). The report says which "
+        "ran (docs/performance.md).", choices=("robust", "fast"))
 
 
 @dataclass(frozen=True)

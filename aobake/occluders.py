@@ -40,7 +40,8 @@ class Occluders:
     faces occlude (``Scene.occluding``), or None: the backend holds every face, in order;
     extras : the report's record of ``Scene.extra_occluders`` (members of ``union`` only:
     primary and cage rays never see them); cutout : the ``CutoutOccluder`` of the
-    alpha-tested faces (``--alpha-cutout``: then not in ``backend``), or None.
+    alpha-tested faces (``--alpha-cutout``: then not in ``backend``), or None;
+    traversal : ``embree_mode`` (robust | fast) of an Embree backend, None for the reference.
     """
 
     center: np.ndarray
@@ -54,6 +55,7 @@ class Occluders:
     faces: np.ndarray | None = None
     extras: tuple = ()
     cutout: object = None
+    traversal: str | None = None
 
     def to_local(self, points: np.ndarray) -> np.ndarray:
         """(n, 3) float64 scene units -> (n, 3) float64 local units."""
@@ -104,6 +106,8 @@ class Occluders:
         """The report's parameters of the frame and occluders."""
         params = {"backend": self.backend_name, "rebase_center": self.center.tolist(),
                   "trace_scale": self.scale, "diagonal": self.diagonal}
+        if self.traversal is not None:  # which Embree traversal ran (docs/performance.md)
+            params["embree_mode"] = self.traversal
         if self.ground is not None:
             params["ground_plane"] = dict(self.ground)
         if self.faces is not None:
@@ -123,6 +127,14 @@ def check(scene) -> None:
     """InputError for a scene nothing can be traced in (checked before any work)."""
     if not math.isfinite(scene.diagonal) or scene.diagonal <= 0:
         raise InputError(f"{scene.source}: scene has zero extent")
+
+
+def _triangles(config, vertices, faces, face_normals, step):
+    """A triangle backend (``BACKENDS[config.backend]``) of the given local-frame triangles,
+    in the config's ``embree_mode`` (robust or fast traversal; the reference backend is
+    exact in float64 either way)."""
+    return BACKENDS[config.backend](vertices, faces, face_normals, step,
+                                    robust=getattr(config, "embree_mode", "robust") == "robust")
 
 
 def build(scene, config) -> Occluders:
@@ -174,8 +186,8 @@ def build(scene, config) -> Occluders:
         if len(cut_here):
             uv = scene.uv[scene.faces_uv[cut_here]]
             cutout = CutoutOccluder(
-                BACKENDS[config.backend](local, scene.faces[cut_here],
-                                         scene.face_normals[cut_here], step),
+                _triangles(config, local, scene.faces[cut_here],
+                           scene.face_normals[cut_here], step),
                 local, scene.faces[cut_here], scene.face_normals[cut_here], uv,
                 scene.face_material[cut_here], scene.materials, step, cut_here)
             subset = keep
@@ -184,7 +196,7 @@ def build(scene, config) -> Occluders:
             else:  # every face is cut out: the main backend holds one degenerate triangle
                 faces, normals = np.zeros((1, 3), dtype=np.int64), np.zeros((1, 3))
                 subset = np.full(1, -1, dtype=np.int64)
-    backend = BACKENDS[config.backend](local, faces, normals, step)
+    backend = _triangles(config, local, faces, normals, step)
     members, ground, extras = [backend], None, []
     if cutout is not None:
         members.append(cutout)
@@ -196,8 +208,8 @@ def build(scene, config) -> Occluders:
         length = np.linalg.norm(cross, axis=1)
         extra_normals = np.divide(cross, length[:, None], out=np.zeros_like(cross),
                                   where=length[:, None] > 0)
-        member = BACKENDS[config.backend]((vertices_extra - center) * scale, faces_extra,
-                                          extra_normals, step)
+        member = _triangles(config, (vertices_extra - center) * scale, faces_extra,
+                            extra_normals, step)
         members.append(FrontBeyond(member, extra.skip * scale))
         extras.append({"name": extra.name, "faces": int(len(faces_extra)),
                        "skip": float(extra.skip),
@@ -206,5 +218,6 @@ def build(scene, config) -> Occluders:
         axis = AXES.index(config.up_axis)
         ground = {"axis": config.up_axis, "height": float(lo[axis])}
         members.append(PlaneOccluder(axis, (ground["height"] - center[axis]) * scale))
+    traversal = getattr(config, "embree_mode", "robust") if config.backend == "embree" else None
     return Occluders(center, scale, step, scene.diagonal, backend, Union(members),
-                     config.backend, ground, subset, tuple(extras), cutout)
+                     config.backend, ground, subset, tuple(extras), cutout, traversal)

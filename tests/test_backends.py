@@ -182,8 +182,8 @@ class _RecordingReference:
 
     calls: list = []
 
-    def __init__(self, *args):
-        self._backend = ReferenceBackend(*args)
+    def __init__(self, *args, **options):
+        self._backend = ReferenceBackend(*args, **options)
 
     def _recorded(query):
         def method(self, origins, directions, tmax):
@@ -267,3 +267,22 @@ def test_whole_bake_agrees_on_both_backends(backfaces, quantities, monkeypatch):
         assert np.all(gap <= unsure / ref.rays + eps), gap.max()
         gap = np.abs(embree.obscurance_stderr - ref.obscurance_stderr)[sure]
         assert np.all(gap <= 2 * eps), gap.max()
+
+
+def test_embree_mode_is_recorded_and_checked():
+    """--embree-mode: the report says which traversal ran; fast traces the same rays (on a
+    closed sphere both give the same bits: no crack for a ray to slip through)."""
+    import aobake
+    from aobake.errors import InputError
+
+    mesh = trimesh.creation.icosphere(2, 1.0)
+    robust = aobake.bake(mesh, rays=16, seed=1)
+    fast = aobake.bake(mesh, rays=16, seed=1, embree_mode="fast")
+    assert robust.report["parameters"]["embree_mode"] == "robust"
+    assert fast.report["parameters"]["embree_mode"] == "fast"
+    assert fast.report["config"]["embree_mode"] == "fast"
+    assert np.array_equal(robust.ao, fast.ao)
+    reference = aobake.bake(mesh, rays=16, seed=1, backend="reference")
+    assert "embree_mode" not in reference.report["parameters"]
+    with pytest.raises(InputError, match="embree"):
+        aobake.bake(mesh, rays=16, embree_mode="quick")

@@ -1,5 +1,8 @@
 """Embree through embreex: float32, rebased coordinates, one-shot queries (the default backend).
 
+``robust`` (``--embree-mode robust``, the default) builds the scene with Embree's robust
+flag; ``fast`` without it.
+
 The backend owns float32: the tracer hands it the scene already in its local
 frame (rebased on the vertices' median and scaled by a power of two), and
 origins in the same frame.  ``occluded`` is Embree's occlusion
@@ -24,12 +27,15 @@ class EmbreeBackend(TriangleBackend):
 
     name = "embree"
 
-    def __init__(self, vertices, faces, face_normals, step):
+    def __init__(self, vertices, faces, face_normals, step, robust: bool = True):
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
 
         super().__init__(face_normals, step)
-        self._scene = rtcore_scene.EmbreeScene()
+        # robust: Embree's RTC_SCENE_FLAG_ROBUST (watertight traversal: no ray slips between
+        # two triangles sharing an edge); without it traversal is faster (benchmarks/
+        # bench_robust.py measures both and the hits they differ in)
+        self._scene = rtcore_scene.EmbreeScene(robust=bool(robust))
         local = np.asarray(vertices, dtype=np.float64).astype(np.float32)
         TriangleMesh(self._scene, local, np.ascontiguousarray(faces, dtype=np.int32))
         # Commit now, on one thread, rather than lazily inside the first worker's run().

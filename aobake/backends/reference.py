@@ -264,8 +264,8 @@ class ReferenceBackend(TriangleBackend):
 
     name = "reference"
 
-    def __init__(self, vertices, faces, face_normals, step):
-        super().__init__(face_normals, step)
+    def __init__(self, vertices, faces, face_normals, step, robust: bool = True):
+        super().__init__(face_normals, step)  # exact in float64: robust or not, the same
         self._vertices = np.asarray(vertices, dtype=np.float64)
         self._faces = np.asarray(faces, dtype=np.int64)
 
