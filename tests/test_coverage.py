@@ -32,6 +32,7 @@ from scipy import stats
 import aobake
 from aobake.config import OFFSET_ULPS, BakeConfig
 from aobake.samplers import SAMPLERS, sample_set
+from aobake.samplers.base import REPLICATES
 from aobake.targets.texels.raster import rasterize
 from analytic import (ceiling_obscurance, combine, floor_and_ceiling, polygon,
                       polygon_form_factors, quad, up)
@@ -139,7 +140,7 @@ def family_scene(family: str, count: int):
 
 
 @functools.lru_cache(maxsize=None)
-def coverage_data(family: str, sampler: str, rays: int, replicates: int = 8) -> dict:
+def coverage_data(family: str, sampler: str, rays: int, replicates: int = REPLICATES) -> dict:
     """Every (point, seed) pair of a case: ao, stderr, low, high, exact, each (pairs,)
     (cached: the calibration tests read the interior cases again)."""
     pairs = PAIRS[rays]
@@ -188,7 +189,7 @@ def test_interval_coverage_at_least_93_percent(sampler, rays, family):
     assert p >= alpha, f"coverage {k / n:.4f} of {n} (p = {p:.2g} < {alpha:.2g})"
 
 
-FEWER = (2, 4)
+FEWER = (2, 8)  # other replicate counts than the default 4 (tested above)
 FEWER_RAYS = (16, 256)
 
 
@@ -197,10 +198,10 @@ FEWER_RAYS = (16, 256)
 @pytest.mark.parametrize("replicates", FEWER)
 @pytest.mark.parametrize("qmc", ["stratified", "sobol"])
 def test_fewer_replicates_keep_coverage_and_calibration(qmc, replicates, rays, family):
-    """--replicates 2 and 4: the t interval on R - 1 degrees of freedom still covers the
-    exact AO in >= 93% of trials (the same one-sided binomial test), and on interior points
-    the stderr stays RMS-calibrated (the same delta-method interval as at R = 8), though
-    one point's stderr is far less steady."""
+    """--replicates 2 and 8 (the default is 4): the t interval on R - 1 degrees of freedom
+    still covers the exact AO in >= 93% of trials (the same one-sided binomial test), and on
+    interior points the stderr stays RMS-calibrated (the same delta-method interval as at
+    the default), though at 2 one point's stderr is far less steady."""
     data = coverage_data(family, qmc, rays, replicates)
     if family == "elevation":  # no sampler exact by accident: m AO off the integers
         m = sample_set(qmc, rays, replicates).m

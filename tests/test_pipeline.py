@@ -59,7 +59,7 @@ def test_every_field_has_one_name_everywhere():
 
 def test_config_round_trips_through_a_report_with_every_field_changed():
     changed = BakeConfig(quantities=("obscurance", "bent_normal"), rays=33, max_distance="7%",
-                         tau=2.5, seed=9, sampler="random", replicates=4, weighting="uniform", normals="area",
+                         tau=2.5, seed=9, sampler="random", replicates=6, weighting="uniform", normals="area",
                          fix_normals="fix", ground_plane=True, up_axis="z", backfaces="ignore",
                          ray_offset=2e-5,
                          backend="reference", embree_mode="fast", confidence=0.9,

@@ -6,6 +6,7 @@ from scipy import stats
 
 from aobake.rays import RayGenerator
 from aobake.rng import hash_uniform
+from aobake.samplers.base import REPLICATES
 from aobake.samplers import point_key, replicate_keys, sample_set, sobol_2d
 from aobake.samplers.sobol import owen_scramble, reverse_bits
 from aobake.warp import cos_sin_2pi, frames, warp
@@ -33,9 +34,9 @@ def test_sobol_matches_scipy():
     np.testing.assert_array_equal(ours, ref)
 
 
-def _values(sampler, n_rays, ids, seed=1):
+def _values(sampler, n_rays, ids, seed=1, replicates=REPLICATES):
     """(k, R, m, 2) sample values of points ``ids`` and their SampleSet."""
-    s = sample_set(sampler, n_rays)
+    s = sample_set(sampler, n_rays, replicates)
     return s.values(replicate_keys(point_key(seed), np.asarray(ids), s.groups), 0, s.m), s
 
 
@@ -73,7 +74,7 @@ def test_no_sample_value_is_shared_between_points_or_replicates(sampler):
 
 
 def test_stratified_replicate_has_one_sample_per_cell():
-    u, s = _values("stratified", 256, np.arange(10))  # 8 replicates of 32 = 4 x 8 grid
+    u, s = _values("stratified", 256, np.arange(10), replicates=8)  # 8 of 32 = 4 x 8 grid
     nx, ny = s.grid
     assert (nx, ny) == (4, 8)
     cells = (np.floor(u[..., 0] * nx) + nx * np.floor(u[..., 1] * ny)).astype(int)
@@ -84,7 +85,7 @@ def test_stratified_replicate_has_one_sample_per_cell():
 def test_owen_scrambled_sobol_replicate_is_a_net(k):
     """Owen scrambling keeps the (0, 5, 2)-net property in every replicate: every
     2^k x 2^(5-k) elementary box holds exactly one of the 32 samples."""
-    u, _ = _values("sobol", 256, np.arange(10))  # m = 32 = 2^5
+    u, _ = _values("sobol", 256, np.arange(10), replicates=8)  # m = 32 = 2^5
     cols, rows = 2**k, 2 ** (5 - k)
     cells = np.floor(u[..., 0] * cols) + cols * np.floor(u[..., 1] * rows)
     assert np.all(np.sort(cells, axis=-1) == np.arange(32))
@@ -110,9 +111,12 @@ def test_cos_sin_polynomial_is_accurate():
 
 
 def test_rays_rounding_and_replicates():
+    assert REPLICATES == 4  # the default (benchmarks/bench_replicates.py, docs/accuracy.md)
     assert sample_set("random", 100).rays == 100
-    assert sample_set("sobol", 100).rays == 128  # 8 replicates of 16 (a power of two)
-    assert sample_set("stratified", 100).rays == 104  # 8 replicates of 13
+    assert sample_set("sobol", 100).rays == 128  # 4 replicates of 32 (a power of two)
+    assert sample_set("sobol", 100, 8).rays == 128  # 8 replicates of 16
+    assert sample_set("stratified", 100).rays == 100  # 4 replicates of 25 = a 5 x 5 grid
+    assert sample_set("stratified", 100, 8).rays == 104  # 8 replicates of 13
     assert sample_set("sobol", 1).rays == 1
 
 

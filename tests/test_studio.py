@@ -230,14 +230,17 @@ def test_low_map_equals_ao_at_the_projected_points_within_its_error_bars():
 
 
 def test_per_vertex_equals_ao_at_the_projected_vertices():
-    """Each low vertex projected (independent cast) and baked: within 4.5 combined stderr
-    everywhere (FWER over 162 vertices x 10 seeds), z-scores calibrated."""
+    """Each low vertex projected (independent cast) and baked: within the FWER bound of the
+    combined stderr everywhere (162 vertices x 10 seeds), z-scores calibrated.  The bake's
+    stderr has R - 1 degrees of freedom (R replicates) and dominates the reference's (64x
+    the rays), so (value - reference) / combined stderr is Student t with R - 1 dof; it is
+    mapped to a normal score through the t's CDF for the calibration."""
     high, low = meshes()
     cage = low.vertices + CAGE * low.vertex_normals
     hit, _, points, normals = independent_projection(high, low.vertices, cage)
     assert hit.all()
     ref = aobake.bake_points(high, points, normals, rays=16384, seed=77, threads=THREADS)
-    z = []
+    z, dof = [], None
     for seed in range(10):
         res = bake_projected(low, high, per="vertices", cage_offset=CAGE, rays=256, seed=seed,
                              threads=THREADS)
@@ -245,9 +248,16 @@ def test_per_vertex_equals_ao_at_the_projected_vertices():
         assert np.abs(res.projection.points - points).max() < 1e-5
         combined = np.sqrt(res.ao_stderr ** 2 + ref.ao_stderr ** 2)
         z.append((res.ao - ref.ao)[combined > 0] / combined[combined > 0])
-    z = np.concatenate(z)
-    assert np.abs(z).max() < stats.norm.ppf(1 - FWER / (2 * len(z))) + 0.5
-    assert 0.75 < np.mean(z ** 2) < 1.3, np.mean(z ** 2)
+        dof = res.report["parameters"]["replicates"] - 1
+    t = np.concatenate(z)
+    assert np.abs(t).max() < stats.t.ppf(1 - FWER / (2 * len(t)), dof) + 0.5
+    normal = stats.norm.ppf(stats.t.cdf(t, dof))
+    # Never narrower than the spread: mean normal^2 at most 1 plus 4 of its standard errors
+    # (sqrt(2 / n) for chi-square(1) terms).  Wider is honest but costs: randomised-QMC
+    # replicate spreads are conservative on these near-binary integrands (measured 0.73 at
+    # R = 4, 0.79 at R = 8), so up to a stderr 25% too wide is accepted (1 / 1.25^2).
+    assert 1 / 1.25 ** 2 < np.mean(normal ** 2) < 1 + 4 * math.sqrt(2 / len(t)), \
+        np.mean(normal ** 2)
 
 
 def test_bit_identical_for_threads_and_executors():

@@ -31,7 +31,7 @@ from aobake.rng import GOLDEN, dim_salt, hash_key, mix, to_unit
 #: ``--replicates``): more replicates give a steadier stderr (R - 1 degrees of freedom),
 #: fewer a more accurate mean for the rays (one net of R m points beats R nets of m:
 #: bunny, sobol, 128 rays: RMSE 0.0143 at R = 8, 0.0125 at 4, 0.0107 at 2)
-REPLICATES = 8
+REPLICATES = 4
 #: the fewest replicates (a stderr needs at least two) and the most
 MIN_REPLICATES, MAX_REPLICATES = 2, 1024
 
