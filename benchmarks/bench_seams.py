@@ -4,8 +4,8 @@ UV seam disagree, split into a systematic part and a random part, before and aft
     python benchmarks/bench_seams.py [--resolution 1024] [--rays 256] [--seeds 4]
                                      [--threads 2] [--mesh NAME ...] [--kappa K]
 
-Cases: ../shared/meshes/stanford-bunny.obj (no UVs: a new xatlas atlas) and
-../shared/meshes/spot.obj (baked into the UVs it ships).
+Cases (``--meshes``, default ../shared/meshes): stanford-bunny.obj and ogre.obj (no UVs: a
+new xatlas atlas) and spot.obj (baked into the UVs it ships).
 
 Each seed is baked twice, --seams off and erase (the same rays: the seed decides them).
 At the seam points (3-point Gauss-Legendre per piece of every seam edge, so weighted sums
@@ -42,7 +42,7 @@ from aobake.targets.texels.seams import (SeamMesh, bilinear, bilinear_stencil,  
                                          seam_points)
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "meshes"
-CASES = {"stanford-bunny.obj": "always", "spot.obj": "never"}
+CASES = {"stanford-bunny.obj": "always", "spot.obj": "never", "ogre.obj": "always"}
 
 
 def seam_mesh(result) -> SeamMesh:
@@ -120,13 +120,15 @@ def main():
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--mesh", nargs="*", default=list(CASES))
+    parser.add_argument("--meshes", type=Path, default=SHARED,
+                        help="the folder of the meshes (default ../shared/meshes)")
     parser.add_argument("--kappa", type=float, default=None,
                         help="study: the seam weight (default seams.KAPPA)")
     args = parser.parse_args()
     if args.kappa is not None:
         seams.KAPPA = args.kappa
     for name in args.mesh:
-        row = case(SHARED / name, CASES.get(name, "auto"), args)
+        row = case(args.meshes / name, CASES.get(name, "auto"), args)
         print(f"{row['mesh']} ({row['atlas']}, {args.resolution}^2, {args.rays} rays, "
               f"{args.seeds} seeds): {row['seam_edges']} seam edges, "
               f"{row['seam_texels']:.0f} texels of seam, {row['seam_points']} points")
