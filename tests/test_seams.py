@@ -562,11 +562,14 @@ def test_seam_behind_a_zero_area_face_is_found():
     assert seams.degenerate_faces(mesh.positions, mesh.faces).sum() == 1
     ua, ub = seam_edges(mesh)
     collapsed = np.array([0.98, 0.98])
-    assert not np.any(np.all(np.isclose(ua, collapsed), axis=2) | np.all(np.isclose(ub, collapsed), axis=2))
+    assert not np.any(np.all(np.isclose(ua, collapsed), axis=2)
+                      | np.all(np.isclose(ub, collapsed), axis=2))
     _, left, right = hidden
     c_left = 0.5 * (left[0] + left[1])
-    pieces = {(tuple(np.round(x[0], 9)), tuple(np.round(x[1], 9))) for x in np.concatenate([ua, ub])}
-    for piece in ([left[0], c_left], [c_left, left[1]], [right[0], right[1]], [right[1], right[2]]):
+    pieces = {(tuple(np.round(x[0], 9)), tuple(np.round(x[1], 9)))
+              for x in np.concatenate([ua, ub])}
+    for piece in ([left[0], c_left], [c_left, left[1]], [right[0], right[1]],
+                  [right[1], right[2]]):
         ends = tuple(tuple(np.round(p, 9)) for p in piece)
         assert ends in pieces or ends[::-1] in pieces, ends
     points = seam_system(seam_points(mesh, *result.covered.shape[::-1]), result.covered)

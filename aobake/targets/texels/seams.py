@@ -36,7 +36,8 @@ solved by Jacobi-preconditioned conjugate gradients on it (``aobake.sparse.cg``)
 compiled (aobake/_seams.c, aobake/_sparse.c), or in numpy with the same operations in the
 same order (``_assemble_numpy``, ``sparse.cg_numpy``: the same bits).  Bunny 1024^2 on 2 threads:
 the pattern ~0.12 s (on the seam system's thread), the values ~0.16 s, 130 iterations
-~0.3 s (2.6 ms each); applying the operator as the points
+~0.3 s (2.6 ms each; at KAPPA 100: at 2000, with the bounded round, 533 iterations, the
+erasure ~0.6 s); applying the operator as the points
 every iteration (the fill, the points' differences, their sums per group, their scatter and
 the fill's transpose) took ~10 ms an iteration, 1.2-1.5 s in all: four passes of random
 reads against one pass over the matrix, whose row of ~15 columns reads x from a vector that
@@ -93,7 +94,7 @@ DEGENERATE = 1e-7
 #: weight of the seam term: a seam difference of one of its standard errors along one
 #: texel of seam costs KAPPA times moving one texel by one standard error.  Measured at
 #: 1024^2, 256 rays, 2 seeds (benchmarks/bench_seams.py, --kappa; systematic / random rms
-#: of the lookup difference; iterations of the solve):
+#: of the lookup difference; iterations of the solve, its first part to TOLERANCE):
 #:   kappa   ogre (xatlas)          bunny (xatlas)         spot (own UVs)
 #:   100     0.0042 / 0.0019  228   0.0005 / 0.0008  182   0.0002 / 0.0010  185
 #:   1000    0.0020 / 0.0007  685   0.0002 / 0.0003  493   0.0001 / 0.0003  522
@@ -101,9 +102,12 @@ DEGENERATE = 1e-7
 #: (off: 0.097, 0.022, 0.0094 systematic).  The residual is a fixed fraction of the step
 #: the erasure removes (the seam term counts it in its own standard errors), and the
 #: ogre's is the largest (parts through parts: AO from 0 to 1 within a texel of its
-#: seams): 2000 keeps it below 0.002, the issue-21 target, at ~3-4 times 100's iterations
-#: (ogre's solve 0.3 -> 0.8 s).  It moves the mean of the two lookups more (ogre 0.037 ->
-#: 0.050 rms, bunny 0.009 -> 0.010) and lowers their noise further (ogre 0.0155 -> 0.0121).
+#: seams): 2000 keeps it below 0.002, the issue-21 target, at 3-5 times 100's iterations
+#: (with HOLD_TOLERANCE: ogre 126 -> 610, bunny 120 -> 533, spot 132 -> 505; the erasure
+#: 0.3 -> 1.0 s, 0.2 -> 0.6 s, 0.06 -> 0.2 s).  It moves the mean of the two lookups
+#: more (ogre 0.037 -> 0.050 rms, bunny 0.009 -> 0.010) and lowers their noise further
+#: (ogre 0.0155 -> 0.0121).  Untried: a stronger preconditioner than Jacobi, which these
+#: iterations now call for.
 KAPPA = 2000.0
 #: the conjugate gradients stop when the Jacobi-scaled residual is below this in every
 #: unknown (value units); the solution is then within about 1e-5 of the exact one (bunny:
@@ -121,6 +125,11 @@ MAX_ITERATIONS = 2000
 #: solve keeps); seven more settle the set (8332 texels held, then 3457, 1739, ... changed)
 #: and move it by less than 1e-5, each costing about as much as the first.
 MAX_ROUNDS = 1
+#: the unbounded solve that picks the held texels of a bounded one stops at this tolerance
+#: (the bounded solve then meets TOLERANCE): at 1024^2, 256 rays, the iterations fall from
+#: 926 to 610 (ogre), 685 to 533 (bunny), 703 to 505 (spot), the lookups' differences the
+#: same to 1e-5 (1e-4: 715, 543)
+HOLD_TOLERANCE = 1e-3
 #: stderr floor in the weights (value units): a texel exact by construction (stderr 0)
 #: gets a weight of 1e14, i.e. it does not move
 SE_FLOOR = 1e-7
@@ -572,7 +581,11 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
         before.append(s.differences(b))
         bc = np.ascontiguousarray(b[covered])
         rhs = w[covered] * bc
-        xc, it, left = cg(matrix, diag, rhs, bc, tolerance, max_iterations, kernels, threads)
+        # bounded: the unbounded minimum only tells which texels to hold, to a looser
+        # tolerance (``_bounded`` then solves to the full one)
+        xc, it, left = cg(matrix, diag, rhs, bc, tolerance * (1.0 if bounds is None else
+                                                             HOLD_TOLERANCE / TOLERANCE),
+                          max_iterations, kernels, threads)
         if bounds is not None:
             xc, more, left, held = _bounded(matrix, diag, rhs, xc, left, bounds, tolerance,
                                             max_iterations, kernels, threads)
@@ -605,12 +618,14 @@ def _bounded(matrix: Csr, diag, rhs, x, left, bounds, tolerance, max_iterations,
     bound are held at it and the free ones solved again with the held ones as known values
     (their rows and columns replaced by the identity: the matrix stays symmetric positive
     definite and the conjugate gradients leave the held values' bits alone), from where
-    they were: rounds of a primal-dual active set method (Hintermüller, Ito, Kunisch 2002;
-    a held texel whose gradient points inside, A x - rhs < 0 at the lower bound or > 0 at
-    the upper by more than the tolerance in the stopping test's Jacobi-scaled units, is let
-    go), until the set repeats or after MAX_ROUNDS, a free texel still out of range then
-    clipped.  Every step is element-wise or a fixed-order sum: the same bits for any number
-    of threads.  Returns (x, iterations, the last max |r / diag|, texels held).
+    they were (x is the unbounded minimum to HOLD_TOLERANCE; the first round always
+    solves, to the full tolerance).  These are rounds of a primal-dual active set method
+    (Hintermüller, Ito, Kunisch 2002): a held texel whose gradient points inside (A x - rhs
+    < 0 at the lower bound, > 0 at the upper, by more than the tolerance in the stopping
+    test's Jacobi-scaled units) is let go, until the set repeats or after MAX_ROUNDS; a
+    free texel still out of range is then clipped.  Every step is element-wise or a
+    fixed-order sum: the same bits for any number of threads.  Returns (x, iterations, the
+    last max |r / diag|, texels held).
     """
     lower, upper = bounds
     n = len(x)
@@ -620,7 +635,7 @@ def _bounded(matrix: Csr, diag, rhs, x, left, bounds, tolerance, max_iterations,
     on_diag = rows == cols
     held = np.zeros(n, dtype=np.int8)  # -1 at the lower bound, +1 at the upper, 0 free
     iterations = 0
-    for _ in range(MAX_ROUNDS):
+    for round_ in range(max(MAX_ROUNDS, 1)):
         if held.any():  # the gradient, Jacobi-scaled, tells which held texels to let go
             scaled = (_sparse_apply(matrix, x, ranks) - rhs) / diag
             go = ((held < 0) & (scaled < -tolerance)) | ((held > 0) & (scaled > tolerance))
@@ -628,7 +643,7 @@ def _bounded(matrix: Csr, diag, rhs, x, left, bounds, tolerance, max_iterations,
             go = held != 0
         new = np.where(held == 0, np.where(x < lower, -1, np.where(x > upper, 1, 0)),
                        np.where(go, 0, held)).astype(np.int8)
-        if np.array_equal(new, held):
+        if round_ > 0 and np.array_equal(new, held):
             break
         held = new
         free = held == 0
@@ -846,8 +861,8 @@ def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
     prepared : ``prepare``'s result for this mesh, used when made for the same covered
     texels and padding (else the system is made here), threads : the solve's (at most one
     per THREAD_UNKNOWNS unknowns; the same bits for any number).
-    Adjusted AO and obscurance are solved within [0, 1] (``solve``'s bounds).  Returns None when there is nothing to
-    erase.
+    Adjusted AO and obscurance are solved within [0, 1] (``solve``'s bounds).  Returns None
+    when there is nothing to erase.
     """
     covered = np.asarray(covered, dtype=bool)
     height, width = covered.shape
