@@ -662,3 +662,48 @@ def test_bounded_solve_is_the_minimum_within_0_1(torus, monkeypatch):
     e_clip, e_one, e_min = (energy(v[covered]) for v in (clipped, one[:, 0], x[:, 0]))
     assert e_min <= e_one <= e_clip and e_one - e_min < 0.1 * (e_clip - e_min), \
         (e_clip, e_one, e_min)
+
+
+#: issue 21's target for the systematic step across the seams (rms of the lookup difference)
+SEAM_TARGET = 0.002
+
+
+def _systematic(mesh_or_path, seeds, **options):
+    """The seams' systematic step over ``seeds`` bakes (as benchmarks/bench_seams.py): the
+    rms over the seam (weighted by length) of the mean difference of the lookups, raw (an
+    upper bound in expectation: raw^2 = systematic^2 + random^2 / S) and with the seeds'
+    noise taken out."""
+    d = []
+    for seed in seeds:
+        result = bake_texels(mesh_or_path, seams="erase", seed=seed, **options)
+        mesh = seam_mesh(result)
+        points = seam_points(mesh, *result.covered.shape[::-1])
+        ao = result.channels["ao"]
+        d.append(bilinear(ao, points.uv_a, mesh.wrap) - bilinear(ao, points.uv_b, mesh.wrap))
+    d, w = np.array(d), points.weight
+    mean = d.mean(axis=0)
+    rms = lambda v: np.sqrt(np.sum(w * v ** 2) / np.sum(w))  # noqa: E731
+    raw, random = rms(mean), rms(np.sqrt(np.sum((d - mean) ** 2, axis=0) / (len(d) - 1)))
+    return raw, np.sqrt(max(raw ** 2 - random ** 2 / len(d), 0.0))
+
+
+def test_parts_through_parts_meet_the_seam_target(monkeypatch):
+    """The ogre's remaining class (issue 21): a part through another (a sphere half in a
+    box, a new atlas), texels buried (AO 0) a texel from open ones, seams across the
+    intersection.  The systematic step stays below the target, by its raw estimate (an
+    upper bound: measured 0.0008); with the erasure as it was (seam weight 100, clipped
+    after the solve) it is above it, noise taken out (measured 0.0026; unerased 0.048)."""
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    box = trimesh.creation.box(extents=[3, 3, 1.0])
+    box.apply_translation([0, 0, -0.3])
+    scene = trimesh.util.concatenate([sphere, box])
+    options = dict(resolution=128, rays=64, texel_samples=2, padding=2, unwrap="always",
+                   quantities=("ao",))
+    raw, _ = _systematic(scene, range(4), **options)
+    assert raw < SEAM_TARGET, raw
+    monkeypatch.setattr(seams, "KAPPA", 100.0)
+    monkeypatch.setattr(seams, "HOLD_TOLERANCE", seams.TOLERANCE)
+    monkeypatch.setattr(seams, "_bounded", lambda matrix, diag, rhs, x, left, bounds, *rest:
+                        (np.clip(x, *bounds), 0, left, 0))
+    _, before = _systematic(scene, range(4), **options)
+    assert before > SEAM_TARGET, before
