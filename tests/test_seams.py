@@ -3,6 +3,8 @@ the two sides of every UV seam agree after the bake, texels away from the seams 
 bits, and the error channels stay honest.  Generated meshes only."""
 
 import functools
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -103,8 +105,8 @@ def test_lookups_agree_across_seams_after_erasure_and_not_without(torus, name):
         # of the stderrs' sum in quadrature, which the 1/n floor of open texels inflates).
         assert np.sqrt(np.mean((d_off / noise) ** 2)) > 0.3
         # With it, by a small fraction of the noise: the seam term weighs a difference of
-        # one of its standard errors KAPPA = 100 times a texel's; measured 0.002-0.004
-        # of the noise, 170-230 times less than without.
+        # one of its standard errors KAPPA = 2000 times a texel's; measured 0.0001-0.0002
+        # of the noise, 3500-4500 times less than without (KAPPA = 100: 0.002-0.004).
         assert np.sqrt(np.mean((d_erased / noise) ** 2)) < 0.02
         assert np.sqrt(np.mean(d_erased ** 2)) < np.sqrt(np.mean(d_off ** 2)) / 30
 
@@ -343,11 +345,13 @@ def test_compiled_solve_gives_the_numpy_bits(torus, case, kernel):
     b = np.stack([result.channels[name][rows, cols] for name in ("ao", "ao_ci_low")], axis=1)
     se = result.channels["ao_stderr"][rows, cols].astype(np.float64)
     assert system.gutter.any() == (case == "sphere-xatlas")
-    slow, slow_info = solve(b, se, system, compiled=False)
-    for threads in (1, 2, 3, 7):  # the kernel's threads split texels and groups
-        fast, fast_info = solve(b, se, system, compiled=True, threads=threads)
-        assert fast_info["iterations"] > 5 and fast_info == slow_info
-        np.testing.assert_array_equal(fast, slow)
+    for bounds in (None, (0.0, 1.0)):  # and the bounded solve's rounds
+        slow, slow_info = solve(b, se, system, compiled=False, bounds=bounds)
+        for threads in (1, 2, 3, 7):  # the kernel's threads split texels and groups
+            fast, fast_info = solve(b, se, system, compiled=True, threads=threads,
+                                    bounds=bounds)
+            assert fast_info["iterations"] > 5 and fast_info == slow_info
+            np.testing.assert_array_equal(fast, slow)
 
 
 @pytest.mark.parametrize("case", ["torus-own-uvs", "sphere-xatlas"])
@@ -471,3 +475,237 @@ def test_a_system_that_failed_on_its_thread_is_made_again(torus, monkeypatch):
     for name, image in cached.channels.items():
         assert np.array_equal(image, result.channels[name]), name
     assert "seam_system_s" not in result.report["timings"]
+
+
+# --- seams that escaped the erasure (issue 21, the ogre) -------------------------------
+
+
+def floor_with_hidden_seam(path, n=8, degenerate=True):
+    """A floor z = 0 over [-1, 1]^2 in two UV charts that meet at x = 0 (their seam), under a
+    plate that shades it unevenly, with one T-junction on the seam as xatlas leaves it on
+    the ogre: the left face's seam edge a-b faces two right faces, on a-c and c-b (c its
+    midpoint), and a zero-area face (b, a, c) between them, whose three UVs are one point
+    outside both charts.  Returns (path, the hidden seam: a, b, c as (3, 3) positions and
+    the left face's UVs of a and b, the right faces' UVs of a, c and b)."""
+    xs = np.linspace(-1.0, 1.0, 2 * n + 1)
+    lines, vt, faces = [], [], []
+    vid = {}
+
+    def v(p):
+        key = tuple(np.round(p, 12))
+        if key not in vid:
+            vid[key] = len(vid) + 1
+            lines.append("v %.17g %.17g %.17g" % key)
+        return vid[key]
+
+    def t(x, y, chart):  # chart 0: x in [-1, 0] -> u in [0.05, 0.45]; 1: [0, 1] -> [0.55, 0.95]
+        vt.append((0.05 + 0.4 * (x + 1) if chart == 0 else 0.55 + 0.4 * x, 0.05 + 0.45 * (y + 1)))
+        return len(vt)
+
+    j0 = n // 2 + 1  # the row of the T-junction (away from the plate's edge)
+    a, b = (0.0, xs[j0], 0.0), (0.0, xs[j0 + 1], 0.0)
+    c = (0.0, 0.5 * (xs[j0] + xs[j0 + 1]), 0.0)
+    for i in range(2 * n):
+        chart = 0 if i < n else 1
+        for j in range(2 * n):
+            q = [(xs[i], xs[j]), (xs[i + 1], xs[j]), (xs[i + 1], xs[j + 1]), (xs[i], xs[j + 1])]
+            if degenerate and i == n and j == j0:  # the right quad on a-b: split at c
+                x1 = xs[i + 1]
+                tri = [[(0.0, xs[j]), (x1, xs[j]), (0.0, c[1])],
+                       [(0.0, c[1]), (x1, xs[j]), (x1, xs[j + 1])],
+                       [(0.0, c[1]), (x1, xs[j + 1]), (0.0, xs[j + 1])]]
+            else:
+                tri = [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]
+            for corners in tri:
+                faces.append([(v((x, y, 0.0)), t(x, y, chart)) for x, y in corners])
+    if degenerate:  # (b, a, c): no area, its UVs one point, as xatlas leaves such faces
+        vt.extend([(0.98, 0.98)] * 3)
+        faces.append([(v(p), len(vt) - 2 + m) for m, p in enumerate((b, a, c))])
+    plate = trimesh.creation.box(extents=[0.8, 2.4, 0.05])
+    plate.apply_translation([0.15, 0.0, 0.35])
+    for k, face in enumerate(plate.faces):  # the plate: a little UV island per triangle
+        u0 = 0.02 + 0.075 * (k % 12)
+        vt.extend([(u0, 0.005), (u0 + 0.03, 0.005), (u0, 0.03)])
+        faces.append([(v(plate.vertices[p]), len(vt) - 2 + m) for m, p in enumerate(face)])
+    lines += ["vt %.17g %.17g" % uv for uv in vt]
+    lines += ["f " + " ".join(f"{p}/{q}" for p, q in face) for face in faces]
+    path.write_text("\n".join(lines) + "\n")
+    left = [t_uv(p, 0) for p in (a, b)]
+    right = [t_uv(p, 1) for p in (a, c, b)]
+    return path, (np.array([a, b, c]), np.array(left), np.array(right))
+
+
+def t_uv(p, chart):
+    x, y = p[0], p[1]
+    return (0.05 + 0.4 * (x + 1) if chart == 0 else 0.55 + 0.4 * x, 0.05 + 0.45 * (y + 1))
+
+
+def _hidden_seam_points(hidden, n=64):
+    """Points along the seam the zero-area face hides: the left face's edge a-b against
+    the right faces' a-c and c-b, as (uv_left (n, 2), uv_right (n, 2))."""
+    _, left, right = hidden
+    t = (np.arange(n) + 0.5) / n
+    uv_left = (1 - t)[:, None] * left[0] + t[:, None] * left[1]
+    s = np.where(t < 0.5, 2 * t, 2 * t - 1)[:, None]  # c is the midpoint of a-b
+    uv_right = np.where(t[:, None] < 0.5, (1 - s) * right[0] + s * right[1],
+                        (1 - s) * right[1] + s * right[2])
+    return uv_left, uv_right
+
+
+def test_seam_behind_a_zero_area_face_is_found():
+    """A zero-area face on a seam (the ogre has four; xatlas gives each one UV for its three
+    corners, outside every chart) is no side of a seam: the faces it separates meet, in
+    pieces, and no seam edge reads its collapsed UVs."""
+    path, hidden = floor_with_hidden_seam(Path(tempfile.mkdtemp()) / "floor.obj")
+    result = _bake(str(path), "off", 0, **FLOOR)
+    mesh = seam_mesh(result)
+    assert seams.degenerate_faces(mesh.positions, mesh.faces).sum() == 1
+    ua, ub = seam_edges(mesh)
+    collapsed = np.array([0.98, 0.98])
+    assert not np.any(np.all(np.isclose(ua, collapsed), axis=2)
+                      | np.all(np.isclose(ub, collapsed), axis=2))
+    _, left, right = hidden
+    c_left = 0.5 * (left[0] + left[1])
+    pieces = {(tuple(np.round(x[0], 9)), tuple(np.round(x[1], 9)))
+              for x in np.concatenate([ua, ub])}
+    for piece in ([left[0], c_left], [c_left, left[1]], [right[0], right[1]],
+                  [right[1], right[2]]):
+        ends = tuple(tuple(np.round(p, 9)) for p in piece)
+        assert ends in pieces or ends[::-1] in pieces, ends
+    points = seam_system(seam_points(mesh, *result.covered.shape[::-1]), result.covered)
+    assert points.dropped == 0
+
+
+FLOOR = dict(resolution=64, rays=64, texel_samples=4, padding=2, unwrap="never",
+             quantities=("ao",))
+
+
+def test_seam_behind_a_zero_area_face_is_erased(monkeypatch):
+    """The failing class of issue 21: before, the seam the zero-area face hides was never
+    erased (its lookups were paired with the face's collapsed UVs, points the solve drops).
+    Now it agrees like the floor's other seam edges: its difference, in units of the
+    lookups' noise, is within the range of theirs in the same solve (each edge's rms at 16
+    points; measured 0.0002-0.0005 for it, a median of 0.0004 and at most 0.014-0.019 for
+    them), where without the pieces it keeps a step of the order of the noise (0.26-0.36)."""
+    path, hidden = floor_with_hidden_seam(Path(tempfile.mkdtemp()) / "floor.obj")
+    points = _hidden_seam_points(hidden)
+    t = (np.arange(16) + 0.5) / 16
+
+    def in_noise(result, off, pair):
+        noise = lookup_noise(off, "ao", pair)
+        return np.sqrt(np.mean((differences(result, "ao", pair) / noise) ** 2))
+
+    worst = {}
+    for seed in (0, 1):
+        off = _bake(str(path), "off", seed, **FLOOR)
+        erased = _bake(str(path), "erase", seed, **FLOOR)
+        ua, ub = seam_edges(seam_mesh(off))
+        floor = np.all(ua[..., 1] > 0.04, axis=1) & np.all(ub[..., 1] > 0.04, axis=1)
+        assert floor.sum() == 2 * 8 + 1  # the seam's rows, one of them in two pieces
+        edges = [in_noise(erased, off, ((1 - t)[:, None] * ua[e, 0] + t[:, None] * ua[e, 1],
+                                        (1 - t)[:, None] * ub[e, 0] + t[:, None] * ub[e, 1]))
+                 for e in np.nonzero(floor)[0]]
+        worst[seed] = max(edges)
+        # unerased: a step of the order of the noise (0.26-0.36 of it), ten times what the
+        # erasure leaves on the worst of the floor's other seam edges
+        assert in_noise(off, off, points) > 10 * worst[seed]
+        assert in_noise(erased, off, points) <= worst[seed]
+    monkeypatch.setattr(seams, "degenerate_faces", lambda p, f: np.zeros(len(f), bool))
+    before = bake_texels(str(path), seams="erase", seed=0, **FLOOR)
+    assert in_noise(before, _bake(str(path), "off", 0, **FLOOR), points) > 10 * worst[0]
+
+
+def test_bounded_solve_is_the_minimum_within_0_1(torus, monkeypatch):
+    """The other class of issue 21: where baked values sit at 0 or 1 next to a steep change
+    (buried or open texels: 27% of the ogre's), the unbounded minimum leaves [0, 1] and
+    clipping it brought the seam's step back.  The bounded solve, its active set let run to
+    the end, meets the Karush-Kuhn-Tucker conditions of the minimum over [0, 1] (the
+    problem is convex: that is the minimum): the gradient A x - rhs, in the units of the
+    stopping test (divided by the diagonal), is within the solver's tolerance of zero at
+    free texels and points outwards at held ones.  And its lookups agree better than the
+    clipped unbounded minimum's."""
+    result, system, rows, cols = _unerased_case(torus, "sphere-xatlas", torus_resolution=24,
+                                                atlas_resolution=48)
+    # values with a fifth at each bound and steps of the whole range between neighbours
+    # (the ogre's buried and open texels side by side): the unbounded minimum overshoots
+    b = np.clip(np.random.default_rng(3).normal(0.5, 0.6, (len(rows), 1)), 0.0, 1.0)
+    se = result.channels["ao_stderr"][rows, cols].astype(np.float64)
+    covered = ~system.gutter
+    free_x, _ = solve(b, se, system)
+    assert (free_x[covered] < 0).any() and (free_x[covered] > 1).any()
+    captured = {}
+    original = seams._bounded
+
+    def capture(matrix, diag, rhs, *rest):
+        captured.update(matrix=matrix, diag=diag, rhs=rhs)
+        return original(matrix, diag, rhs, *rest)
+
+    monkeypatch.setattr(seams, "_bounded", capture)
+    monkeypatch.setattr(seams, "MAX_ROUNDS", 50)
+    x, info = solve(b, se, system, bounds=(0.0, 1.0))
+    xc = x[covered, 0]
+    assert np.all((xc >= 0) & (xc <= 1)) and info["bound_texels"] > 0
+    m = captured["matrix"]
+    dense = np.zeros((len(xc), len(xc)))
+    dense[np.repeat(np.arange(len(xc)), np.diff(m.indptr)), m.indices] = m.data
+    scaled = (dense @ xc - captured["rhs"]) / captured["diag"]
+    tol = 2 * seams.TOLERANCE
+    assert np.all(np.abs(scaled[(xc > 0) & (xc < 1)]) <= tol)
+    assert np.all(scaled[xc == 0] >= -tol) and np.all(scaled[xc == 1] <= tol)
+    rms = lambda v: np.sqrt(np.sum(system.weight * system.differences(v) ** 2)  # noqa: E731
+                            / np.sum(system.weight))
+    clipped = np.clip(free_x[:, 0], 0, 1)
+    assert rms(x[:, 0]) < rms(clipped)
+    # The default, one round (MAX_ROUNDS), goes most of the way from the clipped minimum
+    # to the bounded one (in energy, 1/2 x.A x - rhs.x, the unbounded minimum's the least).
+    monkeypatch.setattr(seams, "MAX_ROUNDS", 1)
+    one, _ = solve(b, se, system, bounds=(0.0, 1.0))
+    energy = lambda v: 0.5 * v @ dense @ v - captured["rhs"] @ v  # noqa: E731
+    e_clip, e_one, e_min = (energy(v[covered]) for v in (clipped, one[:, 0], x[:, 0]))
+    assert e_min <= e_one <= e_clip and e_one - e_min < 0.1 * (e_clip - e_min), \
+        (e_clip, e_one, e_min)
+
+
+#: issue 21's target for the systematic step across the seams (rms of the lookup difference)
+SEAM_TARGET = 0.002
+
+
+def _systematic(mesh_or_path, seeds, **options):
+    """The seams' systematic step over ``seeds`` bakes (as benchmarks/bench_seams.py): the
+    rms over the seam (weighted by length) of the mean difference of the lookups, raw (an
+    upper bound in expectation: raw^2 = systematic^2 + random^2 / S) and with the seeds'
+    noise taken out."""
+    d = []
+    for seed in seeds:
+        result = bake_texels(mesh_or_path, seams="erase", seed=seed, **options)
+        mesh = seam_mesh(result)
+        points = seam_points(mesh, *result.covered.shape[::-1])
+        ao = result.channels["ao"]
+        d.append(bilinear(ao, points.uv_a, mesh.wrap) - bilinear(ao, points.uv_b, mesh.wrap))
+    d, w = np.array(d), points.weight
+    mean = d.mean(axis=0)
+    rms = lambda v: np.sqrt(np.sum(w * v ** 2) / np.sum(w))  # noqa: E731
+    raw, random = rms(mean), rms(np.sqrt(np.sum((d - mean) ** 2, axis=0) / (len(d) - 1)))
+    return raw, np.sqrt(max(raw ** 2 - random ** 2 / len(d), 0.0))
+
+
+def test_parts_through_parts_meet_the_seam_target(monkeypatch):
+    """The ogre's remaining class (issue 21): a part through another (a sphere half in a
+    box, a new atlas), texels buried (AO 0) a texel from open ones, seams across the
+    intersection.  The systematic step stays below the target, by its raw estimate (an
+    upper bound: measured 0.0008); with the erasure as it was (seam weight 100, clipped
+    after the solve) it is above it, noise taken out (measured 0.0026; unerased 0.048)."""
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    box = trimesh.creation.box(extents=[3, 3, 1.0])
+    box.apply_translation([0, 0, -0.3])
+    scene = trimesh.util.concatenate([sphere, box])
+    options = dict(resolution=128, rays=64, texel_samples=2, padding=2, unwrap="always",
+                   quantities=("ao",))
+    raw, _ = _systematic(scene, range(4), **options)
+    assert raw < SEAM_TARGET, raw
+    monkeypatch.setattr(seams, "KAPPA", 100.0)
+    monkeypatch.setattr(seams, "HOLD_TOLERANCE", seams.TOLERANCE)
+    monkeypatch.setattr(seams, "_bounded", lambda matrix, diag, rhs, x, left, bounds, *rest:
+                        (np.clip(x, *bounds), 0, left, 0))
+    _, before = _systematic(scene, range(4), **options)
+    assert before > SEAM_TARGET, before

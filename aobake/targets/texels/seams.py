@@ -36,7 +36,8 @@ solved by Jacobi-preconditioned conjugate gradients on it (``aobake.sparse.cg``)
 compiled (aobake/_seams.c, aobake/_sparse.c), or in numpy with the same operations in the
 same order (``_assemble_numpy``, ``sparse.cg_numpy``: the same bits).  Bunny 1024^2 on 2 threads:
 the pattern ~0.12 s (on the seam system's thread), the values ~0.16 s, 130 iterations
-~0.3 s (2.6 ms each); applying the operator as the points
+~0.3 s (2.6 ms each; at KAPPA 100: at 2000, with the bounded round, 533 iterations, the
+erasure ~0.6 s); applying the operator as the points
 every iteration (the fill, the points' differences, their sums per group, their scatter and
 the fill's transpose) took ~10 ms an iteration, 1.2-1.5 s in all: four passes of random
 reads against one pass over the matrix, whose row of ~15 columns reads x from a vector that
@@ -53,10 +54,12 @@ Error bars.  The seam term involves x only, never b.  In units of the texels' ow
 covered texels into the gutter texels read, G the lookup differences, Lambda the seam
 weights), so (I + H)^-1 has its eigenvalues in (0, 1] and Cov(y) = (I + H)^-2 <= I when
 the baked texels' errors are independent (they are: docs/conventions.md).  So
-Var(x_t) <= se_t^2 for every adjusted texel (to the solver's tolerance; clipping to [0, 1]
-only moves a value towards the possible range): its stderr is kept, as an upper bound
-(tests/test_seams.py computes the exact sd(x_t) = sqrt(sum_j K_tj^2 se_j^2) of x = K b and
-checks it).  Gutter texels stay the dilation's fill (docs/conventions.md), not estimates
+Var(x_t) <= se_t^2 for every adjusted texel (to the solver's tolerance): its stderr is
+kept, as an upper bound (tests/test_seams.py computes the exact sd(x_t) =
+sqrt(sum_j K_tj^2 se_j^2) of x = K b and checks it).  AO and obscurance are solved within
+[0, 1] (``_bounded``): for a given set of texels held at 0 or 1 (constants), the free ones
+are the same kind of solution with a principal submatrix of I + H, so the bound holds for
+them too.  Gutter texels stay the dilation's fill (docs/conventions.md), not estimates
 of their own.
 """
 
@@ -71,6 +74,8 @@ import numpy as np
 
 from aobake import _native
 from aobake.sparse import Csr, cg
+from aobake.sparse import _apply as _sparse_apply
+from aobake.sparse import _ranks as _sparse_ranks
 from aobake.vectors import distinct, weld
 
 log = logging.getLogger(__name__)
@@ -82,12 +87,28 @@ SMOOTH_DEGREES = 10.0
 #: UVs closer than this (a billionth of the tile, 1e-5 texel at the largest resolution)
 #: are the same: a seam edge needs its sides farther apart
 UV_SAME = 1e-9
+#: a face whose height over its longest edge is at most this fraction of that edge has no
+#: area (``degenerate_faces``): below float32's resolution of the edge (6e-8), the
+#: precision the ray tracer holds the mesh in, it is a line (the ogre has 4, exactly flat)
+DEGENERATE = 1e-7
 #: weight of the seam term: a seam difference of one of its standard errors along one
-#: texel of seam costs KAPPA times moving one texel by one standard error.  Measured on
-#: spot at 1024^2, 256 rays (benchmarks/bench_seams.py, --kappa): 100 takes the systematic
-#: part from 0.0095 to 0.0002 and the random one from 0.021 to 0.0010 in 0.2 s; 1000
-#: roughly halves both again for about three times the iterations.
-KAPPA = 100.0
+#: texel of seam costs KAPPA times moving one texel by one standard error.  Measured at
+#: 1024^2, 256 rays, 2 seeds (benchmarks/bench_seams.py, --kappa; systematic / random rms
+#: of the lookup difference; iterations of the solve, its first part to TOLERANCE):
+#:   kappa   ogre (xatlas)          bunny (xatlas)         spot (own UVs)
+#:   100     0.0042 / 0.0019  228   0.0005 / 0.0008  182   0.0002 / 0.0010  185
+#:   1000    0.0020 / 0.0007  685   0.0002 / 0.0003  493   0.0001 / 0.0003  522
+#:   2000    0.0017 / 0.0005  926   0.0002 / 0.0002  685   0.0001 / 0.0002  703
+#: (off: 0.097, 0.022, 0.0094 systematic).  The residual is a fixed fraction of the step
+#: the erasure removes (the seam term counts it in its own standard errors), and the
+#: ogre's is the largest (parts through parts: AO from 0 to 1 within a texel of its
+#: seams): 2000 keeps it below 0.002, the issue-21 target, at 3-5 times 100's iterations
+#: (with HOLD_TOLERANCE: ogre 126 -> 610, bunny 120 -> 533, spot 132 -> 505; the erasure
+#: 0.3 -> 1.0 s, 0.2 -> 0.6 s, 0.06 -> 0.2 s).  It moves the mean of the two lookups
+#: more (ogre 0.037 -> 0.050 rms, bunny 0.009 -> 0.010) and lowers their noise further
+#: (ogre 0.0155 -> 0.0121).  Untried: a stronger preconditioner than Jacobi, which these
+#: iterations now call for.
+KAPPA = 2000.0
 #: the conjugate gradients stop when the Jacobi-scaled residual is below this in every
 #: unknown (value units); the solution is then within about 1e-5 of the exact one (bunny:
 #: 9.9e-6 at most, 1.6e-7 rms against a direct solve of the same matrix), far below the
@@ -98,6 +119,17 @@ TOLERANCE = 1e-6
 THREAD_UNKNOWNS = 10000
 #: conjugate-gradient iterations at most (a warning is logged when the tolerance is not met)
 MAX_ITERATIONS = 2000
+#: active-set rounds of the bounded solve (``_bounded``), each a warm-started conjugate-
+#: gradient solve.  Measured on the ogre (1024^2, 64 rays): the first round takes the seam
+#: difference from 0.0098 to 0.0073 rms (over all its seam points, 0.0048 over those the
+#: solve keeps); seven more settle the set (8332 texels held, then 3457, 1739, ... changed)
+#: and move it by less than 1e-5, each costing about as much as the first.
+MAX_ROUNDS = 1
+#: the unbounded solve that picks the held texels of a bounded one stops at this tolerance
+#: (the bounded solve then meets TOLERANCE): at 1024^2, 256 rays, the iterations fall from
+#: 926 to 610 (ogre), 685 to 533 (bunny), 703 to 505 (spot), the lookups' differences the
+#: same to 1e-5 (1e-4: 715, 543)
+HOLD_TOLERANCE = 1e-3
 #: stderr floor in the weights (value units): a texel exact by construction (stderr 0)
 #: gets a weight of 1e14, i.e. it does not move
 SE_FLOOR = 1e-7
@@ -199,7 +231,10 @@ def seam_edges(mesh: SeamMesh) -> tuple[np.ndarray, np.ndarray]:
     Positions are welded (exactly equal coordinates are one vertex), so a mesh split at its
     UV seams has them too.  An edge of k >= 3 faces pairs the first with each other.
     Edges whose sides differ by whole tiles under ``wrap="repeat"`` read the same texels
-    and are no seams.
+    and are no seams.  A face of no area (``degenerate_faces``: never drawn, and xatlas
+    gives it one UV for its three corners, outside every chart) is no side of a seam: its
+    long edge's other face meets the faces on its two short edges, in pieces
+    (``_across_degenerate``).
     """
     faces = np.asarray(mesh.faces, dtype=np.int64)
     faces_uv = np.asarray(mesh.faces_uv, dtype=np.int64)
@@ -208,12 +243,19 @@ def seam_edges(mesh: SeamMesh) -> tuple[np.ndarray, np.ndarray]:
     empty = np.zeros((0, 2, 2))
     if not len(faces):
         return empty, empty
-    welded = weld(np.asarray(mesh.positions, dtype=np.float64))
-    # Half-edges (face, corner k -> k + 1), each stored from its lower welded end.
-    a_corner = faces.reshape(-1)
-    b_corner = np.roll(faces, -1, axis=1).reshape(-1)
-    a_uv = faces_uv.reshape(-1)
-    b_uv = np.roll(faces_uv, -1, axis=1).reshape(-1)
+    positions = np.asarray(mesh.positions, dtype=np.float64)
+    welded = weld(positions)
+    # Half-edges (face, corner k -> k + 1), each stored from its lower welded end; a
+    # degenerate face's are replaced by the pieces of its neighbour's edge.
+    degenerate = degenerate_faces(positions, faces)
+    a_corner = faces[~degenerate].reshape(-1)
+    b_corner = np.roll(faces[~degenerate], -1, axis=1).reshape(-1)
+    a_uv = faces_uv[~degenerate].reshape(-1)
+    b_uv = np.roll(faces_uv[~degenerate], -1, axis=1).reshape(-1)
+    if degenerate.any():
+        pieces = _across_degenerate(positions, welded, faces, faces_uv, uv, degenerate,
+                                    a_corner, b_corner, a_uv, b_uv)
+        (a_corner, b_corner, a_uv, b_uv), uv = pieces
     pa, pb = welded[a_corner], welded[b_corner]
     keep = pa != pb
     swap = pa > pb
@@ -244,6 +286,60 @@ def seam_edges(mesh: SeamMesh) -> tuple[np.ndarray, np.ndarray]:
               & (np.einsum("ij,ij->i", normals[hi_v[one]], normals[hi_v[other]]) >= smooth_cos))
     seam = differ & smooth
     return uv_a[seam], uv_b[seam]
+
+
+def degenerate_faces(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(f,) bool the faces of no area: their height over their longest edge is at most
+    DEGENERATE times that edge (collinear corners, two corners at one point, or all three).
+    positions : (v, 3) float64, faces : (f, 3) int64."""
+    p = np.asarray(positions, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]
+    twice_area = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    longest = np.linalg.norm(p - np.roll(p, -1, axis=1), axis=2).max(axis=1)
+    # twice the area is the longest edge times the height over it
+    return twice_area <= DEGENERATE * longest ** 2
+
+
+def _across_degenerate(positions, welded, faces, faces_uv, uv, degenerate, a_corner,
+                       b_corner, a_uv, b_uv):
+    """The half-edges (a_corner, b_corner, a_uv, b_uv) of the drawn faces, with two more
+    for each degenerate face D = (a, b, c), c on its longest edge ab at t = |ac| / |ab|:
+    a -> c and c -> b in the UVs of F, the drawn face on the other side of ab (its UVs at
+    a and b, and at c their mix at t, appended to ``uv``), which then pair with the drawn
+    faces on D's edges ac and cb.  So the seam that D hides (F against those faces, a
+    T-junction) is found, and none against D's collapsed UVs.  Only where ab has exactly
+    one drawn face besides D (a chain of degenerate faces, or a border, gets no pieces).
+    Returns ((a_corner, b_corner, a_uv, b_uv), uv (t + 2 d, 2))."""
+    d_faces = faces[degenerate]
+    p = positions[d_faces]
+    k = np.argmax(np.linalg.norm(p - np.roll(p, -1, axis=1), axis=2), axis=1)  # ab = k -> k+1
+    rows = np.arange(len(d_faces))
+    va, vb, vc = (d_faces[rows, (k + j) % 3] for j in range(3))
+    ab = positions[vb] - positions[va]
+    t = np.clip(np.einsum("ij,ij->i", positions[vc] - positions[va], ab)
+                / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300), 0.0, 1.0)
+    # F's half-edge on ab: the drawn half-edges keyed by their welded ends, sorted
+    wa, wb = welded[a_corner], welded[b_corner]
+    key = np.minimum(wa, wb) * (len(welded) + 1) + np.maximum(wa, wb)
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    want = np.minimum(welded[va], welded[vb]) * (len(welded) + 1) + np.maximum(welded[va],
+                                                                                welded[vb])
+    left = np.searchsorted(sorted_key, want, side="left")
+    right = np.searchsorted(sorted_key, want, side="right")
+    one = right - left == 1
+    if not one.any():
+        return (a_corner, b_corner, a_uv, b_uv), uv
+    h = order[left[one]]  # F's half-edge, in either direction
+    va, vb, vc, t = va[one], vb[one], vc[one], t[one]
+    forward = welded[a_corner[h]] == welded[va]
+    fa = np.where(forward, a_corner[h], b_corner[h])  # F's corners and UVs at a and b
+    fb = np.where(forward, b_corner[h], a_corner[h])
+    ta = np.where(forward, a_uv[h], b_uv[h])
+    tb = np.where(forward, b_uv[h], a_uv[h])
+    tc = len(uv) + np.arange(len(h))
+    uv = np.concatenate([uv, (1.0 - t)[:, None] * uv[ta] + t[:, None] * uv[tb]])
+    return (np.concatenate([a_corner, fa, vc]), np.concatenate([b_corner, vc, fb]),
+            np.concatenate([a_uv, ta, tc]), np.concatenate([b_uv, tc, tb])), uv
 
 
 def _texel_coords(uv: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -426,7 +522,8 @@ def _indexer(texels: np.ndarray, size: int):
 def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
           kappa: float | None = None, tolerance: float | None = None,
           max_iterations: int | None = None, compiled: bool | None = None,
-          threads: int = 1, pattern: tuple | None = None) -> tuple[np.ndarray, dict]:
+          threads: int = 1, pattern: tuple | None = None,
+          bounds: tuple | None = None) -> tuple[np.ndarray, dict]:
     """Minimise the erasure energy (module docstring) over the covered ``system.texels``.
 
     values : (n, c) float64 baked values of ``system.texels`` (c channels sharing the
@@ -435,6 +532,9 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
     kernel (default: when it was built and not forced off, see ``aobake._native``) or in
     numpy; the bits are the same.  threads : the kernel's threads (the same bits for any
     number; numpy's runs on one).  pattern : ``system_pattern(system)``, if made already.
+    bounds : (lower, upper) the values' possible range (AO's [0, 1]): the energy is then
+    minimised over values in it (``_bounded``), not clipped after; None: unbounded (x is
+    then linear in the values).
     Returns (x (n, c) float64: the adjusted covered values, gutter rows the dilation of
     them; info: iterations, converged, and rms_before / rms_after, max_before / max_after of
     the lookup difference over the seam points (rms weighted by seam length)).
@@ -481,7 +581,16 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
         before.append(s.differences(b))
         bc = np.ascontiguousarray(b[covered])
         rhs = w[covered] * bc
-        xc, it, left = cg(matrix, diag, rhs, bc, tolerance, max_iterations, kernels, threads)
+        # bounded: the unbounded minimum only tells which texels to hold, to a looser
+        # tolerance (``_bounded`` then solves to the full one)
+        xc, it, left = cg(matrix, diag, rhs, bc, tolerance * (1.0 if bounds is None else
+                                                             HOLD_TOLERANCE / TOLERANCE),
+                          max_iterations, kernels, threads)
+        if bounds is not None:
+            xc, more, left, held = _bounded(matrix, diag, rhs, xc, left, bounds, tolerance,
+                                            max_iterations, kernels, threads)
+            it += more
+            info["bound_texels"] = max(info.get("bound_texels", 0), held)
         x = np.zeros_like(b)
         x[covered] = xc
         info["iterations"] = max(info["iterations"], it)
@@ -496,6 +605,57 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
         log.warning("seam erasure stopped after %d iterations short of its tolerance",
                     info["iterations"])
     return out, info
+
+
+def _bounded(matrix: Csr, diag, rhs, x, left, bounds, tolerance, max_iterations, kernels,
+             threads) -> tuple[np.ndarray, int, float, int]:
+    """The minimum of 1/2 x.A x - rhs.x with lower <= x <= upper, from the unbounded one x.
+
+    Clipping the unbounded minimum afterwards undoes the erasure wherever the baked values
+    sit at a bound (open or buried texels, AO exactly 1 or 0, next to partly occluded ones:
+    27% of the ogre's texels at 1024^2): the seam term pulls a texel past the bound to meet
+    the other side, the clip takes it back, and the step comes back.  So texels beyond a
+    bound are held at it and the free ones solved again with the held ones as known values
+    (their rows and columns replaced by the identity: the matrix stays symmetric positive
+    definite and the conjugate gradients leave the held values' bits alone), from where
+    they were (x is the unbounded minimum to HOLD_TOLERANCE; the first round always
+    solves, to the full tolerance).  These are rounds of a primal-dual active set method
+    (Hintermüller, Ito, Kunisch 2002): a held texel whose gradient points inside (A x - rhs
+    < 0 at the lower bound, > 0 at the upper, by more than the tolerance in the stopping
+    test's Jacobi-scaled units) is let go, until the set repeats or after MAX_ROUNDS; a
+    free texel still out of range is then clipped.  Every step is element-wise or a
+    fixed-order sum: the same bits for any number of threads.  Returns (x, iterations, the
+    last max |r / diag|, texels held).
+    """
+    lower, upper = bounds
+    n = len(x)
+    ranks = _sparse_ranks(matrix)
+    rows = np.repeat(np.arange(n), np.diff(matrix.indptr))
+    cols = matrix.indices.astype(np.int64)
+    on_diag = rows == cols
+    held = np.zeros(n, dtype=np.int8)  # -1 at the lower bound, +1 at the upper, 0 free
+    iterations = 0
+    for round_ in range(max(MAX_ROUNDS, 1)):
+        if held.any():  # the gradient, Jacobi-scaled, tells which held texels to let go
+            scaled = (_sparse_apply(matrix, x, ranks) - rhs) / diag
+            go = ((held < 0) & (scaled < -tolerance)) | ((held > 0) & (scaled > tolerance))
+        else:
+            go = held != 0
+        new = np.where(held == 0, np.where(x < lower, -1, np.where(x > upper, 1, 0)),
+                       np.where(go, 0, held)).astype(np.int8)
+        if round_ > 0 and np.array_equal(new, held):
+            break
+        held = new
+        free = held == 0
+        x = np.where(held < 0, lower, np.where(held > 0, upper, x))
+        data = np.where(free[rows] & free[cols], matrix.data, 0.0)
+        data[on_diag & ~free[rows]] = 1.0
+        coupled = _sparse_apply(matrix, np.where(free, 0.0, x), ranks)  # A x_held
+        x, it, left = cg(Csr(matrix.indptr, matrix.indices, data), np.where(free, diag, 1.0),
+                         np.where(free, rhs - coupled, x), x, tolerance, max_iterations,
+                         kernels, threads)
+        iterations += it
+    return np.clip(x, lower, upper), iterations, left, int(np.count_nonzero(held))
 
 
 def _starts(system: SeamSystem) -> np.ndarray:
@@ -592,8 +752,9 @@ class Erased:
     adjusted : (H, W) bool the covered texels that are unknowns of the solve (their values
     are changed in place), info : dict seam_edges, seam_points, points_dropped,
     texels_adjusted, gutter_texels (read by the seams, filled by the dilation), iterations,
-    converged, rms_before / rms_after, max_before / max_after (of the first value channel,
-    AO when baked: lookup differences over the seam points).
+    converged, bound_texels (held at 0 or 1 by the bounded solve), rms_before / rms_after,
+    max_before / max_after (of the first value channel, AO when baked: lookup differences
+    over the seam points).
     """
 
     adjusted: np.ndarray
@@ -611,7 +772,7 @@ class SeamChannel:
     error: str
     direction: bool = False
     counted: bool = True
-    #: the range an adjusted scalar is clipped to (the quantity's: thickness is unbounded)
+    #: the range an adjusted scalar is solved within (the quantity's: thickness has no top)
     bounds: tuple = (0.0, 1.0)
 
     @classmethod
@@ -702,8 +863,8 @@ def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
     prepared : ``prepare``'s result for this mesh, used when made for the same covered
     texels and padding (else the system is made here), threads : the solve's (at most one
     per THREAD_UNKNOWNS unknowns; the same bits for any number).
-    Adjusted scalars are clipped to their quantity's range (AO and obscurance [0, 1]).  Returns None when there is nothing to
-    erase.
+    Adjusted scalars are solved within their quantity's range (``solve``'s bounds: AO and
+    obscurance [0, 1], thickness [0, inf)).  Returns None when there is nothing to erase.
     """
     covered = np.asarray(covered, dtype=bool)
     height, width = covered.shape
@@ -717,7 +878,7 @@ def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
             "points_dropped": system.dropped,
             "texels_adjusted": int(np.count_nonzero(~system.gutter)),
             "gutter_texels": int(np.count_nonzero(system.gutter)), "iterations": 0,
-            "converged": True}
+            "converged": True, "bound_texels": 0}
     rows, cols = np.divmod(system.texels[~system.gutter], width)
     for channel in channels:
         direction, names = channel.direction, channel.values
@@ -730,7 +891,7 @@ def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
         x, solved = solve(b, se, system, compiled=compiled,
                           threads=max(1, min(int(threads or 1),
                                              len(system.texels) // THREAD_UNKNOWNS)),
-                          pattern=prepared.pattern)
+                          pattern=prepared.pattern, bounds=None if direction else channel.bounds)
         x = x[~system.gutter]
         if direction:  # unit directions again (a zero mean stays zero)
             length = np.linalg.norm(x, axis=1, keepdims=True)
@@ -746,6 +907,7 @@ def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
                                                       "max_after")})
         info["iterations"] = max(info["iterations"], solved["iterations"])
         info["converged"] &= solved["converged"]
+        info["bound_texels"] = max(info["bound_texels"], solved.get("bound_texels", 0))
     adjusted = np.zeros((height, width), dtype=bool)
     adjusted[rows, cols] = True
     return Erased(adjusted, info)
