@@ -55,17 +55,36 @@ def read_json(path: Path) -> tuple[dict, bytes | None]:
         raise InputError(f"{path}: cannot read glTF JSON ({exc})") from None
 
 
-def sets_of(header: dict) -> tuple[list[int], list[int]]:
+def _primitives(header, path=None):
+    """Every primitive of the glTF JSON ``header`` as (primitive dict, its attributes dict);
+    InputError naming ``path`` where a hand-edited file has the wrong JSON types."""
+    where = f"{path}: " if path is not None else ""
+    if not isinstance(header, dict):
+        raise InputError(f"{where}glTF JSON must be an object, got {type(header).__name__}")
+    meshes = header.get("meshes", [])
+    if not isinstance(meshes, list):
+        raise InputError(f"{where}glTF 'meshes' must be a list, got {type(meshes).__name__}")
+    for i, mesh in enumerate(meshes):
+        primitives = mesh.get("primitives", []) if isinstance(mesh, dict) else None
+        if not isinstance(primitives, list):
+            raise InputError(f"{where}glTF meshes[{i}] has no list of primitives")
+        for j, primitive in enumerate(primitives):
+            attributes = primitive.get("attributes", {}) if isinstance(primitive, dict) else None
+            if not isinstance(attributes, dict):
+                raise InputError(f"{where}glTF meshes[{i}].primitives[{j}].attributes must "
+                                 "be an object")
+            yield primitive, attributes
+
+
+def sets_of(header: dict, path=None) -> tuple[list[int], list[int]]:
     """(sets every triangle primitive has, sets some triangle primitive has), sorted."""
     every, some = None, set()
-    for mesh in header.get("meshes", []):
-        for primitive in mesh.get("primitives", []):
-            if primitive.get("mode", 4) not in _TRIANGLES:
-                continue
-            have = {int(m.group(1)) for m in map(_SET.match, primitive.get("attributes", {}))
-                    if m}
-            some |= have
-            every = have if every is None else every & have
+    for primitive, attributes in _primitives(header, path):
+        if primitive.get("mode", 4) not in _TRIANGLES:
+            continue
+        have = {int(m.group(1)) for m in map(_SET.match, attributes) if m}
+        some |= have
+        every = have if every is None else every & have
     return sorted(every or ()), sorted(some)
 
 
@@ -75,14 +94,12 @@ def aliased(path: Path) -> tuple[io.BytesIO, str, list[int]]:
     Returns (file object, file type "glb" | "gltf", the sets every triangle primitive has).
     """
     header, binary = read_json(path)
-    every, _ = sets_of(header)
-    for mesh in header.get("meshes", []):
-        for primitive in mesh.get("primitives", []):
-            attributes = primitive.get("attributes", {})
-            for name in list(attributes):
-                match = _SET.match(name)
-                if match:
-                    attributes[ALIAS + match.group(1)] = attributes[name]
+    every, _ = sets_of(header, path)
+    for _, attributes in _primitives(header, path):
+        for name in list(attributes):
+            match = _SET.match(name)
+            if match:
+                attributes[ALIAS + match.group(1)] = attributes[name]
     text = json.dumps(header).encode("utf-8")
     if binary is None and path.read_bytes()[:4] != b"glTF":
         return io.BytesIO(text), "gltf", every

@@ -195,3 +195,20 @@ def test_average_bakes_the_mean_of_the_stacked_surfaces(tmp_path):
     assert np.all(np.abs(texel - mean) <= K * np.hypot(texel_se, mean_se)), (texel, mean)
     # neither surface alone
     assert np.all(np.abs(texel - ao_a) > K * np.hypot(texel_se, se_a))
+
+
+@pytest.mark.parametrize("text, problem", [
+    ('[1, 2]', "glTF JSON must be an object"),
+    ('{"asset": {"version": "2.0"}, "meshes": 5}', "'meshes' must be a list"),
+    ('{"asset": {"version": "2.0"}, "meshes": [{"primitives": 3}]}', "no list of primitives"),
+    ('{"asset": {"version": "2.0"}, "meshes": [{"primitives": [{"attributes": []}]}]}',
+     "attributes must be an object"),
+])
+def test_a_hand_edited_gltf_of_the_wrong_json_types_is_refused_naming_it(tmp_path, text,
+                                                                          problem):
+    path = tmp_path / "edited.gltf"
+    path.write_text(text)
+    res = run_cli(path, "--out", tmp_path / "ao.exr", "--uv-set", "1")
+    assert res.exit_code == 1, res.output
+    assert f"aobake: error: {path}: " in res.output and problem in res.output
+    assert "Traceback" not in res.output and not (tmp_path / "ao.exr").exists()
