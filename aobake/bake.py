@@ -29,7 +29,7 @@ from aobake.executors import EXECUTORS, Job
 from aobake.methods import METHODS
 from aobake.results import BakeResult, TexelResult, ViewResult
 from aobake.scene import load_scene
-from aobake.targets import CameraTarget, PointsTarget, TexelTarget, VertexTarget
+from aobake.targets import TARGETS
 from aobake.trace import DEFAULT_CHUNK_RAYS, default_threads
 
 log = logging.getLogger(__name__)
@@ -217,7 +217,7 @@ def bake(mesh, config: BakeConfig | None = None, *, threads: int | None = None,
     line up with ``result.positions`` (the scene's vertices, in file order).
     """
     options, run_kw = _split(options)
-    return run(_config(config, options), mesh, VertexTarget(), threads=threads,
+    return run(_config(config, options), mesh, TARGETS["vertices"](), threads=threads,
                chunk_rays=chunk_rays, progress=progress, **run_kw)
 
 
@@ -234,7 +234,7 @@ def bake_points(mesh, points, normals, config: BakeConfig | None = None, *, poin
     ray offset, like vertices.
     """
     options, run_kw = _split(options)
-    target = PointsTarget(points, normals, point_ids, point_sizes)
+    target = TARGETS["points"](points, normals, point_ids, point_sizes)
     return run(_config(config, options), mesh, target, threads=threads, chunk_rays=chunk_rays,
                progress=progress, **run_kw)
 
@@ -251,7 +251,7 @@ def bake_texels(mesh, config: BakeConfig | None = None, *, threads: int | None =
     when valid, else xatlas | 'always' | 'never'), bent_space ('object' | 'tangent').
     """
     options, run_kw = _split(options)
-    return run(_config(config, options), mesh, TexelTarget(), threads=threads,
+    return run(_config(config, options), mesh, TARGETS["texels"](), threads=threads,
                chunk_rays=chunk_rays, progress=progress, **run_kw)
 
 
@@ -323,6 +323,6 @@ def bake_view(mesh, config: BakeConfig | None = None, *, camera=None, look=None,
     size : (width, height) pixels; fov : vertical degrees (default camera and look-at).
     """
     options, run_kw = _split(options)
-    target = CameraTarget(camera, look=look, gltf=gltf, size=size, fov=fov)
+    target = TARGETS["view"](camera, look=look, gltf=gltf, size=size, fov=fov)
     return run(_config(config, options), mesh, target, threads=threads, chunk_rays=chunk_rays,
                progress=progress, **run_kw)

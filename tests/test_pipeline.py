@@ -171,3 +171,33 @@ def test_readme_lists_every_cli_option():
         for flag in getattr(param, "opts", []):
             if flag.startswith("--") and flag not in ("--help", "--version"):
                 assert flag in text, flag
+
+
+def test_lazy_registries_resolve_every_plugin_and_a_vertex_bake_imports_none_it_does_not_need():
+    """TARGETS, METHODS and EXECUTORS name their plugins without importing them (issue 21:
+    the command's start-up cost); each name resolves to its class, whose ``name`` is the
+    key, and a fresh interpreter's per-vertex bake never imports the lightmap target's
+    stages, the screen-space methods, the hemicube's GL worker or Dask."""
+    import subprocess
+    import sys
+
+    from aobake.executors import EXECUTORS
+    from aobake.methods import METHODS
+    from aobake.methods.ssao import SCREEN_METHODS
+    from aobake.targets import TARGETS
+
+    for registry in (TARGETS, METHODS, EXECUTORS):
+        for key in registry:
+            assert registry[key] is registry[key]
+    for key in METHODS:
+        assert METHODS[key].name == key
+    assert {k: METHODS[k] for k in SCREEN_METHODS} == SCREEN_METHODS
+    assert TARGETS["texels"].name == "texels" and TARGETS["vertices"].name == "vertices"
+    code = ("import sys, trimesh, aobake; aobake.bake(trimesh.creation.icosphere(1), rays=4); "
+            "print(' '.join(sorted(m for m in sys.modules if m.startswith('aobake'))))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            check=True).stdout.split()
+    for module in ("aobake.targets.texels.target", "aobake.targets.texels.atlas",
+                   "aobake.targets.projected", "aobake.targets.camera", "aobake.methods.ssao",
+                   "aobake.methods.hemicube_gl", "aobake.executors.dask", "aobake.compare"):
+        assert module not in loaded, module

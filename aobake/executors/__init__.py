@@ -8,11 +8,15 @@ plus one line here.
 """
 
 from aobake.executors.base import Job, WorkItem, items, ranges
-from aobake.executors.dask import DaskExecutor
 from aobake.executors.local import ProcessesExecutor, ThreadsExecutor
+from aobake.registry import LazyRegistry, lazy_attributes
 
-#: executor name -> class
-EXECUTORS = {"threads": ThreadsExecutor, "processes": ProcessesExecutor, "dask": DaskExecutor}
+#: executor name -> class (Dask's module imported when it is first used)
+EXECUTORS = LazyRegistry({"threads": "aobake.executors.local:ThreadsExecutor",
+                          "processes": "aobake.executors.local:ProcessesExecutor",
+                          "dask": "aobake.executors.dask:DaskExecutor"})
+
+__getattr__ = lazy_attributes(__name__, {"DaskExecutor": "aobake.executors.dask"})
 
 __all__ = ["DaskExecutor", "EXECUTORS", "Job", "ProcessesExecutor", "ThreadsExecutor",
            "WorkItem", "items", "ranges"]

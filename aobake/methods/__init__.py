@@ -7,14 +7,15 @@ error bars) is the reference; an approximation is one more module with a class h
 """
 
 from aobake.methods.base import Estimates, Method, merge
-from aobake.methods.discs import DiscsMethod
-from aobake.methods.file import FileMethod
-from aobake.methods.hemicube import HemicubeMethod
-from aobake.methods.rays import RaysMethod
-from aobake.methods.ssao import SCREEN_METHODS
+from aobake.registry import LazyRegistry, lazy_attributes
 
-#: method name -> class
-METHODS = {"rays": RaysMethod, "discs": DiscsMethod, "file": FileMethod,
-           "hemicube": HemicubeMethod, **SCREEN_METHODS}
+#: method name -> class (each module imported when the method is first used)
+METHODS = LazyRegistry({
+    "rays": "aobake.methods.rays:RaysMethod", "discs": "aobake.methods.discs:DiscsMethod",
+    "file": "aobake.methods.file:FileMethod", "hemicube": "aobake.methods.hemicube:HemicubeMethod",
+    "crytek": "aobake.methods.ssao:CrytekMethod", "shanmugam": "aobake.methods.ssao:ShanmugamMethod",
+    "gtao": "aobake.methods.ssao:GtaoMethod", "heightfield": "aobake.methods.ssao:HeightfieldMethod"})
+
+__getattr__ = lazy_attributes(__name__, {"RaysMethod": "aobake.methods.rays"})
 
 __all__ = ["Estimates", "METHODS", "Method", "RaysMethod", "merge"]

@@ -14,6 +14,11 @@
 Conventions: docs/screen-space.md.
 """
 
-from aobake.screen.gbuffer import Frame, GBuffer
+from aobake.registry import lazy_attributes
+
+# imported on first use: the settings records (``options``) are read by every bake's
+# config, the G-buffer only by views
+__getattr__ = lazy_attributes(__name__, {"Frame": "aobake.screen.gbuffer",
+                                         "GBuffer": "aobake.screen.gbuffer"})
 
 __all__ = ["Frame", "GBuffer"]

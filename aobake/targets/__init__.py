@@ -3,17 +3,24 @@
 ``TARGETS`` maps target names to their classes; ``points`` is the library's
 ``bake_points`` (it needs the points, so it has no CLI name); ``view`` is ``aobake view``;
 ``projected_texels`` / ``projected_vertices`` bake a source mesh onto a low mesh's UVs or
-vertices through a cage (``aobake.targets.projected``: they need the low mesh).
+vertices through a cage (``aobake.targets.projected``: they need the low mesh).  Each
+target's module is imported when the target is first used (``aobake.registry``).
 """
 
-from aobake.targets.camera import CameraTarget
-from aobake.targets.points import PointsTarget
-from aobake.targets.projected import ProjectedTexelTarget, ProjectedVertexTarget
-from aobake.targets.texels import TexelTarget
-from aobake.targets.vertices import VertexTarget
+from aobake.registry import LazyRegistry, lazy_attributes
 
 #: target name -> class; the CLI offers those that need no arguments
-TARGETS = {"vertices": VertexTarget, "texels": TexelTarget, "points": PointsTarget,
-           "view": CameraTarget, "projected_texels": ProjectedTexelTarget,
-           "projected_vertices": ProjectedVertexTarget}
+TARGETS = LazyRegistry({
+    "vertices": "aobake.targets.vertices:VertexTarget",
+    "texels": "aobake.targets.texels.target:TexelTarget",
+    "points": "aobake.targets.points:PointsTarget",
+    "view": "aobake.targets.camera:CameraTarget",
+    "projected_texels": "aobake.targets.projected:ProjectedTexelTarget",
+    "projected_vertices": "aobake.targets.projected:ProjectedVertexTarget"})
 CLI_TARGETS = ("vertices", "texels")
+
+__getattr__ = lazy_attributes(__name__, {
+    "VertexTarget": "aobake.targets.vertices", "TexelTarget": "aobake.targets.texels.target",
+    "PointsTarget": "aobake.targets.points", "CameraTarget": "aobake.targets.camera",
+    "ProjectedTexelTarget": "aobake.targets.projected",
+    "ProjectedVertexTarget": "aobake.targets.projected"})
