@@ -12,7 +12,8 @@ R thick ("hfR", the height field the methods' range checks assume).  Every metho
 only the G-buffer; each setting is timed on one thread (``method.image``: the whole image,
 refinements included) and scored with ``aobake.screen.score`` against the bounded truth
 (raw and after the best gain of the occlusion; all, interior and the 3-pixel band around
-depth edges; z in units of the truth's stderr) and against hfR.  Pictures:
+depth edges; z in units of the truth's stderr) and against hfR; each method at its defaults
+with R / 2 and 2 R too, against the truth bounded at that radius.  Pictures:
 docs/img/ssao_<view>.png, the truth, the methods and their signed errors side by side.
 Numbers from a shared, loaded machine are slower than a quiet one.
 """
@@ -43,6 +44,8 @@ STILL_LIFE = ROOT / "assets" / "still_life.obj"
 BUNNY = ROOT.parent / "shared" / "meshes" / "stanford-bunny.obj"
 OGRE = ROOT.parent / "shared" / "meshes" / "ogre.obj"
 RADIUS_PERCENT = 5.0
+#: the other radii scored (x R), each against the truth bounded at its own radius
+RADIUS_FACTORS = (0.5, 2.0)
 
 #: name -> (mesh, look (None: the default three-quarter view), ground plane, what it shows);
 #: the named views of docs/screen-space.md
@@ -193,6 +196,25 @@ def run_view(name, size, truth_rays, hf_rays, img_dir, quick):
             "vs_truth": score.score(truth, ao, covered, edges, truth_se),
             "vs_hfR": score.score(hf_r["ao"], ao, covered, edges, hf_r["ao_stderr"]),
             "vs_hf": score.score(hf["ao"], ao, covered, edges, hf["ao_stderr"])})
+    if not quick:
+        # the radius: each method at its defaults with R x factor, against the truth bounded
+        # at that radius (a screen method is scored against what it can see)
+        for factor in RADIUS_FACTORS:
+            r = radius * factor
+            other = aobake.bake_view(mesh, camera=bounded.camera, size=size,
+                                     ground_plane=ground, rays=truth_rays, max_distance=r)
+            other_truth, other_se = other.channels["ao"], other.channels["ao_stderr"]
+            for cls, own in ((CrytekMethod, CrytekOptions()), (ShanmugamMethod, None),
+                             (GtaoMethod, GtaoOptions())):
+                method = make(cls, r, SsaoOptions(), own)
+                clock = time.perf_counter()
+                ao = method.image(image, threads=1)
+                seconds = time.perf_counter() - clock
+                out["rows"].append({
+                    "setting": f"{cls.name} R x {factor:g}", "method": cls.name,
+                    "seconds": seconds, "parameters": method.parameters(),
+                    "vs_truth": score.score(other_truth, ao, covered, edges, other_se),
+                    "vs_hfR": None, "vs_hf": None})
     if img_dir is not None:
         tiles = [grey(truth, covered), grey(images["crytek"], covered),
                  grey(images["shanmugam"], covered), grey(images["gtao"], covered),
@@ -224,7 +246,7 @@ def print_view(result):
               f"{fmt(a['all']['raw']['z_rms'], 1)} | - | - |")
     for row in result["rows"]:
         sc, a = row["vs_truth"], row["vs_truth"]["regions"]
-        h = row["vs_hfR"]["regions"]["all"]["raw"]
+        h = (row["vs_hfR"] or {"regions": {"all": {"raw": {"rmse": None}}}})["regions"]["all"]["raw"]
         print(f"| {row['setting']} | {fmt(a['all']['raw']['rmse'])} | "
               f"{fmt(a['all']['raw']['bias'], 4)} | {fmt(a['all']['raw']['psnr'], 1)} | "
               f"{fmt(a['all']['raw']['ssim'], 3)} | {fmt(sc['gain'], 2)} | "
