@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from aobake import stats
-from aobake.quantities import ao
+from aobake.quantities import ao, obscurance
 from aobake.quantities.base import Field, Quantity, Traced
 
 
@@ -38,9 +38,8 @@ def moments(traced: Traced) -> dict:
     return {"total": total, "m2": m2}  # (k, R) each
 
 
-def extend(a: dict, b: dict, na: int, nb: int) -> dict:
-    total, m2 = stats.merge_sums((a["total"], a["m2"]), (b["total"], b["m2"]), na, nb)
-    return {"total": total, "m2": m2}
+#: one point's pieces folded in order: the same running sums as obscurance's (the same bits)
+extend = obscurance.extend
 
 
 def finish(moments: dict, traced: Traced, m: int) -> dict:
