@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aobake import constants
 from aobake.errors import InputError
 
 #: Image size used when none is given (``default_camera``, glTF cameras).
@@ -39,8 +40,8 @@ MAX_PIXELS = 2 ** 26
 #: Up vectors within this angle (radians, as its sine) of the view direction are rejected:
 #: the right vector cross(forward, up) would be mostly rounding error.
 PARALLEL_SINE = 1e-6
-#: Depth-buffer conventions of ``hardware_depth`` / ``linearize_depth``.
-DEPTH_CONVENTIONS = ("opengl", "d3d", "reversed")
+#: Depth-buffer conventions of ``hardware_depth`` / ``linearize_depth`` (``aobake.constants``).
+DEPTH_CONVENTIONS = constants.DEPTH_CONVENTIONS
 #: The text ``Camera.record`` writes for each convention (one name per concept).
 MATRIX_LAYOUT = "row-major, column vectors (v = M @ [p, 1])"
 HANDEDNESS = "right-handed, looks down -Z, +Y up"

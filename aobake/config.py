@@ -18,9 +18,9 @@ from dataclasses import asdict, dataclass, fields
 from aobake.backends import BACKENDS
 from aobake.constants import AXES, OFFSET_ULPS  # noqa: F401  (re-exported)
 from aobake.errors import InputError
-from aobake.methods.discs import DiscsOptions
+from aobake.methods.discs_options import DiscsOptions
 from aobake.methods.file import FileOptions
-from aobake.methods.hemicube import HemicubeOptions
+from aobake.methods.hemicube_options import HemicubeOptions
 from aobake.methods.rays_options import (BACKFACES, DEFAULT_RAY_OFFSET, MAX_CONFIDENCE,  # noqa: F401
                                          MAX_RAYS, RaysOptions)
 from aobake.options import check as check_settings

@@ -7,3 +7,5 @@ AXES = ("x", "y", "z")
 #: float32 ulps of a point's (rebased) coordinates its origin is lifted at least: Embree's
 #: hit distances carry a few ulps of error, so 64 keeps a ray off its own triangle.
 OFFSET_ULPS = 64
+#: hardware depth-buffer conventions (``aobake.camera.hardware_depth`` / ``linearize_depth``)
+DEPTH_CONVENTIONS = ("opengl", "d3d", "reversed")

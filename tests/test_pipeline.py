@@ -199,5 +199,6 @@ def test_lazy_registries_resolve_every_plugin_and_a_vertex_bake_imports_none_it_
                             check=True).stdout.split()
     for module in ("aobake.targets.texels.target", "aobake.targets.texels.atlas",
                    "aobake.targets.projected", "aobake.targets.camera", "aobake.methods.ssao",
-                   "aobake.methods.hemicube_gl", "aobake.executors.dask", "aobake.compare"):
+                   "aobake.methods.discs", "aobake.methods.hemicube", "aobake.screen.gbuffer",
+                   "aobake.camera", "aobake.executors.dask", "aobake.compare"):
         assert module not in loaded, module

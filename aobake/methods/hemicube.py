@@ -40,7 +40,7 @@ from __future__ import annotations
 import importlib.util
 import math
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 
 import numpy as np
 
@@ -49,17 +49,13 @@ from aobake.constants import OFFSET_ULPS
 from aobake.errors import AobakeError, InputError
 from aobake.estimates import Estimates
 from aobake.methods.base import refuse_ray_settings
-from aobake.options import check as check_settings
-from aobake.options import record_of, setting
+# the settings record and its limits live apart (read by every config), re-exported here
+from aobake.methods.hemicube_options import (DEFAULT_RESOLUTION, MAX_RESOLUTION,  # noqa: F401
+                                             HemicubeOptions)
 from aobake.vectors import defined
 
 #: the no-information value of ``aobake.quantities.ao`` (the midpoint: nothing is known)
 NO_INFORMATION_AO = 0.5
-#: the largest resolution: a tile is 3R x R pixels and must fit the framebuffer's usable
-#: half (hemicube_gl.half_size); at 512 one point is 786k pixels
-MAX_RESOLUTION = 512
-#: the default: discretisation error on the closed-form scenes at most ~0.01 (docs/hemicube.md)
-DEFAULT_RESOLUTION = 64
 #: the most points per child process (each child starts Python and makes its own context:
 #: ~0.4 s, the work of ~40 points on a 37k-triangle mesh)
 CHILD_POINTS = 2048
@@ -80,40 +76,6 @@ class HemicubeError(AobakeError):
     """The OpenGL child could not render: no moderngl, no EGL context, a driver crash or
     hang.  The message says which and what to install."""
 
-
-@dataclass(frozen=True)
-class HemicubeOptions:
-    """The ``hemicube`` method's settings (each field's help is its documentation).
-
-    Made by ``aobake.options.setting`` like every section's record: adding it to
-    ``BakeConfig``'s bases gives ``--hemicube-resolution``, its check and its report key;
-    until then ``HemicubeMethod.options`` (a class-level default) or ``prepare(...,
-    options=)`` sets it, and :meth:`of` reads it from a config that has it.
-    """
-
-    hemicube_resolution: int = setting(
-        DEFAULT_RESOLUTION, "int", "--method hemicube: pixels across the front face (the four "
-        "side faces are R x R/2); even. The discretisation error falls as 1/R, the cost per "
-        "point grows with the triangles, little with R (docs/hemicube.md).",
-        section="hemicube", low=2, high=MAX_RESOLUTION, words="an even integer >= 2",
-        too_high=f"is above the limit of {MAX_RESOLUTION} (a point's 3R x R tile must fit "
-                 "the framebuffer)")
-
-    def __post_init__(self):
-        check_settings(self)
-        self.check_hemicube()
-
-    def check_hemicube(self) -> None:
-        """The checks the field's spec cannot state: R even (a side face has R/2 rows)."""
-        if self.hemicube_resolution % 2:
-            raise InputError(f"hemicube resolution must be an even integer >= 2, got "
-                             f"{self.hemicube_resolution}")
-
-    @classmethod
-    def of(cls, config, default: "HemicubeOptions | None" = None) -> "HemicubeOptions":
-        """The settings a config carries (once ``BakeConfig`` composes this record), else
-        ``default`` (else the defaults)."""
-        return record_of(cls, config, default)
 
 
 #: The GL child: it imports ``hemicube_gl`` (numpy, moderngl, ``hemicube_cells``) and not

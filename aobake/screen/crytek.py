@@ -55,11 +55,10 @@ import numpy as np
 
 from aobake.screen import kernels
 from aobake.screen.gbuffer import Frame, depth_step
+# the normalisations of the visible fraction A and the range checks (module docstring) are
+# the settings' choices, stated in ``aobake.screen.options``
+from aobake.screen.options import NORMALISATIONS, RANGE_CHECKS  # noqa: F401
 
-#: normalisations of the visible fraction A (module docstring)
-NORMALISATIONS = ("double", "crytek", "none")
-#: range checks (module docstring)
-RANGE_CHECKS = ("plane", "depth")
 #: the value an open flat wall gets under each normalisation (docs/screen-space.md), where the
 #: ball's image lies on the image (off it, samples count as open): with the plane check
 #: exactly one sample of each antipodal pair is occluded (the facet keeps those in front

@@ -29,18 +29,15 @@ import numpy as np
 
 from aobake import camera as cameras
 from aobake.errors import InputError
+# the depth buffers and normals a method may read: the settings' choices, stated in
+# ``aobake.screen.options``
+from aobake.screen.options import DEPTH_SOURCES, NORMAL_SOURCES
 
-#: depth buffers a method may read: the linear view depth, or a hardware depth (the names of
-#: ``aobake.camera.DEPTH_CONVENTIONS``) linearised with the camera's near/far
-DEPTH_SOURCES = ("linear",) + cameras.DEPTH_CONVENTIONS
 #: the G-buffer channel of each depth source
 DEPTH_CHANNELS = {"linear": "depth", "opengl": "hwdepth_gl", "d3d": "hwdepth_d3d",
                   "reversed": "hwdepth_reversed"}
 #: the cleared value of each hardware depth buffer (what a pixel that sees nothing holds)
 CLEARED = {"opengl": 1.0, "d3d": 1.0, "reversed": 0.0}
-#: normals a method may read: the geometric normal (the one the AO's hemisphere is built on:
-#: the truth's) or the interpolated shading normal, both view space, facing the eye
-NORMAL_SOURCES = ("geometric", "shading")
 NORMAL_CHANNELS = {"geometric": "Ng", "shading": "N"}
 #: the channels a GBuffer holds
 CHANNELS = ("coverage", "depth", "hwdepth_gl", "hwdepth_d3d", "hwdepth_reversed",

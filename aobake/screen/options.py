@@ -15,8 +15,20 @@ from dataclasses import dataclass
 from aobake.errors import InputError
 from aobake.options import check as check_settings
 from aobake.options import record_of, setting
-from aobake.screen.crytek import NORMALISATIONS, RANGE_CHECKS
-from aobake.screen.gbuffer import DEPTH_SOURCES, NORMAL_SOURCES
+from aobake.constants import DEPTH_CONVENTIONS
+
+# The settings' choices are stated here, where every config reads them, and imported by the
+# methods (``crytek``, ``gbuffer``): reading a config never imports a method.
+#: depth buffers a method may read: the linear view depth, or a hardware depth (the names of
+#: ``aobake.camera.DEPTH_CONVENTIONS``) linearised with the camera's near/far
+DEPTH_SOURCES = ("linear",) + DEPTH_CONVENTIONS
+#: normals a method may read: the geometric normal (the one the AO's hemisphere is built on:
+#: the truth's) or the interpolated shading normal, both view space, facing the eye
+NORMAL_SOURCES = ("geometric", "shading")
+#: Crytek's normalisations of the visible fraction A (``aobake.screen.crytek``)
+NORMALISATIONS = ("double", "crytek", "none")
+#: Crytek's range checks (``aobake.screen.crytek``)
+RANGE_CHECKS = ("plane", "depth")
 
 #: the most samples, slices or steps a pixel may take (each is a depth fetch per pixel)
 MAX_SAMPLES = 1024
