@@ -13,33 +13,30 @@ Needs ../shared/meshes beside the checkout (or --meshes).
 from __future__ import annotations
 
 import argparse
-import base64
-import io
-import json
+import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-import aobake
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))  # the tests' glTF scene writer
 
-MESHES = Path(__file__).resolve().parents[2] / "shared" / "meshes"
+import aobake  # noqa: E402
+from gltf_scenes import png, write_gltf  # noqa: E402
+
+MESHES = ROOT.parent / "shared" / "meshes"
 
 
 def leaf_alpha(size: int = 64, seed: int = 0) -> bytes:
     """RGBA PNG bytes: white, alpha 255 inside ~12 random discs (about half the texels)."""
-    from PIL import Image
-
     rng = np.random.default_rng(seed)
     y, x = np.mgrid[0:size, 0:size] / size
     inside = np.zeros((size, size), dtype=bool)
     for cx, cy, r in zip(rng.random(12), rng.random(12), 0.1 + 0.1 * rng.random(12)):
         inside |= (x - cx) ** 2 + (y - cy) ** 2 < r * r
-    rgba = np.full((size, size, 4), 255, dtype=np.uint8)
-    rgba[..., 3] = np.where(inside, 255, 0)
-    buffer = io.BytesIO()
-    Image.fromarray(rgba, "RGBA").save(buffer, format="PNG")
-    return buffer.getvalue()
+    return png(np.where(inside, 255, 0).astype(np.uint8))
 
 
 def cards(mesh, count: int, seed: int = 1):
@@ -67,43 +64,12 @@ def cards(mesh, count: int, seed: int = 1):
 
 def write_scene(path: Path, mesh, card_mesh) -> Path:
     """A .gltf: the mesh (OPAQUE) and the cards (MASK, cutoff 0.5, the leaf texture)."""
-    blob, views, accessors = bytearray(), [], []
-
-    def add(array, target, component, kind):
-        array = np.ascontiguousarray(array)
-        blob.extend(b"\0" * (-len(blob) % 4))
-        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": array.nbytes,
-                      "target": target})
-        blob.extend(array.tobytes())
-        accessor = {"bufferView": len(views) - 1, "componentType": component,
-                    "count": len(array), "type": kind}
-        if kind == "VEC3":
-            accessor.update(min=array.min(0).tolist(), max=array.max(0).tolist())
-        accessors.append(accessor)
-        return len(accessors) - 1
-
-    meshes = []
-    parts = ((np.asarray(mesh.vertices), np.asarray(mesh.faces),
-              np.zeros((len(mesh.vertices), 2))), card_mesh)
-    for i, (v, f, uv) in enumerate(parts):
-        meshes.append({"name": ("model", "cards")[i], "primitives": [{
-            "attributes": {"POSITION": add(v.astype(np.float32), 34962, 5126, "VEC3"),
-                           "TEXCOORD_0": add(uv.astype(np.float32), 34962, 5126, "VEC2")},
-            "indices": add(f.astype(np.uint32).ravel(), 34963, 5125, "SCALAR"),
-            "material": i}]})
-    png = "data:image/png;base64," + base64.b64encode(leaf_alpha()).decode()
-    gltf = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0, 1]}],
-            "nodes": [{"mesh": 0, "name": "model"}, {"mesh": 1, "name": "cards"}],
-            "meshes": meshes,
-            "materials": [{"name": "model", "alphaMode": "OPAQUE"},
-                          {"name": "leaves", "alphaMode": "MASK", "alphaCutoff": 0.5,
-                           "doubleSided": True,
-                           "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
-            "images": [{"uri": png}], "textures": [{"source": 0}],
-            "accessors": accessors, "bufferViews": views,
-            "buffers": [{"byteLength": len(blob), "uri": "data:application/octet-stream;base64,"
-                         + base64.b64encode(bytes(blob)).decode()}]}
-    path.write_text(json.dumps(gltf))
+    v, f, uv = card_mesh
+    write_gltf(path, [
+        {"vertices": np.asarray(mesh.vertices), "faces": np.asarray(mesh.faces),
+         "uv": np.zeros((len(mesh.vertices), 2)), "material": {"alphaMode": "OPAQUE"}},
+        {"vertices": v, "faces": f, "uv": uv,
+         "material": {"alphaMode": "MASK", "alphaCutoff": 0.5, "png": leaf_alpha()}}])
     return path
 
 
