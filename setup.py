@@ -23,6 +23,14 @@ setup(
     ext_modules=[
         Extension("aobake._kernels", [f"aobake/{name}.c" for name in KERNELS],
                   depends=["aobake/_kernels.h"], extra_compile_args=FLAGS, optional=True),
+        # Embree 4 occlusion packets on the libembree4 that embreex ships (aobake/_embree.c):
+        # Embree's own headers for the types, the functions found with dlsym at run time, so
+        # the build needs neither embreex nor an Embree install.  Optional: without it the
+        # embree backend traces through embreex (the same hits, slower).
+        *([] if sys.platform == "win32" else [
+            Extension("aobake._embree", ["aobake/_embree.c"], include_dirs=["third_party/embree4"],
+                      depends=["third_party/embree4/embree4/rtcore.h"], optional=True,
+                      extra_compile_args=FLAGS, libraries=["dl"])]),
         # xatlas's charting with speed patches (third_party/xatlas/README.md): the same
         # charts as the xatlas package, which stays the fallback.  Flags as that package's
         # release build; -pthread for xatlas's task scheduler; no fused multiply-adds, for the

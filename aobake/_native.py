@@ -64,15 +64,35 @@ def numpy_only() -> Iterator[None]:
         _state.numpy_only = before
 
 
+@contextlib.contextmanager
+def embreex_only() -> Iterator[None]:
+    """Build Embree backends started on this thread inside the block on embreex rather
+    than ``aobake._embree`` (``aobake.backends.native``: the same answers, slower)."""
+    before = getattr(_state, "embreex_only", False)
+    _state.embreex_only = True
+    try:
+        yield
+    finally:
+        _state.embreex_only = before
+
+
+def embreex_forced() -> bool:
+    """True inside :func:`embreex_only` on this thread."""
+    return getattr(_state, "embreex_only", False)
+
+
 def carried(function):
-    """``function`` wrapped to run, on any thread, with the ``numpy_only`` state of the
-    thread calling ``carried`` (that state is thread-local)."""
+    """``function`` wrapped to run, on any thread, with the ``numpy_only`` and
+    ``embreex_only`` states of the thread calling ``carried`` (they are thread-local)."""
     forced = getattr(_state, "numpy_only", False)
+    embreex = embreex_forced()
 
     def call(*args, **kwargs):
-        if not forced:
-            return function(*args, **kwargs)
-        with numpy_only():
+        with contextlib.ExitStack() as stack:
+            if forced:
+                stack.enter_context(numpy_only())
+            if embreex:
+                stack.enter_context(embreex_only())
             return function(*args, **kwargs)
 
     return call

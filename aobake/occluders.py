@@ -108,6 +108,8 @@ class Occluders:
                   "trace_scale": self.scale, "diagonal": self.diagonal}
         if self.traversal is not None:  # which Embree traversal ran (docs/performance.md)
             params["embree_mode"] = self.traversal
+            # which binding traced (aobake.backends.native): the same answers, not the same speed
+            params["embree_binding"] = getattr(self.backend, "binding", "embreex")
         if self.ground is not None:
             params["ground_plane"] = dict(self.ground)
         if self.faces is not None:

@@ -1,0 +1,390 @@
+/* aobake._embree: Embree 4 queries straight from C, on the library embreex ships.
+ *
+ * Why it exists (benchmarks/bench_backend.py, docs/performance.md): embreex's run() traces
+ * one ray at a time (rtcOccluded1).  An AO point's rays leave one origin, so eight of them
+ * make a coherent packet, and rtcOccluded8 answers them about 1.3x faster on the bunny and
+ * the ogre, with the same hits.  Occlusion is a per-ray boolean (does any triangle cross the
+ * segment?), so a packet's answer for a ray does not depend on the rays beside it: the
+ * packing cannot make results depend on chunking.  Closest-hit queries stay one ray at a
+ * time (rtcIntersect1, as embreex), so their tie-breaking never depends on packet mates.
+ *
+ * No link-time dependency: the headers are Embree's own (third_party/embree4, Apache-2.0,
+ * for the types and constants), and open() takes the path of the libembree4 that embreex
+ * loaded and finds each function with dlsym.  Arrays arrive through the buffer protocol.
+ * Every query releases the GIL (the tracer's threads run them side by side).
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <dlfcn.h>
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+#include "embree4/rtcore.h"
+
+/* The functions used, as pointers found in the loaded library. */
+#define EMBREE_FUNCTIONS(X)                                                              \
+    X(rtcNewDevice) X(rtcGetDeviceError) X(rtcGetDeviceProperty) X(rtcNewScene)           \
+    X(rtcSetSceneFlags) X(rtcNewGeometry) X(rtcSetNewGeometryBuffer) X(rtcCommitGeometry) \
+    X(rtcAttachGeometry) X(rtcReleaseGeometry) X(rtcCommitScene) X(rtcReleaseScene)      \
+    X(rtcOccluded1) X(rtcOccluded4) X(rtcOccluded8) X(rtcOccluded16) X(rtcIntersect1)
+
+#define DECLARE(name) static __typeof__(&name) p_##name;
+EMBREE_FUNCTIONS(DECLARE)
+#undef DECLARE
+
+static void *library;
+static RTCDevice device;
+static int packet_width; /* 16, 8, 4 or 1: the widest packet this CPU's Embree answers */
+
+#define SCENE_CAPSULE "aobake._embree.scene"
+
+static int device_error(const char *what)
+{
+    enum RTCError code = p_rtcGetDeviceError(device);
+    if (code == RTC_ERROR_NONE)
+        return 0;
+    PyErr_Format(PyExc_RuntimeError, "Embree: %s failed (error %d)", what, (int)code);
+    return -1;
+}
+
+static int check(Py_buffer *b, const char *name, Py_ssize_t itemsize, Py_ssize_t count)
+{
+    if (!PyBuffer_IsContiguous(b, 'C')) {
+        PyErr_Format(PyExc_ValueError, "%s must be C-contiguous", name);
+        return -1;
+    }
+    if (b->itemsize != itemsize || b->len != itemsize * count) {
+        PyErr_Format(PyExc_ValueError, "%s: expected %zd items of %zd bytes, got %zd bytes",
+                     name, count, itemsize, b->len);
+        return -1;
+    }
+    return 0;
+}
+
+/* A committed scene of one triangle mesh; vertices (nv, 3) float32, faces (nf, 3) uint32.
+ * Embree owns copies of both (its own buffers carry the padding its SIMD loads need). */
+static RTCScene build(const float *vertices, Py_ssize_t nv, const uint32_t *faces,
+                      Py_ssize_t nf, int robust)
+{
+    RTCScene scene = p_rtcNewScene(device);
+    if (robust)
+        p_rtcSetSceneFlags(scene, RTC_SCENE_FLAG_ROBUST);
+    RTCGeometry geometry = p_rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    float *v = p_rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                         3 * sizeof(float), (size_t)nv);
+    uint32_t *f = p_rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                            3 * sizeof(uint32_t), (size_t)nf);
+    if (v && f) {
+        memcpy(v, vertices, (size_t)nv * 3 * sizeof(float));
+        memcpy(f, faces, (size_t)nf * 3 * sizeof(uint32_t));
+    }
+    p_rtcCommitGeometry(geometry);
+    p_rtcAttachGeometry(scene, geometry);
+    p_rtcReleaseGeometry(geometry);
+    p_rtcCommitScene(scene);
+    return scene;
+}
+
+static void release_scene(PyObject *capsule)
+{
+    RTCScene scene = PyCapsule_GetPointer(capsule, SCENE_CAPSULE);
+    if (scene)
+        p_rtcReleaseScene(scene);
+}
+
+/* Does a packet of W rays work here?  (An ISA this CPU or this Embree build lacks sets an
+ * error, or answers nothing.)  The probe scene's triangle is hit at t = 1 by rays up z. */
+static int probe_width(RTCScene probe, int width)
+{
+    RTC_ALIGN(64) struct RTCRay16 r;
+    RTC_ALIGN(64) int valid[16];
+    memset(&r, 0, sizeof r);
+    for (int k = 0; k < 16; k++) {
+        valid[k] = -1;
+        r.dir_z[k] = 1.0f;
+        r.tfar[k] = 2.0f;
+        r.mask[k] = 0xFFFFFFFFu;
+    }
+    p_rtcGetDeviceError(device); /* clear */
+    if (width == 16) {
+        p_rtcOccluded16(valid, probe, &r, NULL);
+        return p_rtcGetDeviceError(device) == RTC_ERROR_NONE && r.tfar[0] < 0;
+    }
+    /* RTCRay8 / RTCRay4 have the same layout with fewer lanes: fill one of each */
+    if (width == 8) {
+        RTC_ALIGN(32) struct RTCRay8 r8;
+        memset(&r8, 0, sizeof r8);
+        for (int k = 0; k < 8; k++) {
+            r8.dir_z[k] = 1.0f;
+            r8.tfar[k] = 2.0f;
+            r8.mask[k] = 0xFFFFFFFFu;
+        }
+        p_rtcOccluded8(valid, probe, &r8, NULL);
+        return p_rtcGetDeviceError(device) == RTC_ERROR_NONE && r8.tfar[0] < 0;
+    }
+    RTC_ALIGN(16) struct RTCRay4 r4;
+    memset(&r4, 0, sizeof r4);
+    for (int k = 0; k < 4; k++) {
+        r4.dir_z[k] = 1.0f;
+        r4.tfar[k] = 2.0f;
+        r4.mask[k] = 0xFFFFFFFFu;
+    }
+    p_rtcOccluded4(valid, probe, &r4, NULL);
+    return p_rtcGetDeviceError(device) == RTC_ERROR_NONE && r4.tfar[0] < 0;
+}
+
+/* open(path) -> (version, packet width): load libembree4 (the file embreex loaded), make the
+ * device and find the widest occlusion packet that works here. */
+static PyObject *open_library(PyObject *self, PyObject *args)
+{
+    const char *path;
+    if (!PyArg_ParseTuple(args, "s", &path))
+        return NULL;
+    if (library == NULL) {
+        void *handle = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+        if (handle == NULL) {
+            PyErr_Format(PyExc_OSError, "cannot load %s: %s", path, dlerror());
+            return NULL;
+        }
+#define FIND(name)                                                                  \
+        p_##name = (__typeof__(&name))dlsym(handle, #name);                         \
+        if (p_##name == NULL) {                                                     \
+            PyErr_Format(PyExc_OSError, "%s has no %s", path, #name);               \
+            dlclose(handle);                                                        \
+            return NULL;                                                            \
+        }
+        EMBREE_FUNCTIONS(FIND)
+#undef FIND
+        device = p_rtcNewDevice(NULL);
+        if (device == NULL) {
+            PyErr_SetString(PyExc_RuntimeError, "Embree: rtcNewDevice failed");
+            dlclose(handle);
+            return NULL;
+        }
+        long version = (long)p_rtcGetDeviceProperty(device, RTC_DEVICE_PROPERTY_VERSION);
+        if (version / 10000 != RTC_VERSION_MAJOR) {
+            PyErr_Format(PyExc_OSError, "%s is Embree %ld, not %d.x", path, version,
+                         RTC_VERSION_MAJOR);
+            dlclose(handle);
+            return NULL;
+        }
+        /* Probe the packet widths on one triangle: an unsupported width sets an error. */
+        const float tri[9] = {-1, -1, 1, 1, -1, 1, 0, 1, 1};
+        const uint32_t idx[3] = {0, 1, 2};
+        RTCScene probe = build(tri, 3, idx, 1, 1);
+        if (device_error("building a probe scene")) {
+            dlclose(handle);
+            return NULL;
+        }
+        packet_width = 1;
+        if (probe_width(probe, 16))
+            packet_width = 16;
+        else if (probe_width(probe, 8))
+            packet_width = 8;
+        else if (probe_width(probe, 4))
+            packet_width = 4;
+        p_rtcReleaseScene(probe);
+        library = handle;
+    }
+    return Py_BuildValue("(li)", (long)p_rtcGetDeviceProperty(device, RTC_DEVICE_PROPERTY_VERSION),
+                         packet_width);
+}
+
+/* scene(vertices float32 (nv*3), faces uint32 (nf*3), robust) -> capsule */
+static PyObject *new_scene(PyObject *self, PyObject *args)
+{
+    Py_buffer vb = {0}, fb = {0};
+    Py_ssize_t nv, nf;
+    int robust;
+    if (library == NULL) {
+        PyErr_SetString(PyExc_RuntimeError, "aobake._embree.open() was not called");
+        return NULL;
+    }
+    if (!PyArg_ParseTuple(args, "y*ny*np", &vb, &nv, &fb, &nf, &robust))
+        return NULL;
+    PyObject *result = NULL;
+    if (check(&vb, "vertices", sizeof(float), 3 * nv) || check(&fb, "faces", 4, 3 * nf))
+        goto done;
+    for (Py_ssize_t i = 0; i < 3 * nf; i++) { /* Embree would read past the vertices */
+        uint32_t corner = ((const uint32_t *)fb.buf)[i];
+        if ((Py_ssize_t)corner >= nv) {
+            PyErr_Format(PyExc_ValueError, "faces: index %u of %zd vertices", corner, nv);
+            goto done;
+        }
+    }
+    RTCScene scene;
+    Py_BEGIN_ALLOW_THREADS
+    scene = build(vb.buf, nv, fb.buf, nf, robust);
+    Py_END_ALLOW_THREADS
+    if (device_error("building the scene")) {
+        p_rtcReleaseScene(scene);
+        goto done;
+    }
+    result = PyCapsule_New(scene, SCENE_CAPSULE, release_scene);
+    if (result == NULL)
+        p_rtcReleaseScene(scene);
+done:
+    PyBuffer_Release(&vb);
+    PyBuffer_Release(&fb);
+    return result;
+}
+
+/* Lane k of a packet from ray i: origin, direction, segment (0, tfar]. */
+#define FILL_LANE(r, k, i)                                          \
+    do {                                                            \
+        (r).org_x[k] = org[3 * (i)];                                \
+        (r).org_y[k] = org[3 * (i) + 1];                            \
+        (r).org_z[k] = org[3 * (i) + 2];                            \
+        (r).dir_x[k] = dir[3 * (i)];                                \
+        (r).dir_y[k] = dir[3 * (i) + 1];                            \
+        (r).dir_z[k] = dir[3 * (i) + 2];                            \
+        (r).tnear[k] = 0.0f;                                        \
+        (r).tfar[k] = tfar[i];                                      \
+        (r).time[k] = 0.0f;                                         \
+        (r).mask[k] = 0xFFFFFFFFu;                                  \
+        (r).id[k] = 0;                                              \
+        (r).flags[k] = 0;                                           \
+    } while (0)
+
+/* Packets of W rays (W = 16, 8 or 4): the last packet's idle lanes repeat its last ray. */
+#define OCCLUDE_PACKETS(W, ALIGN)                                                   \
+    do {                                                                            \
+        RTC_ALIGN(ALIGN) struct RTCRay##W r;                                        \
+        RTC_ALIGN(ALIGN) int valid[W];                                              \
+        for (Py_ssize_t i = 0; i < n; i += W) {                                     \
+            int lanes = n - i < W ? (int)(n - i) : W;                               \
+            for (int k = 0; k < W; k++) {                                           \
+                Py_ssize_t j = i + (k < lanes ? k : lanes - 1);                     \
+                valid[k] = k < lanes ? -1 : 0;                                      \
+                FILL_LANE(r, k, j);                                                 \
+            }                                                                       \
+            p_rtcOccluded##W(valid, scene, &r, NULL);                               \
+            for (int k = 0; k < lanes; k++)                                         \
+                out[i + k] = r.tfar[k] < 0.0f; /* a hit sets tfar to -inf */        \
+        }                                                                           \
+    } while (0)
+
+static void occlude(RTCScene scene, const float *org, const float *dir, const float *tfar,
+                    uint8_t *out, Py_ssize_t n, int width)
+{
+    if (width == 16) {
+        OCCLUDE_PACKETS(16, 64);
+    } else if (width == 8) {
+        OCCLUDE_PACKETS(8, 32);
+    } else if (width == 4) {
+        OCCLUDE_PACKETS(4, 16);
+    } else {
+        for (Py_ssize_t i = 0; i < n; i++) {
+            struct RTCRay r = {org[3 * i], org[3 * i + 1], org[3 * i + 2], 0.0f,
+                               dir[3 * i], dir[3 * i + 1], dir[3 * i + 2], 0.0f,
+                               tfar[i], 0xFFFFFFFFu, 0, 0};
+            p_rtcOccluded1(scene, &r, NULL);
+            out[i] = r.tfar < 0.0f;
+        }
+    }
+}
+
+static RTCScene scene_of(PyObject *capsule)
+{
+    return PyCapsule_GetPointer(capsule, SCENE_CAPSULE);
+}
+
+/* occluded(scene, origins f32 (n*3), directions f32 (n*3), tfar f32 (n), out u8 (n), width):
+ * width 16, 8, 4 (packets, at most open()'s) or 1 (one ray at a time). */
+static PyObject *occluded(PyObject *self, PyObject *args)
+{
+    PyObject *capsule;
+    Py_buffer ob = {0}, db = {0}, tb = {0}, hb = {0};
+    int width;
+    if (!PyArg_ParseTuple(args, "Oy*y*y*w*i", &capsule, &ob, &db, &tb, &hb, &width))
+        return NULL;
+    PyObject *result = NULL;
+    RTCScene scene = scene_of(capsule);
+    Py_ssize_t n = hb.len;
+    if (scene == NULL || check(&ob, "origins", 4, 3 * n) || check(&db, "directions", 4, 3 * n)
+        || check(&tb, "tfar", 4, n) || check(&hb, "out", 1, n))
+        goto done;
+    if (!(width == 1 || width == 4 || width == 8 || width == 16) || width > packet_width) {
+        PyErr_Format(PyExc_ValueError, "width %d: 1, 4, 8 or 16, at most %d here", width,
+                     packet_width);
+        goto done;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    occlude(scene, ob.buf, db.buf, tb.buf, hb.buf, n, width);
+    Py_END_ALLOW_THREADS
+    if (device_error("rtcOccluded"))
+        goto done;
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    PyBuffer_Release(&ob);
+    PyBuffer_Release(&db);
+    PyBuffer_Release(&tb);
+    PyBuffer_Release(&hb);
+    return result;
+}
+
+/* intersect(scene, origins, directions, tfar, t out f32 (n), prim out i32 (n)): the nearest
+ * hit within (0, tfar]; t = tfar unchanged and prim = -1 on a miss. */
+static PyObject *intersect(PyObject *self, PyObject *args)
+{
+    PyObject *capsule;
+    Py_buffer ob = {0}, db = {0}, tb = {0}, rt = {0}, rp = {0};
+    if (!PyArg_ParseTuple(args, "Oy*y*y*w*w*", &capsule, &ob, &db, &tb, &rt, &rp))
+        return NULL;
+    PyObject *result = NULL;
+    RTCScene scene = scene_of(capsule);
+    Py_ssize_t n = tb.len / 4;
+    if (scene == NULL || check(&ob, "origins", 4, 3 * n) || check(&db, "directions", 4, 3 * n)
+        || check(&tb, "tfar", 4, n) || check(&rt, "t", 4, n) || check(&rp, "prim", 4, n))
+        goto done;
+    const float *org = ob.buf, *dir = db.buf, *tfar = tb.buf;
+    float *t = rt.buf;
+    int32_t *prim = rp.buf;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < n; i++) {
+        struct RTCRayHit rh;
+        rh.ray = (struct RTCRay){org[3 * i], org[3 * i + 1], org[3 * i + 2], 0.0f,
+                                 dir[3 * i], dir[3 * i + 1], dir[3 * i + 2], 0.0f,
+                                 tfar[i], 0xFFFFFFFFu, 0, 0};
+        rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+        rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
+        p_rtcIntersect1(scene, &rh, NULL);
+        t[i] = rh.ray.tfar;
+        prim[i] = rh.hit.geomID == RTC_INVALID_GEOMETRY_ID ? -1 : (int32_t)rh.hit.primID;
+    }
+    Py_END_ALLOW_THREADS
+    if (device_error("rtcIntersect1"))
+        goto done;
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    PyBuffer_Release(&ob);
+    PyBuffer_Release(&db);
+    PyBuffer_Release(&tb);
+    PyBuffer_Release(&rt);
+    PyBuffer_Release(&rp);
+    return result;
+}
+
+static PyMethodDef methods[] = {
+    {"open", open_library, METH_VARARGS,
+     "open(path) -> (version, packet width): load libembree4 from path (once)."},
+    {"scene", new_scene, METH_VARARGS,
+     "scene(vertices f32, nv, faces u32, nf, robust) -> a committed triangle scene."},
+    {"occluded", occluded, METH_VARARGS,
+     "occluded(scene, origins, directions, tfar, out, width): out[i] = any hit in (0, tfar[i]]."},
+    {"intersect", intersect, METH_VARARGS,
+     "intersect(scene, origins, directions, tfar, t, prim): the nearest hit (prim -1: none)."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "aobake._embree",
+                                    "Embree 4 occlusion packets (see aobake/_embree.c).", -1,
+                                    methods};
+
+PyMODINIT_FUNC PyInit__embree(void)
+{
+    return PyModule_Create(&module);
+}
