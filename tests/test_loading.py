@@ -530,3 +530,26 @@ def test_vertex_points_are_np_unique_of_the_row_records():
         want_first, want_inverse = unique(keys)
         assert first.dtype == np.int64 and inverse.dtype == np.int64
         assert np.array_equal(first, want_first) and np.array_equal(inverse, want_inverse)
+
+
+def test_normalize_is_the_linalg_norm_formulation_bit_for_bit():
+    """vectors.normalize's column-by-column length is np.linalg.norm's, bit for bit, also
+    for zero, subnormal, huge (overflowing) and non-finite rows and any leading shape."""
+    from aobake.vectors import normalize
+
+    def reference(vectors):
+        length = np.linalg.norm(vectors, axis=-1, keepdims=True)
+        ok = np.isfinite(length) & (length > 0)
+        return np.divide(vectors, length, out=np.zeros(np.shape(vectors)), where=ok), length
+
+    rng = np.random.default_rng(8)
+    special = np.array([0.0, -0.0, np.nan, np.inf, -np.inf, 1e308, 1e-308, 5e-324, 1e154, 3.0])
+    with np.errstate(all="ignore"):
+        for trial in range(100):
+            a = rng.normal(size=(int(rng.integers(0, 300)), 3)) * 10.0 ** rng.integers(-300, 300)
+            mask = rng.random(a.shape) < 0.2
+            a[mask] = rng.choice(special, size=int(mask.sum()))
+            for vectors in (a, a.reshape(-1, 1, 3), np.asfortranarray(a), a[::2]):
+                got, want = normalize(vectors), reference(vectors)
+                assert all(x.shape == y.shape and x.tobytes() == y.tobytes()
+                           for x, y in zip(got, want))
