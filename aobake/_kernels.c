@@ -11,6 +11,7 @@
  *   _post.c     dilate_rings                  aobake.post: gutter dilation
  *   _sort.c     radix_argsort                 aobake.rng.stable_argsort
  *   _pack.c     chart_marks, pack_charts      aobake.targets.texels.packing: the atlas packer
+ *   _unionfind.c parity_union_find            aobake.repair: components and their 2-colouring
  *
  * This file holds the module's method table; _kernels.h what the files share (buffer
  * checks, the splitmix64 hash of aobake.rng, the functions' declarations).
@@ -58,6 +59,9 @@ static PyMethodDef methods[] = {
      "pack_charts(masks, offsets, shapes, order, width, height, upright, hole_cap, hole_run, "
      "hole_rows, max_searches, out_place[, state]) -> (fits, placed, used): "
      "packing._pack_in_order."},
+    {"parity_union_find", parity_union_find, METH_VARARGS,
+     "parity_union_find(a, b, odd, out_root, out_parity): repair._parity_union_find's "
+     "(root, parity), written."},
     {NULL, NULL, 0, NULL},
 };
 

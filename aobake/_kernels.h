@@ -59,5 +59,6 @@ PyObject *dilate_rings(PyObject *self, PyObject *args);     /* _post.c */
 PyObject *radix_argsort(PyObject *self, PyObject *args);    /* _sort.c */
 PyObject *chart_marks(PyObject *self, PyObject *args);      /* _pack.c */
 PyObject *pack_charts(PyObject *self, PyObject *args);      /* _pack.c */
+PyObject *parity_union_find(PyObject *self, PyObject *args); /* _unionfind.c */
 
 #endif

@@ -159,7 +159,7 @@ def manifold_pairs(faces: np.ndarray, n_vertices: int) -> EdgePairs:
     return EdgePairs(a, b, same, start[other], end[other], owner[other], open_face)
 
 
-def _parity_union_find(n: int, a: np.ndarray, b: np.ndarray, odd: np.ndarray):
+def _parity_union_find(n: int, a: np.ndarray, b: np.ndarray, odd: np.ndarray, kernels=None):
     """Components of the graph on 0..n-1 with edges (a, b) and a parity per node such that
     ``parity[a] ^ parity[b] == odd`` wherever the constraints allow.
 
@@ -168,7 +168,17 @@ def _parity_union_find(n: int, a: np.ndarray, b: np.ndarray, odd: np.ndarray):
     pointer jumping flattens every tree.  Roots only ever hook onto smaller roots, so
     the final root of a component is its smallest node and the result is a pure
     function of the inputs.  Returns (root (n,) int64, parity (n,) bool).
+    kernels : the compiled module (``aobake._native.kernels()``) or None: its
+    ``parity_union_find`` runs the same rounds (the same bits, also the parities of a
+    non-orientable component; tested), ~20x faster than the numpy rounds.
     """
+    if kernels is not None:
+        root, parity = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.bool_)
+        kernels.parity_union_find(np.ascontiguousarray(a, dtype=np.int64),
+                                  np.ascontiguousarray(b, dtype=np.int64),
+                                  np.ascontiguousarray(odd, dtype=np.bool_).view(np.uint8),
+                                  root, parity.view(np.uint8))
+        return root, parity
     parent = np.arange(n, dtype=np.int64)
     parity = np.zeros(n, dtype=bool)
     live_a, live_b, live_odd = a, b, odd
@@ -207,9 +217,10 @@ def orient(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     n_faces = len(faces)
+    compiled = _native.kernels()
     edges = manifold_pairs(faces, len(vertices))
     a, b, same, open_face = edges.a, edges.b, edges.same, edges.open_face
-    root, parity = _parity_union_find(n_faces, a, b, same)
+    root, parity = _parity_union_find(n_faces, a, b, same, compiled)
     conflicting = int(np.count_nonzero((parity[a] ^ parity[b]) != same))
 
     proper = _proper(faces)
@@ -248,7 +259,8 @@ def orient(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
     scale = np.bincount(comp, weights=np.abs(det), minlength=n_comp)
     face_sign = np.zeros(n_faces)
     face_sign[proper] = sign
-    cap_volume, cap_scale, cap_area = _caps(vertices, edges, component, face_sign, centre, n_comp)
+    cap_volume, cap_scale, cap_area = _caps(vertices, edges, component, face_sign, centre, n_comp,
+                                            compiled)
     total_area = np.bincount(comp, weights=area, minlength=n_comp)
     nearly_closed = ~closed & (cap_area <= NEARLY_CLOSED * total_area)
     volume, scale = volume + cap_volume, scale + cap_scale  # zero for closed components
@@ -268,7 +280,7 @@ def orient(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
     return Orientation(component, against, flip, closed, nearly_closed, inward, conflicting)
 
 
-def _caps(vertices, edges: EdgePairs, component, face_sign, centre, n_comp):
+def _caps(vertices, edges: EdgePairs, component, face_sign, centre, n_comp, kernels=None):
     """Fan caps over each component's boundary loops (its open edges, connected through
     shared vertices), traversed against the consistent winding so they close it.
 
@@ -291,7 +303,7 @@ def _caps(vertices, edges: EdgePairs, component, face_sign, centre, n_comp):
                                axis=0, return_inverse=True)
     inverse = inverse.reshape(-1)
     loop_root, _ = _parity_union_find(len(nodes), inverse[:len(comp)], inverse[len(comp):],
-                                      np.zeros(len(comp), dtype=bool))
+                                      np.zeros(len(comp), dtype=bool), kernels)
     loops, loop_of_node = np.unique(loop_root, return_inverse=True)
     count = np.bincount(loop_of_node, minlength=len(loops))
     mean = np.stack([np.bincount(loop_of_node, weights=vertices[nodes[:, 1], k],

@@ -12,9 +12,16 @@ def normalize(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit rows of ``vectors`` (..., 3) float64 and their lengths (..., 1) float64.
 
     Rows of zero or non-finite length become zero rather than NaN (callers decide
-    what such a row means: no normal, no direction).
+    what such a row means: no normal, no direction).  Float64 rows of 3 take their length
+    column by column: np.linalg.norm's sum of squares, left to right, the same bits, ~2x
+    faster than its reduction over the short last axis (as :func:`defined`).
     """
-    length = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    vectors = np.asarray(vectors)
+    if vectors.dtype == np.float64 and vectors.ndim and vectors.shape[-1] == 3:
+        x, y, z = vectors[..., 0], vectors[..., 1], vectors[..., 2]
+        length = np.sqrt((x * x + y * y) + z * z)[..., None]
+    else:
+        length = np.linalg.norm(vectors, axis=-1, keepdims=True)
     ok = np.isfinite(length) & (length > 0)
     return np.divide(vectors, length, out=np.zeros(np.shape(vectors)), where=ok), length
 

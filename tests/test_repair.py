@@ -97,8 +97,8 @@ def test_open_component_is_oriented_by_the_file_normals():
     assert not repair.orient(vertices, grid, -against).inward.any()
 
 
-def test_moebius_strip_is_counted_not_forced():
-    k = 12
+def _moebius(k=12):
+    """(vertices, faces) of a Moebius strip of 2 k triangles."""
     t = np.linspace(0, 2 * np.pi, k, endpoint=False)
     half = t / 2
     ring = np.stack([np.cos(t), np.sin(t), np.zeros(k)], axis=1)
@@ -110,7 +110,11 @@ def test_moebius_strip_is_counted_not_forced():
         a, b = i, i + k
         c, d = (j, j + k) if j else (j + k, j)  # the half twist joins the two edges
         faces += [[a, b, d], [a, d, c]]
-    found = repair.orient(vertices, np.array(faces))
+    return vertices, np.array(faces)
+
+
+def test_moebius_strip_is_counted_not_forced():
+    found = repair.orient(*_moebius())
     assert found.conflicting_edges >= 1 and found.n_components == 1
 
 
@@ -122,6 +126,62 @@ def test_detector_is_deterministic_under_face_order():
     a = repair.orient(sphere.vertices, faces)
     b = repair.orient(sphere.vertices, faces[order])
     assert np.array_equal(a.flip[order], b.flip) and a.counts() == b.counts()
+
+
+def _same_union_find(n, a, b, odd, kernel):
+    expected = repair._parity_union_find(n, a, b, odd)
+    got = repair._parity_union_find(n, a, b, odd, kernel)
+    return all(x.dtype == y.dtype and np.array_equal(x, y) for x, y in zip(expected, got))
+
+
+def test_compiled_union_find_is_the_numpy_rounds_bit_for_bit(kernel):
+    """The compiled parity union-find returns the numpy rounds' (root, parity): also the
+    parities of non-orientable components (odd cycles), which depend on the rounds."""
+    rng = np.random.default_rng(11)
+    for trial in range(200):
+        n = int(rng.integers(1, 300))
+        e = int(rng.integers(0, 3 * n))
+        a, b = rng.integers(0, n, e), rng.integers(0, n, e)  # self-loops and repeats too
+        odd = rng.random(e) < [0.0, 0.5, 1.0][trial % 3]
+        assert _same_union_find(n, a, b, odd, kernel), trial
+    # odd cycles (a triangle of all-odd edges has no 2-colouring) strung into long chains
+    # whose node numbers are shuffled, so trees hook over many rounds
+    for trial in range(20):
+        k = int(rng.integers(1, 60))
+        cycles = [[3 * i, 3 * i + 1, 3 * i + 1, 3 * i + 2, 3 * i + 2, 3 * i] for i in range(k)]
+        a = np.array([c[j] for c in cycles for j in (0, 2, 4)] + list(range(0, 3 * k - 3, 3)))
+        b = np.array([c[j] for c in cycles for j in (1, 3, 5)] + list(range(3, 3 * k, 3)))
+        odd = rng.random(len(a)) < 0.7
+        label = rng.permutation(3 * k)
+        assert _same_union_find(3 * k, label[a], label[b], odd, kernel), trial
+    # a mesh's triangle graph, as orient builds it: a closed sphere with random faces
+    # flipped, faces shuffled, and a Moebius strip beside it
+    sphere = trimesh.creation.icosphere(5)
+    faces = _swap(sphere.faces, rng.random(len(sphere.faces)) < 0.3)[rng.permutation(len(sphere.faces))]
+    edges = repair.manifold_pairs(faces, len(sphere.vertices))
+    assert _same_union_find(len(faces), edges.a, edges.b, edges.same, kernel)
+    strip_vertices, strip = _moebius(40)
+    faces = np.concatenate([faces, strip + len(sphere.vertices)])
+    edges = repair.manifold_pairs(faces, len(sphere.vertices) + len(strip_vertices))
+    root, parity = repair._parity_union_find(len(faces), edges.a, edges.b, edges.same)
+    assert np.count_nonzero((parity[edges.a] ^ parity[edges.b]) != edges.same) >= 1
+    assert _same_union_find(len(faces), edges.a, edges.b, edges.same, kernel)
+
+
+def test_detector_is_the_same_on_the_numpy_path(kernel):
+    from aobake import _native
+
+    sphere = trimesh.creation.icosphere(3)
+    faces = _swap(sphere.faces, np.arange(len(sphere.faces)) % 5 == 0)
+    holed = faces[sphere.triangles_center[:, 2] < 0.9]  # open: its caps' loops too
+    for f in (faces, holed):
+        compiled = repair.orient(sphere.vertices, f)
+        with _native.numpy_only():
+            reference = repair.orient(sphere.vertices, f)
+        assert compiled.counts() == reference.counts()
+        assert all(np.array_equal(getattr(compiled, name), getattr(reference, name))
+                   for name in ("component", "against", "flip", "closed", "nearly_closed",
+                                "inward"))
 
 
 # --- --fix-normals in the bake ----------------------------------------------------------
