@@ -21,7 +21,7 @@ log = logging.getLogger(__name__)
 
 #: the packet width the occlusion queries use, where the CPU allows it (at most 16;
 #: benchmarks/bench_backend.py --widths measures each)
-PACKET_WIDTH = 8
+PACKET_WIDTH = 16
 
 _lock = threading.Lock()
 _opened: tuple | None = None  # (module, version, packet width) or (None, reason)
