@@ -3,7 +3,7 @@
 ``Tracer`` holds a scene prepared for one configuration (the resolved
 parameters, the backend, the ray generator); :meth:`Tracer.estimate` orders the
 points for ray coherence, cuts them into chunks of about ``chunk_rays`` rays,
-runs the chunks on threads (embreex releases the GIL inside ``run()``, numpy in
+runs the chunks on threads (the Embree queries release the GIL, numpy in
 its large element-wise loops) and lands each chunk's estimates by index, never
 by arrival.  Each point's rays are a pure function of (seed, point id, sample
 id), so results are bit-identical for any thread count and chunk size.
