@@ -24,10 +24,11 @@
 
 /* The functions used, as pointers found in the loaded library. */
 #define EMBREE_FUNCTIONS(X)                                                              \
-    X(rtcNewDevice) X(rtcGetDeviceError) X(rtcGetDeviceProperty) X(rtcNewScene)           \
-    X(rtcSetSceneFlags) X(rtcNewGeometry) X(rtcSetNewGeometryBuffer) X(rtcCommitGeometry) \
-    X(rtcAttachGeometry) X(rtcReleaseGeometry) X(rtcCommitScene) X(rtcReleaseScene)      \
-    X(rtcOccluded1) X(rtcOccluded4) X(rtcOccluded8) X(rtcOccluded16) X(rtcIntersect1)
+    X(rtcNewDevice) X(rtcReleaseDevice) X(rtcGetDeviceError) X(rtcGetDeviceProperty)      \
+    X(rtcNewScene) X(rtcSetSceneFlags) X(rtcNewGeometry) X(rtcSetNewGeometryBuffer)       \
+    X(rtcCommitGeometry) X(rtcAttachGeometry) X(rtcReleaseGeometry) X(rtcCommitScene)     \
+    X(rtcReleaseScene) X(rtcOccluded1) X(rtcOccluded4) X(rtcOccluded8) X(rtcOccluded16)   \
+    X(rtcIntersect1)
 
 #define DECLARE(name) static __typeof__(&name) p_##name;
 EMBREE_FUNCTIONS(DECLARE)
@@ -166,6 +167,8 @@ static PyObject *open_library(PyObject *self, PyObject *args)
         if (version / 10000 != RTC_VERSION_MAJOR) {
             PyErr_Format(PyExc_OSError, "%s is Embree %ld, not %d.x", path, version,
                          RTC_VERSION_MAJOR);
+            p_rtcReleaseDevice(device);
+            device = NULL;
             dlclose(handle);
             return NULL;
         }
@@ -174,6 +177,9 @@ static PyObject *open_library(PyObject *self, PyObject *args)
         const uint32_t idx[3] = {0, 1, 2};
         RTCScene probe = build(tri, 3, idx, 1, 1);
         if (device_error("building a probe scene")) {
+            p_rtcReleaseScene(probe);
+            p_rtcReleaseDevice(device);
+            device = NULL;
             dlclose(handle);
             return NULL;
         }
