@@ -12,6 +12,7 @@
  *   _sort.c     radix_argsort                 aobake.rng.stable_argsort
  *   _pack.c     chart_marks, pack_charts      aobake.targets.texels.packing: the atlas packer
  *   _unionfind.c parity_union_find            aobake.repair: components and their 2-colouring
+ *   _normals.c  triangle_normals, vertex_normal_sums  aobake.scene: face and vertex normals
  *
  * This file holds the module's method table; _kernels.h what the files share (buffer
  * checks, the splitmix64 hash of aobake.rng, the functions' declarations).
@@ -62,6 +63,13 @@ static PyMethodDef methods[] = {
     {"parity_union_find", parity_union_find, METH_VARARGS,
      "parity_union_find(a, b, odd, out_root, out_parity): repair._parity_union_find's "
      "(root, parity), written."},
+    {"triangle_normals", triangle_normals, METH_VARARGS,
+     "triangle_normals(vertices, faces, out_unit, out_length, out_cross, out_cos) -> bool: "
+     "unit face normals, their cross products' lengths, and (where not empty) the cross "
+     "products and each corner's clipped cosine (aobake.scene)."},
+    {"vertex_normal_sums", vertex_normal_sums, METH_VARARGS,
+     "vertex_normal_sums(faces, rows, angles, out) -> bool: vertex_normals's weighted sums "
+     "in bincount's order, normalised."},
     {NULL, NULL, 0, NULL},
 };
 

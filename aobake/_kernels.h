@@ -60,5 +60,7 @@ PyObject *radix_argsort(PyObject *self, PyObject *args);    /* _sort.c */
 PyObject *chart_marks(PyObject *self, PyObject *args);      /* _pack.c */
 PyObject *pack_charts(PyObject *self, PyObject *args);      /* _pack.c */
 PyObject *parity_union_find(PyObject *self, PyObject *args); /* _unionfind.c */
+PyObject *triangle_normals(PyObject *self, PyObject *args);  /* _normals.c */
+PyObject *vertex_normal_sums(PyObject *self, PyObject *args); /* _normals.c */
 
 #endif

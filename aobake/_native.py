@@ -26,7 +26,8 @@ KERNELS = {"ray_generation": "fill_rays", "escape_counts": "row_counts",
 #: every function the stages call (a module built from an older checkout lacks some)
 FUNCTIONS = set(KERNELS.values()) | {"radix_argsort", "surface_interp", "chart_marks",
                                       "seam_pattern", "seam_values", "surface_shading",
-                                      "parity_union_find"}
+                                      "parity_union_find", "triangle_normals",
+                                      "vertex_normal_sums"}
 
 if _compiled is not None and not FUNCTIONS <= set(dir(_compiled)):
     # An editable install not rebuilt since the kernels changed: numpy for everything

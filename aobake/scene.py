@@ -42,6 +42,7 @@ import warnings
 
 import numpy as np
 
+from aobake import _native
 from aobake import repair as repairs
 from aobake.vectors import normalize
 
@@ -227,27 +228,76 @@ def _normalize(vectors: np.ndarray) -> np.ndarray:
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(f, 3) float64 unit face normals from the winding; zero for degenerate faces."""
+    compiled = _triangle_normals(vertices, faces)
+    if compiled is not None:
+        return compiled[0]
     tri = vertices[faces]
     return _normalize(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]))
 
 
+def _corner_cosines(tri: np.ndarray) -> np.ndarray:
+    """(3, f) float64 the cosine of each corner's angle of the triangles ``tri`` (f, 3, 3),
+    clipped to [-1, 1]: the dot product of the unit edges, summed (x x' + z z') + y y'.
+    That is np.einsum("ij,ij->i")'s order where numpy reduces a row of 3 in AVX-512 lanes
+    (x86-64 with AVX-512, as the machines the outputs were fixed on), written out so that
+    every build gives those bits and the compiled kernel can give them too."""
+    cosines = np.empty((3, len(tri)))
+    for corner in range(3):
+        a = _normalize(tri[:, (corner + 1) % 3] - tri[:, corner])
+        b = _normalize(tri[:, (corner + 2) % 3] - tri[:, corner])
+        dot = (a[:, 0] * b[:, 0] + a[:, 2] * b[:, 2]) + a[:, 1] * b[:, 1]
+        cosines[corner] = np.clip(dot, -1.0, 1.0)
+    return cosines
+
+
+def _triangle_normals(vertices, faces, cross: bool = False, cosines: bool = False):
+    """(unit (f, 3), length (f,), cross (f, 3) | None, cosines (3, f) | None) from the
+    compiled kernel (``triangle_normals``: the numpy formulations' bits, tested), or None
+    where it was not built, is switched off, or the input is not float64 vertices (v, 3)
+    and integer faces (f, 3) in range (the numpy path then does, or raises, what it does)."""
+    kernels = _native.kernels()
+    if kernels is None:
+        return None
+    vertices, faces = np.asarray(vertices), np.asarray(faces)
+    if (vertices.dtype != np.float64 or vertices.ndim != 2 or vertices.shape[1] != 3
+            or faces.ndim != 2 or faces.shape[1] != 3 or faces.dtype.kind not in "iu"):
+        return None
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    n = len(faces)
+    unit, length = np.empty((n, 3)), np.empty(n)
+    out_cross = np.empty((n if cross else 0, 3))
+    out_cos = np.empty((3, n if cosines else 0))
+    if not kernels.triangle_normals(np.ascontiguousarray(vertices), faces, unit, length,
+                                    out_cross, out_cos):
+        return None
+    return unit, length, out_cross if cross else None, out_cos if cosines else None
+
+
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray, weighting: str = "angle") -> np.ndarray:
-    """(v, 3) float64 unit vertex normals, weighted by corner angle or face area; zero where undefined."""
+    """(v, 3) float64 unit vertex normals, weighted by corner angle or face area; zero where undefined.
+
+    With the compiled kernels (``triangle_normals``, np.arccos, ``vertex_normal_sums``)
+    the same bits, ~5x faster (tests/test_loading.py compares them)."""
+    if weighting not in ("area", "angle"):
+        raise ValueError(f"unknown normal weighting {weighting!r}")
+    compiled = _triangle_normals(vertices, faces, cross=weighting == "area",
+                                 cosines=weighting == "angle")
+    if compiled is not None:
+        unit, _, cross, cosines = compiled
+        out = np.empty((len(vertices), 3))
+        # np.arccos is numpy's own: its float64 arccos is not the C library's everywhere
+        rows, angles = (cross, np.empty((3, 0))) if cosines is None else (unit, np.arccos(cosines))
+        if _native.kernels().vertex_normal_sums(np.ascontiguousarray(faces, dtype=np.int64),
+                                                rows, angles, out):
+            return out
     tri = vertices[faces]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     if weighting == "area":
         # |cross| = 2 * area, so the raw cross product is already area-weighted.
         weights = np.repeat(cross[:, None, :], 3, axis=1)
-    elif weighting == "angle":
-        unit = _normalize(cross)
-        angles = np.empty((len(faces), 3))
-        for corner in range(3):
-            a = _normalize(tri[:, (corner + 1) % 3] - tri[:, corner])
-            b = _normalize(tri[:, (corner + 2) % 3] - tri[:, corner])
-            angles[:, corner] = np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0))
-        weights = unit[:, None, :] * angles[:, :, None]
     else:
-        raise ValueError(f"unknown normal weighting {weighting!r}")
+        unit = _normalize(cross)
+        weights = unit[:, None, :] * np.arccos(_corner_cosines(tri)).T[:, :, None]
     # Sums in the order np.add.at over corner 0, 1, 2 would make (bincount adds its inputs
     # in sequence), so the same bits, 5-10x faster.
     index = np.ascontiguousarray(np.asarray(faces, dtype=np.intp).T).reshape(-1)
@@ -353,10 +403,15 @@ def make_scene(
             if text:
                 warnings.append(text)
         record = repair_record(fix_normals, counts, 0 if flipped is None else flipped.sum())
-    tri = local[faces]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    fnormals = _normalize(cross)  # as face_normals(), sharing the cross product with the areas
-    areas = 0.5 * np.linalg.norm(cross, axis=1) / (scale * scale)
+    compiled = _triangle_normals(local, faces)
+    if compiled is not None:  # the bits of the lines below (normalize's length is norm's)
+        fnormals, length = compiled[0], compiled[1]
+    else:
+        tri = local[faces]
+        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        fnormals = _normalize(cross)  # as face_normals(), sharing the cross product
+        length = np.linalg.norm(cross, axis=1)
+    areas = 0.5 * length / (scale * scale)
     n_degenerate = int(np.count_nonzero(~fnormals.any(axis=1)))
     if n_degenerate == len(faces):
         raise InputError(f"{source}: every face has zero area")
