@@ -277,7 +277,7 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray, weighting: str = "an
     """(v, 3) float64 unit vertex normals, weighted by corner angle or face area; zero where undefined.
 
     With the compiled kernels (``triangle_normals``, np.arccos, ``vertex_normal_sums``)
-    the same bits, ~5x faster (tests/test_loading.py compares them)."""
+    the same bits, ~5x faster (tests/test_normals_kernel.py compares them)."""
     if weighting not in ("area", "angle"):
         raise ValueError(f"unknown normal weighting {weighting!r}")
     compiled = _triangle_normals(vertices, faces, cross=weighting == "area",
