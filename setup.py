@@ -29,7 +29,7 @@ setup(
         # embree backend traces through embreex (the same hits, slower).
         *([] if sys.platform == "win32" else [
             Extension("aobake._embree", ["aobake/_embree.c"], include_dirs=["third_party/embree4"],
-                      depends=["third_party/embree4/embree4/rtcore.h"], optional=True,
+                      depends=["aobake/_kernels.h", "third_party/embree4/embree4/rtcore.h"], optional=True,
                       extra_compile_args=FLAGS, libraries=["dl"])]),
         # xatlas's charting with speed patches (third_party/xatlas/README.md): the same
         # charts as the xatlas package, which stays the fallback.  Flags as that package's

@@ -13,12 +13,11 @@
  * loaded and finds each function with dlsym.  Arrays arrive through the buffer protocol.
  * Every query releases the GIL (the tracer's threads run them side by side).
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
 #include <dlfcn.h>
 #include <math.h>
-#include <stdint.h>
 #include <string.h>
+
+#include "_kernels.h" /* Python.h, check() */
 
 #include "embree4/rtcore.h"
 
@@ -47,20 +46,6 @@ static int device_error(const char *what)
         return 0;
     PyErr_Format(PyExc_RuntimeError, "Embree: %s failed (error %d)", what, (int)code);
     return -1;
-}
-
-static int check(Py_buffer *b, const char *name, Py_ssize_t itemsize, Py_ssize_t count)
-{
-    if (!PyBuffer_IsContiguous(b, 'C')) {
-        PyErr_Format(PyExc_ValueError, "%s must be C-contiguous", name);
-        return -1;
-    }
-    if (b->itemsize != itemsize || b->len != itemsize * count) {
-        PyErr_Format(PyExc_ValueError, "%s: expected %zd items of %zd bytes, got %zd bytes",
-                     name, count, itemsize, b->len);
-        return -1;
-    }
-    return 0;
 }
 
 /* A committed scene of one triangle mesh; vertices (nv, 3) float32, faces (nf, 3) uint32.
@@ -96,43 +81,29 @@ static void release_scene(PyObject *capsule)
 
 /* Does a packet of W rays work here?  (An ISA this CPU or this Embree build lacks sets an
  * error, or answers nothing.)  The probe scene's triangle is hit at t = 1 by rays up z. */
+#define PROBE(W, ALIGN)                                                             \
+    do {                                                                            \
+        RTC_ALIGN(ALIGN) struct RTCRay##W r;                                        \
+        RTC_ALIGN(ALIGN) int valid[W];                                              \
+        memset(&r, 0, sizeof r);                                                    \
+        for (int k = 0; k < W; k++) {                                               \
+            valid[k] = -1;                                                          \
+            r.dir_z[k] = 1.0f;                                                      \
+            r.tfar[k] = 2.0f;                                                       \
+            r.mask[k] = 0xFFFFFFFFu;                                                \
+        }                                                                           \
+        p_rtcGetDeviceError(device); /* clear */                                    \
+        p_rtcOccluded##W(valid, probe, &r, NULL);                                   \
+        return p_rtcGetDeviceError(device) == RTC_ERROR_NONE && r.tfar[0] < 0;      \
+    } while (0)
+
 static int probe_width(RTCScene probe, int width)
 {
-    RTC_ALIGN(64) struct RTCRay16 r;
-    RTC_ALIGN(64) int valid[16];
-    memset(&r, 0, sizeof r);
-    for (int k = 0; k < 16; k++) {
-        valid[k] = -1;
-        r.dir_z[k] = 1.0f;
-        r.tfar[k] = 2.0f;
-        r.mask[k] = 0xFFFFFFFFu;
-    }
-    p_rtcGetDeviceError(device); /* clear */
-    if (width == 16) {
-        p_rtcOccluded16(valid, probe, &r, NULL);
-        return p_rtcGetDeviceError(device) == RTC_ERROR_NONE && r.tfar[0] < 0;
-    }
-    /* RTCRay8 / RTCRay4 have the same layout with fewer lanes: fill one of each */
-    if (width == 8) {
-        RTC_ALIGN(32) struct RTCRay8 r8;
-        memset(&r8, 0, sizeof r8);
-        for (int k = 0; k < 8; k++) {
-            r8.dir_z[k] = 1.0f;
-            r8.tfar[k] = 2.0f;
-            r8.mask[k] = 0xFFFFFFFFu;
-        }
-        p_rtcOccluded8(valid, probe, &r8, NULL);
-        return p_rtcGetDeviceError(device) == RTC_ERROR_NONE && r8.tfar[0] < 0;
-    }
-    RTC_ALIGN(16) struct RTCRay4 r4;
-    memset(&r4, 0, sizeof r4);
-    for (int k = 0; k < 4; k++) {
-        r4.dir_z[k] = 1.0f;
-        r4.tfar[k] = 2.0f;
-        r4.mask[k] = 0xFFFFFFFFu;
-    }
-    p_rtcOccluded4(valid, probe, &r4, NULL);
-    return p_rtcGetDeviceError(device) == RTC_ERROR_NONE && r4.tfar[0] < 0;
+    if (width == 16)
+        PROBE(16, 64);
+    if (width == 8)
+        PROBE(8, 32);
+    PROBE(4, 16);
 }
 
 /* open(path) -> (version, packet width): load libembree4 (the file embreex loaded), make the

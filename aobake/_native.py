@@ -56,26 +56,25 @@ def kernels():
 
 
 @contextlib.contextmanager
-def numpy_only() -> Iterator[None]:
-    """Run bakes started on this thread inside the block on the numpy formulations."""
-    before = getattr(_state, "numpy_only", False)
-    _state.numpy_only = True
+def _forced(flag: str) -> Iterator[None]:
+    """Set the thread-local ``flag`` inside the block (restored after)."""
+    before = getattr(_state, flag, False)
+    setattr(_state, flag, True)
     try:
         yield
     finally:
-        _state.numpy_only = before
+        setattr(_state, flag, before)
 
 
-@contextlib.contextmanager
-def embreex_only() -> Iterator[None]:
+def numpy_only():
+    """Run bakes started on this thread inside the block on the numpy formulations."""
+    return _forced("numpy_only")
+
+
+def embreex_only():
     """Build Embree backends started on this thread inside the block on embreex rather
     than ``aobake._embree`` (``aobake.backends.native``: the same answers, slower)."""
-    before = getattr(_state, "embreex_only", False)
-    _state.embreex_only = True
-    try:
-        yield
-    finally:
-        _state.embreex_only = before
+    return _forced("embreex_only")
 
 
 def embreex_forced() -> bool:

@@ -14,6 +14,15 @@
  * float64 arccos is not the C library's everywhere (AVX-512 builds use their own).
  */
 #include "_kernels.h"
+
+/* Every corner index names a vertex (else the caller falls back to numpy, which raises). */
+static int corners_in_range(const int64_t *faces, Py_ssize_t n, Py_ssize_t nv)
+{
+    for (Py_ssize_t i = 0; i < n; ++i)
+        if (faces[i] < 0 || faces[i] >= nv)
+            return 0;
+    return 1;
+}
 #include <math.h>
 #include <stdint.h>
 
@@ -65,13 +74,9 @@ PyObject *triangle_normals(PyObject *self, PyObject *args)
         const double *vertices = bv.buf;
         const int64_t *faces = bf.buf;
         double *unit = bu.buf, *length = bl.buf, *out_cross = bc.buf, *cosine = bk.buf;
-        int ok = 1;
+        int ok;
         Py_BEGIN_ALLOW_THREADS
-        for (Py_ssize_t i = 0; i < 3 * nf; ++i)
-            if (faces[i] < 0 || faces[i] >= nv) {
-                ok = 0;
-                break;
-            }
+        ok = corners_in_range(faces, 3 * nf, nv);
         for (Py_ssize_t f = 0; ok && f < nf; ++f) {
             const double *p[3];
             for (int c = 0; c < 3; ++c)
@@ -135,13 +140,9 @@ PyObject *vertex_normal_sums(PyObject *self, PyObject *args)
         const int64_t *faces = bf.buf;
         const double *rows = br.buf, *angles = ba.buf;
         double *out = bo.buf;
-        int ok = 1;
+        int ok;
         Py_BEGIN_ALLOW_THREADS
-        for (Py_ssize_t i = 0; i < 3 * nf; ++i)
-            if (faces[i] < 0 || faces[i] >= nv) {
-                ok = 0;
-                break;
-            }
+        ok = corners_in_range(faces, 3 * nf, nv);
         if (ok) {
             for (Py_ssize_t i = 0; i < 3 * nv; ++i)
                 out[i] = 0.0;
