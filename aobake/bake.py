@@ -221,6 +221,21 @@ def bake(mesh, config: BakeConfig | None = None, *, threads: int | None = None,
                chunk_rays=chunk_rays, progress=progress, **run_kw)
 
 
+def bake_grouped(mesh, target, config: BakeConfig | None = None, *, exclude=(),
+                 receive_only=(), occluder_only=(), **run_kw):
+    """Bake ``target`` on ``mesh`` with a selection of its faces (``aobake.groups``; ``run``'s
+    keywords in ``run_kw``; BakeConfig fields in ``config``): the patterns go into the
+    config (its report then reproduces the bake) and ``run`` applies them."""
+    options, keywords = _split(dict(run_kw))
+    for name in ("threads", "chunk_rays", "progress"):
+        if name in options:
+            keywords[name] = options.pop(name)
+    config = _config(config, dict(options, exclude=tuple(exclude),
+                                  receive_only=tuple(receive_only),
+                                  occluder_only=tuple(occluder_only)))
+    return run(config, mesh, target, **keywords)
+
+
 def bake_points(mesh, points, normals, config: BakeConfig | None = None, *, point_ids=None,
                 point_sizes=None,
                 threads: int | None = None, chunk_rays: int = DEFAULT_CHUNK_RAYS,

@@ -259,20 +259,3 @@ def dark_warning(estimates, source) -> str | None:
                     "every ray is blocked (check --receive-only / --occluder-only, the ground "
                     "plane, and faces turned inward)")
     return None
-
-
-def bake_grouped(mesh, target, config=None, *, exclude=(), receive_only=(), occluder_only=(),
-                 **run_kw):
-    """Bake ``target`` on ``mesh`` with a selection of its faces (``aobake.bake.run``'s
-    keywords in ``run_kw``; BakeConfig fields in ``config``): the patterns go into the
-    config (its report then reproduces the bake) and ``run`` applies them."""
-    from aobake.bake import _config, _split as split_options, run
-
-    options, keywords = split_options(dict(run_kw))
-    for name in ("threads", "chunk_rays", "progress"):
-        if name in options:
-            keywords[name] = options.pop(name)
-    config = _config(config, dict(options, exclude=tuple(exclude),
-                                  receive_only=tuple(receive_only),
-                                  occluder_only=tuple(occluder_only)))
-    return run(config, mesh, target, **keywords)

@@ -22,6 +22,7 @@ import trimesh
 
 import aobake
 from aobake import groups
+from aobake.bake import bake_grouped
 from aobake.errors import InputError
 from aobake.scene import load_scene
 from aobake.targets import TexelTarget, VertexTarget
@@ -74,7 +75,7 @@ def scene_file(tmp_path, names, stem="scene"):
 
 
 def vertex_bake(mesh, **selection):
-    return groups.bake_grouped(mesh, VertexTarget(), rays=64, seed=3, threads=THREADS,
+    return bake_grouped(mesh, VertexTarget(), rays=64, seed=3, threads=THREADS,
                                **selection)
 
 
@@ -167,7 +168,7 @@ def test_an_occluder_only_object_is_not_baked(tmp_path):
     # (seams off: the seam solve is global, its solution moves within its tolerance when
     # the ball's texels leave it)
     options = dict(rays=16, resolution=64, seams="off", threads=THREADS)
-    texels = groups.bake_grouped(path, TexelTarget(), occluder_only=("ball",), **options)
+    texels = bake_grouped(path, TexelTarget(), occluder_only=("ball",), **options)
     full = aobake.bake_texels(path, **options)
     assert texels.covered.sum() < full.covered.sum()
     assert not (texels.covered & ~full.covered).any()
@@ -202,7 +203,7 @@ def test_cage_rays_pass_through_an_occluder_only_card(tmp_path):
 
     def bake(mesh, **selection):
         target = ProjectedVertexTarget(low, cage_offset=0.35)
-        return groups.bake_grouped(mesh, target, rays=64, threads=THREADS, **selection)
+        return bake_grouped(mesh, target, rays=64, threads=THREADS, **selection)
     base = bake(alone)
     landed = bake(path)  # the card catches the rays under it
     through = bake(path, occluder_only=("card",))

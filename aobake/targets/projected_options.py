@@ -95,10 +95,9 @@ class StudioOptions:
         low mesh ``low`` (the CLI's positional mesh), or None without ``source``."""
         if self.source is None:
             return None
-        from aobake.targets.projected import ProjectedTexelTarget, ProjectedVertexTarget
+        from aobake.targets import TARGETS  # by name: this record imports no target
 
-        kind = {"texels": ProjectedTexelTarget, "vertices": ProjectedVertexTarget}[per]
-        return kind(low, cage_offset=self.cage_offset, cage=self.cage,
+        return TARGETS[f"projected_{per}"](low, cage_offset=self.cage_offset, cage=self.cage,
                     low_occludes=self.low_occludes)
 
     def selection(self):
