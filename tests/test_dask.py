@@ -191,7 +191,9 @@ def test_worker_killed_mid_item_loses_nothing(session):
     """The test kills a worker's process while it traces an item: the scheduler re-runs the
     item elsewhere (the nanny restarts the worker) and the bits are the local bake's."""
     mesh = _torus(48)
-    options = dict(rays=2048, seed=4)
+    # 8 items of 150 points x 8192 rays, ~0.1 s of tracing each (2048 rays left too short
+    # a window once occlusion went into packets: the bake could end before the killer looked)
+    options = dict(rays=8192, seed=4)
     local = aobake.bake(mesh, threads=1, **options)
     client = session.client
     pids = client.run(os.getpid)
@@ -203,7 +205,7 @@ def test_worker_killed_mid_item_loses_nothing(session):
             busy = [a for a, keys in client.processing().items()
                     if any(str(k).startswith("aobake-item") for k in keys)]
             if busy:
-                time.sleep(0.1)  # mid-item: each carries ~0.2 s of tracing
+                time.sleep(0.03)  # mid-item: each carries ~0.1 s of tracing
                 os.kill(pids[busy[0]], signal.SIGKILL)
                 killed.append(pids[busy[0]])
                 return
