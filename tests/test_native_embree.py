@@ -118,3 +118,37 @@ def test_malformed_buffers_are_refused(compiled):
         module.scene(v, 3, np.array([[0, 1, 3]], dtype=np.uint32), 1, True)
     with pytest.raises(ValueError, match="PyCapsule"):
         module.occluded(object(), o, d, np.full(4, 2, np.float32), out, 1)
+
+
+def test_without_the_compiled_binding_embreex_traces(monkeypatch, tmp_path):
+    """Where aobake._embree was not built or refused the library (another Embree major
+    version), binding() is None and the bake traces through embreex, saying so."""
+    monkeypatch.setattr(native, "_opened", (None, "refused for the test"))
+    assert native.binding() is None
+    mesh = trimesh.creation.box()
+    path = tmp_path / "box.obj"
+    mesh.export(path)
+    result = aobake.bake(str(path), rays=16, seed=1)
+    assert result.report["parameters"]["embree_binding"] == "embreex"
+    monkeypatch.undo()
+    if native.binding() is not None:  # and the compiled binding gives the same bits
+        again = aobake.bake(str(path), rays=16, seed=1)
+        assert again.report["parameters"]["embree_binding"].startswith("aobake._embree")
+        assert np.array_equal(again.ao, result.ao)
+
+
+def test_a_refused_library_falls_back_with_its_reason(compiled, monkeypatch, caplog):
+    """_open: a library the module refuses (here: its open() raising as for an Embree of
+    another major version) leaves embreex tracing, and the reason is logged."""
+    import logging
+
+    module, _ = compiled
+
+    def refuse(path):
+        raise OSError(f"{path} is Embree 50000, not 4.x")
+
+    monkeypatch.setattr(native, "_opened", None)
+    monkeypatch.setattr(module, "open", refuse)
+    with caplog.at_level(logging.INFO, logger="aobake.backends.native"):
+        assert native.binding() is None
+    assert "not 4.x" in caplog.text
