@@ -177,7 +177,7 @@ def test_lazy_registries_resolve_every_plugin_and_a_vertex_bake_imports_none_it_
     """TARGETS, METHODS and EXECUTORS name their plugins without importing them (issue 21:
     the command's start-up cost); each name resolves to its class, whose ``name`` is the
     key, and a fresh interpreter's per-vertex bake never imports the lightmap target's
-    stages, the screen-space methods, the hemicube's GL worker or Dask."""
+    stages, the screen-space methods, the hemicube's GL worker, the process pool or Dask."""
     import subprocess
     import sys
 
@@ -200,5 +200,6 @@ def test_lazy_registries_resolve_every_plugin_and_a_vertex_bake_imports_none_it_
     for module in ("aobake.targets.texels.target", "aobake.targets.texels.atlas",
                    "aobake.targets.projected", "aobake.targets.camera", "aobake.methods.ssao",
                    "aobake.methods.discs", "aobake.methods.hemicube", "aobake.screen.gbuffer",
-                   "aobake.camera", "aobake.executors.dask", "aobake.compare"):
+                   "aobake.camera", "aobake.executors.dask", "aobake.executors.processes",
+                   "aobake.compare"):
         assert module not in loaded, module

@@ -8,15 +8,16 @@ plus one line here.
 """
 
 from aobake.executors.base import Job, WorkItem, items, ranges
-from aobake.executors.local import ProcessesExecutor, ThreadsExecutor
+from aobake.executors.local import ThreadsExecutor
 from aobake.registry import LazyRegistry, lazy_attributes
 
-#: executor name -> class (Dask's module imported when it is first used)
+#: executor name -> class (the processes' and Dask's modules imported when first used)
 EXECUTORS = LazyRegistry({"threads": "aobake.executors.local:ThreadsExecutor",
-                          "processes": "aobake.executors.local:ProcessesExecutor",
+                          "processes": "aobake.executors.processes:ProcessesExecutor",
                           "dask": "aobake.executors.dask:DaskExecutor"})
 
-__getattr__ = lazy_attributes(__name__, {"DaskExecutor": "aobake.executors.dask"})
+__getattr__ = lazy_attributes(__name__, {"DaskExecutor": "aobake.executors.dask",
+                                         "ProcessesExecutor": "aobake.executors.processes"})
 
 __all__ = ["DaskExecutor", "EXECUTORS", "Job", "ProcessesExecutor", "ThreadsExecutor",
            "WorkItem", "items", "ranges"]
