@@ -126,8 +126,10 @@ def test_ctrl_c_stops_the_batch_and_its_cluster(tmp_path):
         folder / "b.ply")
     out = tmp_path / "out"
     command = [sys.executable, "-c", "from aobake.cli_batch import main; main()",
-               str(folder), "--out-dir", str(out), "--format", "npz", "--rays", "4096",
+               str(folder), "--out-dir", str(out), "--format", "npz", "--rays", "16384",
                "--executor", "dask", "--workers", "2", "--chunk-points", "64"]
+    # 16384 rays: the torus takes ~5 s of tracing, so it is surely on the cluster when the
+    # signal comes (with 4096, once occlusion went into packets, it could finish first)
     process = subprocess.Popen(command, cwd=ROOT, stderr=subprocess.PIPE, text=True,
                                start_new_session=True)
     lines, seen = [], threading.Event()
