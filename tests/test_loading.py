@@ -501,37 +501,6 @@ def test_far_from_origin_coordinates_quantised_by_float64_are_warned_of():
     assert not any("quantised" in w for w in near.warnings)
 
 
-def test_vertex_points_are_np_unique_of_the_row_records():
-    """The vertex target's points (distinct (position, normal) rows) are np.unique's over
-    the rows' 48-byte records: the same first indices, inverse and order, also with
-    duplicated rows, rows sharing a position, -0.0 beside 0.0, NaNs and infinities."""
-    from aobake.targets.vertices import distinct_rows
-
-    def unique(keys):
-        rows = np.ascontiguousarray(keys).view(np.dtype((np.void, 8 * keys.shape[1]))).ravel()
-        _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
-        return first, inverse.reshape(-1)
-
-    rng = np.random.default_rng(4)
-    special = np.array([0.0, -0.0, 1.0, -1.0, np.nan, -np.nan, np.inf, 0.5, 1e-300, 5e-324])
-    sphere = trimesh.creation.icosphere(3)
-    base = np.concatenate([sphere.vertices, sphere.vertex_normals], axis=1)
-    cases = [np.zeros((0, 6)), np.zeros((1, 6)), base, base[rng.integers(0, len(base), 900)]]
-    for trial in range(200):
-        n = int(rng.integers(1, 300))
-        keys = rng.choice(special, size=(n, 6)) if trial % 2 else rng.normal(size=(n, 6))
-        if trial % 3 == 0:  # repeated rows
-            keys = keys[rng.integers(0, n, n)]
-        if trial % 5 == 0:  # one position, several normals
-            keys[:, :3] = keys[0, :3]
-        cases.append(keys)
-    for keys in cases:
-        first, inverse = distinct_rows(keys)
-        want_first, want_inverse = unique(keys)
-        assert first.dtype == np.int64 and inverse.dtype == np.int64
-        assert np.array_equal(first, want_first) and np.array_equal(inverse, want_inverse)
-
-
 def test_normalize_is_the_linalg_norm_formulation_bit_for_bit():
     """vectors.normalize's column-by-column length is np.linalg.norm's, bit for bit, also
     for zero, subnormal, huge (overflowing) and non-finite rows and any leading shape."""
