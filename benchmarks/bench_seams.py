@@ -149,7 +149,7 @@ def case(path: Path, unwrap: str, args) -> dict:
         if mode == "erase" and args.worst:
             out["worst"] = worst_points(mean, worst[:args.worst], points, runs, mesh)
     erased = runs["erase"][0].report["texture"]["seams"]
-    out["solve"] = {key: erased.get(key) for key in ("points_dropped", "bound_texels",
+    out["solve"] = {key: erased.get(key) for key in ("points_dropped", "bound_texels", "kappa",
                                                       "iterations", "converged")}
     out["erase"]["shift"] = wrms(mean_lookup["erase"] - mean_lookup["off"], weight)
     out["bake_s"] = {"off": min(times["off"]), "erase": min(times["erase"])}

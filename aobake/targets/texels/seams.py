@@ -99,16 +99,29 @@ DEGENERATE = 1e-7
 #:   100     0.0042 / 0.0019  228   0.0005 / 0.0008  182   0.0002 / 0.0010  185
 #:   1000    0.0020 / 0.0007  685   0.0002 / 0.0003  493   0.0001 / 0.0003  522
 #:   2000    0.0017 / 0.0005  926   0.0002 / 0.0002  685   0.0001 / 0.0002  703
+#:   5000    0.0012 / 0.0004  894   0.0001 / 0.0001  731   0.0001 / 0.0001  710
 #: (off: 0.097, 0.022, 0.0094 systematic).  The residual is a fixed fraction of the step
 #: the erasure removes (the seam term counts it in its own standard errors), and the
 #: ogre's is the largest (parts through parts: AO from 0 to 1 within a texel of its
-#: seams): 2000 keeps it below 0.002, the issue-21 target, at 3-5 times 100's iterations
-#: (with HOLD_TOLERANCE: ogre 126 -> 610, bunny 120 -> 533, spot 132 -> 505; the erasure
-#: 0.3 -> 1.0 s, 0.2 -> 0.6 s, 0.06 -> 0.2 s).  It moves the mean of the two lookups
-#: more (ogre 0.037 -> 0.050 rms, bunny 0.009 -> 0.010) and lowers their noise further
-#: (ogre 0.0155 -> 0.0121).  Untried: a stronger preconditioner than Jacobi, which these
-#: iterations now call for.
-KAPPA = 2000.0
+#: seams), the more so the coarser the map: at 512^2 (its charts finer than the texels,
+#: an unerased step of 0.22) 2000 left 0.0026 (867 iterations), 5000 0.00175 (1328),
+#: 10000 0.00125 (1808); the bunny 0.00019 and spot 0.00011 at 5000.  5000 keeps every
+#: mesh and resolution measured below 0.002, the issue-21 target (the ogre does not fit
+#: 256^2 with the default padding), at 1.5 times 2000's iterations (with HOLD_TOLERANCE,
+#: 1024^2: ogre 587 -> 894, bunny 533 -> 731, spot 505 -> 710; the erasure ~0.9 -> ~1.0 s
+#: on the ogre).  It moves the mean of the two lookups more (ogre 1024^2 0.046 -> 0.052
+#: rms; 0.037 at 100) and lowers their noise further (0.0128 -> 0.0118; 0.0155 at 100).
+#: Untried: a stronger preconditioner than Jacobi, which these iterations call for.
+KAPPA = 5000.0
+#: what the erasure leaves across the seams at most, rms over their length in value units:
+#: half a level of an 8-bit map (1/255/2 = 0.00196), a step no 8-bit export shows.  A solve
+#: at KAPPA that leaves more (a map coarse for its charts: the ogre at 512^2 at KAPPA 2000,
+#: a sphere through a box at 48^2 at 5000) solves again from its result with the weight
+#: KAPPA_STEP times higher, up to KAPPA_RANGE times KAPPA.  The test scene at 48^2: 0.00225
+#: at 5000, below the target after one more round.
+SEAM_TARGET = 0.002
+KAPPA_STEP = 4.0
+KAPPA_RANGE = 256.0
 #: the conjugate gradients stop when the Jacobi-scaled residual is below this in every
 #: unknown (value units); the solution is then within about 1e-5 of the exact one (bunny:
 #: 9.9e-6 at most, 1.6e-7 rms against a direct solve of the same matrix), far below the
@@ -536,8 +549,10 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
     minimised over values in it (``_bounded``), not clipped after; None: unbounded (x is
     then linear in the values).
     Returns (x (n, c) float64: the adjusted covered values, gutter rows the dilation of
-    them; info: iterations, converged, and rms_before / rms_after, max_before / max_after of
-    the lookup difference over the seam points (rms weighted by seam length)).
+    them; info: iterations, converged, kappa (the highest seam weight solved at: KAPPA, or
+    more where a channel's seams stayed above SEAM_TARGET), and rms_before / rms_after,
+    max_before / max_after of the lookup difference over the seam points (rms weighted by
+    seam length)).
     """
     kappa = KAPPA if kappa is None else kappa  # module constants read at call time
     tolerance = TOLERANCE if tolerance is None else tolerance
@@ -556,23 +571,30 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
     se_read = np.sqrt(s.fill(np.where(covered, se ** 2, 0.0)))
     var_d = np.maximum(np.einsum("pk,pk->p", s.coef ** 2, se_read[s.slots[s.group]] ** 2),
                        SE_FLOOR ** 2)
-    lam = kappa * s.weight / var_d
-    # Points are stored in group order: group g is points starts[g] .. starts[g + 1] - 1.
-    parts = (np.ascontiguousarray(s.coef, dtype=np.float64), lam, _starts(s),
-             np.ascontiguousarray(s.slots, dtype=np.int64), np.ascontiguousarray(s.gutter),
-             s.fill_to, s.fill_from, s.fill_weight, w)
-    # The normal matrix over the covered unknowns, assembled once (``_assemble_numpy``); its
-    # pattern depends on the system only (``pattern``, made with the system by ``prepare``).
-    if kernels is not None:
-        indptr, indices = pattern if pattern is not None else system_pattern(s, kernels,
-                                                                              threads)
-        data = kernels.seam_values(*parts, indptr, indices, int(threads))
-        matrix = Csr(indptr, indices, np.frombuffer(data, np.float64))
-    else:
-        matrix = _assemble_numpy(*parts)
-    # Jacobi preconditioner: the matrix's diagonal.
-    diag = matrix.diagonal()
-    info = {"iterations": 0, "converged": True}
+    if kernels is not None and pattern is None:
+        pattern = system_pattern(s, kernels, threads)
+    systems: dict = {}
+
+    def normal_matrix(weight):
+        """The normal matrix over the covered unknowns at seam weight ``weight`` and its
+        diagonal (the Jacobi preconditioner), assembled once per weight
+        (``_assemble_numpy``); its pattern depends on the system only (``pattern``, made
+        with the system by ``prepare``)."""
+        if weight not in systems:
+            lam = weight * s.weight / var_d
+            # Points are stored in group order: group g is points starts[g] .. starts[g + 1] - 1.
+            parts = (np.ascontiguousarray(s.coef, dtype=np.float64), lam, _starts(s),
+                     np.ascontiguousarray(s.slots, dtype=np.int64),
+                     np.ascontiguousarray(s.gutter), s.fill_to, s.fill_from, s.fill_weight, w)
+            if kernels is not None:
+                data = kernels.seam_values(*parts, *pattern, int(threads))
+                matrix = Csr(*pattern, np.frombuffer(data, np.float64))
+            else:
+                matrix = _assemble_numpy(*parts)
+            systems[weight] = (matrix, matrix.diagonal())
+        return systems[weight]
+
+    info = {"iterations": 0, "converged": True, "kappa": kappa}
     total = max(float(s.weight.sum()), 1e-300)
     before, after = [], []
     out = np.empty_like(values)
@@ -580,22 +602,36 @@ def solve(values: np.ndarray, stderr: np.ndarray, system: SeamSystem,
         b = np.where(covered, values[:, ch], 0.0)
         before.append(s.differences(b))
         bc = np.ascontiguousarray(b[covered])
-        rhs = w[covered] * bc
-        # bounded: the unbounded minimum only tells which texels to hold, to a looser
-        # tolerance (``_bounded`` then solves to the full one)
-        xc, it, left = cg(matrix, diag, rhs, bc, tolerance * (1.0 if bounds is None else
-                                                             HOLD_TOLERANCE / TOLERANCE),
-                          max_iterations, kernels, threads)
-        if bounds is not None:
-            xc, more, left, held = _bounded(matrix, diag, rhs, xc, left, bounds, tolerance,
-                                            max_iterations, kernels, threads)
+        rhs = w[covered] * bc  # the data term's: the same at every seam weight
+        xc, weight, it = bc, kappa, 0
+        while True:
+            matrix, diag = normal_matrix(weight)
+            # a stiffer seam term needs more iterations (about as its square root)
+            limit = int(max_iterations * math.sqrt(weight / kappa))
+            # bounded: the unbounded minimum only tells which texels to hold, to a looser
+            # tolerance (``_bounded`` then solves to the full one)
+            xc, more, left = cg(matrix, diag, rhs, xc, tolerance * (
+                1.0 if bounds is None else HOLD_TOLERANCE / TOLERANCE), limit, kernels, threads)
             it += more
-            info["bound_texels"] = max(info.get("bound_texels", 0), held)
-        x = np.zeros_like(b)
-        x[covered] = xc
+            if bounds is not None:
+                xc, more, left, held = _bounded(matrix, diag, rhs, xc, left, bounds, tolerance,
+                                                limit, kernels, threads)
+                it += more
+                info["bound_texels"] = max(info.get("bound_texels", 0), held)
+            x = np.zeros_like(b)
+            x[covered] = xc
+            d = s.differences(x)
+            # the residual is a fraction of the step removed: where the steps are steep (a
+            # map coarse for its charts) the weight rises until the seams meet SEAM_TARGET,
+            # from where this solve left them
+            if (np.sqrt(np.sum(s.weight * d ** 2) / total) <= SEAM_TARGET
+                    or weight >= kappa * KAPPA_RANGE):
+                break
+            weight *= KAPPA_STEP
+        info["kappa"] = max(info["kappa"], weight)
         info["iterations"] = max(info["iterations"], it)
         info["converged"] &= bool(left <= tolerance)
-        after.append(s.differences(x))
+        after.append(d)
         out[:, ch] = s.fill(x)
     for name, d in (("before", np.concatenate(before)), ("after", np.concatenate(after))):
         wt = np.tile(s.weight, values.shape[1])
@@ -752,8 +788,8 @@ class Erased:
     adjusted : (H, W) bool the covered texels that are unknowns of the solve (their values
     are changed in place), info : dict seam_edges, seam_points, points_dropped,
     texels_adjusted, gutter_texels (read by the seams, filled by the dilation), iterations,
-    converged, bound_texels (held at 0 or 1 by the bounded solve), rms_before / rms_after,
-    max_before / max_after (of the first value channel, AO when baked: lookup differences
+    kappa (the highest seam weight any channel was solved at), converged, bound_texels (held
+    at 0 or 1 by the bounded solve), rms_before / rms_after, max_before / max_after (of the first value channel, AO when baked: lookup differences
     over the seam points).
     """
 
@@ -906,6 +942,7 @@ def erase_seams(images: dict, channels, mesh: SeamMesh, covered, padding: int,
             info.update({key: solved[key] for key in ("rms_before", "rms_after", "max_before",
                                                       "max_after")})
         info["iterations"] = max(info["iterations"], solved["iterations"])
+        info["kappa"] = max(info.get("kappa", 0.0), solved["kappa"])
         info["converged"] &= solved["converged"]
         info["bound_texels"] = max(info["bound_texels"], solved.get("bound_texels", 0))
     adjusted = np.zeros((height, width), dtype=bool)
