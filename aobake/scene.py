@@ -496,7 +496,8 @@ def _png_bytes(image) -> bytes:
 
 def _white(name: str) -> dict:
     return {"name": name, "base_color_png": None, "base_color_factor": None,
-            "metallic_roughness_png": None, "alpha_mode": "OPAQUE", "alpha_cutoff": 0.5}
+            "metallic_roughness_png": None, "roughness_factor": None, "metallic_factor": None,
+            "alpha_mode": "OPAQUE", "alpha_cutoff": 0.5}
 
 
 def _read_mtl(path: Path, names: list) -> dict:
@@ -571,6 +572,20 @@ def _trimesh_material(mesh, index: int) -> dict:
     except (TypeError, ValueError):  # a hand-edited cutoff that is not a number
         log.warning("alpha cutoff %r of material %r is not a number: 0.5 kept", cutoff,
                     out["name"])
+    # roughness and metalness factors (glTF: they multiply the metallicRoughnessTexture's G
+    # and B; absent means 1): an --orm GLB keeps them on its materials
+    for key, attribute in (("roughness_factor", "roughnessFactor"),
+                           ("metallic_factor", "metallicFactor")):
+        value = getattr(material, attribute, None)
+        try:
+            if value is not None:
+                value = float(value)
+                if not 0.0 <= value <= 1.0:  # also NaN
+                    raise ValueError
+                out[key] = value
+        except (TypeError, ValueError):  # hand-edited: not a number in [0, 1]
+            log.warning("%s %r of material %r is not a number in [0, 1]: 1 (glTF's default) "
+                        "kept", attribute, value, out["name"])
     try:
         if texture is not None:
             out["base_color_png"] = _png_bytes(texture)
@@ -596,8 +611,8 @@ def _trimesh_materials(meshes) -> tuple[list, np.ndarray]:
         # By content: trimesh's scene dump may copy one shared material per node.
         factor = material["base_color_factor"]
         key = (material["name"], material["base_color_png"], tuple(factor) if factor else None,
-               material["metallic_roughness_png"], material["alpha_mode"],
-               material["alpha_cutoff"])
+               material["metallic_roughness_png"], material["roughness_factor"],
+               material["metallic_factor"], material["alpha_mode"], material["alpha_cutoff"])
         if key not in index:
             index[key] = len(materials)
             materials.append(material)

@@ -92,6 +92,53 @@ def test_orm_takes_the_inputs_own_metallic_roughness_texture(tmp_path):
     assert "metallicRoughnessTexture" in json.loads(attrs["aobake:metadata"])["orm"]["G_B_from"]
 
 
+def test_orm_glb_keeps_the_inputs_roughness_and_metallic_factors(tmp_path, caplog):
+    """glTF multiplies the metallicRoughnessTexture's G and B by the material's factors: a
+    GLB whose ORM image holds the input's own G and B renders as the input only with the
+    input's factors on it (not 1, which would make a material with factor 0.5 twice as
+    rough).  Two materials sharing the texture, with their own factors; a material without
+    factors gets glTF's default, 1; a factor that is not a number in [0, 1] is refused by
+    the writer."""
+    rgb = np.random.default_rng(6).random((N, N, 3))
+    png = image.rgb_png_bytes(rgb)
+    source = tmp_path / "factors.glb"
+    halves = np.repeat([0, 1], len(FACES) // 2 + 1)[:len(FACES)]
+    materials = [{"name": "half", "base_color_png": None, "base_color_factor": None,
+                  "roughness_factor": 0.5, "metallic_factor": 0.25},
+                 {"name": "plain", "base_color_png": None, "base_color_factor": None}]
+    glb.write_textured(source, POSITIONS, FACES, None, SET1, png, {}, materials=materials,
+                       face_material=halves, packed_orm=True)
+    out = tmp_path / "orm.glb"
+    result = run_cli(source, "--out", out, "--orm", *BAKE)
+    assert result.exit_code == 0, result.output
+    gltf, binary = read_glb(out)
+    factors = {m["name"]: (m["pbrMetallicRoughness"]["roughnessFactor"],
+                           m["pbrMetallicRoughness"]["metallicFactor"])
+               for m in gltf["materials"]}
+    assert factors == {"half": (0.5, 0.25), "plain": (1.0, 1.0)}
+    embedded = tmp_path / "embedded.png"
+    embedded.write_bytes(read_view(gltf, binary, gltf["images"][0]["bufferView"]))
+    np.testing.assert_array_equal(_stored(read_image(embedded)[0][..., 1:], 8),
+                                  image.quantize(rgb[..., 1:], 8))  # G/B copied as they were
+    # hand-edited: a factor beyond [0, 1] is glTF's default 1 in the output, with a warning
+    from test_contract_compare import glb_bytes, glb_parts
+
+    document, rest = glb_parts(source.read_bytes())
+    document["materials"][0]["pbrMetallicRoughness"]["roughnessFactor"] = 2.0
+    edited = tmp_path / "edited.glb"
+    edited.write_bytes(glb_bytes(json.dumps(document).encode(), rest))
+    result = run_cli(edited, "--out", out, "--orm", *BAKE)
+    assert result.exit_code == 0, result.output
+    assert "roughnessFactor 2.0 of material 'half' is not a number in [0, 1]" in caplog.text
+    pbr = read_glb(out)[0]["materials"][0]["pbrMetallicRoughness"]
+    assert (pbr["roughnessFactor"], pbr["metallicFactor"]) == (1.0, 0.25)
+    for bad in (1.5, float("nan"), "rough"):
+        with pytest.raises(ValueError, match="roughness_factor"):
+            glb.write_textured(tmp_path / "bad.glb", POSITIONS, FACES, None, SET1, png, {},
+                               materials=[dict(materials[0], roughness_factor=bad)],
+                               packed_orm=True)
+
+
 def test_orm_source_of_another_size_is_refused(two_sets, tmp_path):  # noqa: F811
     small = tmp_path / "small.png"
     image.write_rgb(small, np.zeros((N // 2, N // 2, 3)))

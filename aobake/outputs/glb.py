@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import struct
 from collections.abc import Mapping, Sequence
@@ -156,7 +157,9 @@ def write_textured(
       so it needs ``base_uv``
     base_color_factor : 4 floats in [0, 1] or None (white)
     materials : several materials instead of ``base_color_png``/``base_color_factor``:
-      a list of {"name", "base_color_png", "base_color_factor"} (the latter two as above)
+      a list of {"name", "base_color_png", "base_color_factor"} (the latter two as above),
+      optionally with "roughness_factor" and "metallic_factor" (floats in [0, 1] or None:
+      1), written with ``packed_orm``
     face_material : (f,) int index into ``materials`` of each face; the mesh gets
       one primitive per material that has faces (the vertex attributes are shared)
     occlusion_wrap : "clamp" (CLAMP_TO_EDGE) or "repeat" (REPEAT: the mesh's own UVs
@@ -165,8 +168,9 @@ def write_textured(
       convention), written as TEXCOORD_0.. in order; the occlusion texture reads set
       ``occlusion_set`` (``atlas_uv`` must equal it), a base colour texture set 0
     packed_orm : the occlusion PNG is an ORM map (R occlusion, G roughness, B metalness):
-      it is also the ``metallicRoughnessTexture`` (factors 1, so the texture's values are
-      the material's), as glTF intends for packed maps
+      it is also the ``metallicRoughnessTexture``, as glTF intends for packed maps, with
+      each material's roughness and metallic factors (the input's: they multiply G and B
+      as they multiplied the input's own texture; 1 where it had none)
 
     The occlusion texture samples with linear filtering and no mipmaps (mips
     would average texels of unrelated charts) and clamps to the edge unless
@@ -221,7 +225,18 @@ def write_textured(
             rgba = [float(c) for c in np.asarray(factor, dtype=np.float64).reshape(-1)]
             if len(rgba) != 4 or not all(0.0 <= c <= 1.0 for c in rgba):
                 raise ValueError(f"base_color_factor must be 4 floats in [0, 1], got {factor}")
-        checked.append((str(material.get("name") or GENERATOR), png, rgba))
+        pbr_factors = {}
+        for key, field in (("roughness_factor", "roughnessFactor"),
+                           ("metallic_factor", "metallicFactor")):
+            value = material.get(key)
+            try:
+                value = 1.0 if value is None else float(value)
+            except (TypeError, ValueError):
+                value = math.nan
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"{key} must be a float in [0, 1], got {material.get(key)!r}")
+            pbr_factors[field] = value
+        checked.append((str(material.get("name") or GENERATOR), png, rgba, pbr_factors))
 
     gltf = _new_gltf(metadata)
     blob = bytearray()
@@ -235,11 +250,11 @@ def write_textured(
                              "orm" if packed_orm else "occlusion")
     parts = []
     for index in np.unique(face_material):  # materials without faces are not written
-        name, png, rgba = checked[index]
+        name, png, rgba, pbr_factors = checked[index]
         pbr = _white_pbr()
         pbr["baseColorFactor"] = rgba
         if packed_orm:  # one image, as glTF packs it: G roughness, B metalness
-            pbr.update(metallicFactor=1.0, roughnessFactor=1.0,
+            pbr.update(**pbr_factors,
                        metallicRoughnessTexture={"index": occlusion,
                                                  "texCoord": occlusion_set})
         material = {

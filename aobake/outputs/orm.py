@@ -15,8 +15,12 @@ texture carries).  G and B come from, in order:
 3. Otherwise "empty": G = 1 (roughness 1) and B = 0 (metalness 0), the plain diffuse
    surface aobake's GLBs always had (``glb._white_pbr``).
 
-A material's roughness and metallic *factors* are not folded in: the packed GLB's factors
-are 1, so the texture's G and B are the material's roughness and metalness.
+A material's roughness and metallic *factors* multiply the G and B of its own texture
+(glTF), so where G and B are that texture's (2.) the packed GLB's materials keep the
+input's factors (each its own: two materials may share the texture with different ones)
+and render as the input did; from ``orm_from`` (1.) or empty (3.) the factors are 1, so
+the texture's G and B are the material's roughness and metalness.  (Folding a factor into
+the image's values instead would need each texel's material.)
 """
 
 from __future__ import annotations
@@ -28,6 +32,8 @@ from aobake.errors import OutputError
 #: G and B of an "empty" ORM map: roughness 1, metalness 0 (a plain diffuse surface)
 EMPTY_ROUGHNESS = 1.0
 EMPTY_METALNESS = 0.0
+#: the ``source`` :func:`pack` names for G/B from the input's own texture (case 2)
+OWN_TEXTURE = "the input's metallicRoughnessTexture"
 
 
 def pack(result, value: np.ndarray, orm_from=None) -> tuple[np.ndarray, str]:
@@ -129,5 +135,4 @@ def _own(result, width: int, height: int) -> tuple[np.ndarray | None, str | None
             pixels, _, _ = read_pixels(path)
     except (Unreadable, OSError) as exc:
         raise OutputError(f"the input's metallicRoughnessTexture: {exc}") from None
-    return (_channels(pixels, "the input's metallicRoughnessTexture", width, height),
-            "the input's metallicRoughnessTexture")
+    return _channels(pixels, OWN_TEXTURE, width, height), OWN_TEXTURE

@@ -11,6 +11,7 @@ import numpy as np
 
 from aobake.errors import OutputError
 from aobake.outputs.atomic import atomic_path
+from aobake.outputs.orm import OWN_TEXTURE
 
 log = logging.getLogger(__name__)
 
@@ -100,7 +101,8 @@ def write_texture(path, result, metadata: dict, *, half=False, bit_depth=8, r_on
         image.write_ldr(path, value, result.channels["coverage"], bit_depth=bit_depth,
                         r_only=r_only, metadata=dict(metadata, map=name))
     elif suffix == ".glb":
-        _write_glb(path, result, _map(result)[0], metadata, packed)
+        _write_glb(path, result, _map(result)[0], metadata, packed,
+                   own_factors=packed is not None and metadata["orm"]["G_B_from"] == OWN_TEXTURE)
     else:
         raise OutputError(f"{path}: unsupported lightmap format {suffix!r}; "
                           f"use one of {', '.join(('.exr', *image.LDR_SUFFIXES, '.glb'))}")
@@ -132,15 +134,18 @@ def prepare_atlas_mesh(path, result, metadata: dict, orm=False, orm_from=None):
     if suffix == ".glb":
         if orm or orm_from is not None:  # the same packed map as --out's
             packed, entry = orm_map(result, orm_from)
+            own = entry["G_B_from"] == OWN_TEXTURE
             return lambda: _write_glb(path, result, _map(result)[0], dict(metadata, orm=entry),
-                                      packed)
+                                      packed, own_factors=own)
         return lambda: _write_glb(path, result, _map(result)[0], metadata)
     raise OutputError(f"{path}: unsupported mesh format for --mesh-out; use .obj or .glb")
 
 
-def _write_glb(path, result, value, metadata: dict, orm=None) -> None:
+def _write_glb(path, result, value, metadata: dict, orm=None, own_factors=False) -> None:
     """The atlas mesh with the AO map as occlusionTexture, keeping the input's materials
     (one primitive per material, each with its base colour and the shared AO texture).
+    own_factors : an ORM map whose G and B are the input's own texture's: the materials
+    keep the input's roughness and metallic factors (``aobake.outputs.orm``), else 1.
 
     With the mesh's own UVs the base colour and the AO share them (TEXCOORD_0 and an
     identical TEXCOORD_1); with a new atlas the input UVs stay in TEXCOORD_0 and the
@@ -168,8 +173,11 @@ def _write_glb(path, result, value, metadata: dict, orm=None) -> None:
         png = image.png_bytes(value, np.ones_like(value), bit_depth=8, r_only=True)
     else:  # the packed map: R occlusion, G roughness, B metalness
         png = image.rgb_png_bytes(orm, bit_depth=8)
+    materials = atlas.materials
+    if materials and not own_factors:  # the texture's values are the material's
+        materials = [dict(m, roughness_factor=None, metallic_factor=None) for m in materials]
     glb.write_textured(path, atlas.positions, atlas.faces, atlas.normals, atlas.uv, png,
-                       metadata, base_uv=base_uv, materials=atlas.materials,
+                       metadata, base_uv=base_uv, materials=materials,
                        face_material=atlas.face_material,
                        occlusion_wrap=atlas.wrap, uv_sets=uv_sets, occlusion_set=atlas.uv_set,
                        packed_orm=orm is not None)
