@@ -41,6 +41,7 @@ import numpy as np
 
 from aobake import _native
 from aobake.rng import stable_sort
+from aobake.vectors import distinct
 
 #: --fix-normals choices: report and change nothing | repair | skip the detection
 MODES = ("warn", "fix", "off")
@@ -85,7 +86,8 @@ class Orientation:
 
     def counts(self) -> dict:
         """The detector's numbers (report keys)."""
-        with_against = np.unique(self.component[self.against])
+        # (a mask, not np.unique: numpy 2's hashing unique took 23 ms on spot's faces)
+        with_against = distinct(self.component[self.against], self.n_components)
         return {
             "components": self.n_components,
             "closed_components": int(np.count_nonzero(self.closed)),

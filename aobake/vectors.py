@@ -56,6 +56,21 @@ def distinct(index: np.ndarray, size: int) -> np.ndarray:
     return np.flatnonzero(seen)
 
 
+def unique_ints(values: np.ndarray) -> np.ndarray:
+    """np.unique of a 1-D integer array, by a sort: (k,) increasing, the same values.
+
+    numpy 2's np.unique hashes integers, which is far slower when most values are distinct
+    (numpy 2.4: 2.2 s for 2 M random int64 against 0.15 s sorted; 44 ms for a mesh's
+    372 k corner indices)."""
+    values = np.sort(np.asarray(values).reshape(-1))
+    if len(values) < 2:
+        return values
+    keep = np.empty(len(values), dtype=bool)
+    keep[0] = True
+    np.not_equal(values[1:], values[:-1], out=keep[1:])
+    return values[keep]
+
+
 def weld(positions: np.ndarray) -> np.ndarray:
     """(v,) int64 label of each row of positions (v, k) float (3-D positions, UVs): its rank
     among the distinct rows in lexicographic order (equal as floats, -0.0 == 0.0), as

@@ -24,6 +24,7 @@ from typing import Callable
 import numpy as np
 
 from aobake.screen.gbuffer import Frame
+from aobake.vectors import distinct
 
 
 def window(period: int) -> np.ndarray:
@@ -75,7 +76,8 @@ def blurred(frame: Frame, pixels: np.ndarray, raw: Callable[[np.ndarray], np.nda
     for start in range(0, len(pixels), block):
         part = pixels[start:start + block]
         win = neighbours(frame, part, period)
-        support = np.unique(win[win >= 0])
+        # (a mask, not np.unique: numpy 2 hashes integers, slow when most are distinct)
+        support = distinct(win[win >= 0], frame.height * frame.width)
         values = raw(support)
         slot = np.searchsorted(support, np.maximum(win, 0))
         slot = np.minimum(slot, len(support) - 1)

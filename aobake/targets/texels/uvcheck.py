@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from aobake.targets.texels.raster import TexelSamples, _check_uv_faces, rasterize
+from aobake.vectors import distinct, unique_ints
 
 #: A UV triangle with |area| below this (in uv units, i.e. as a fraction of the
 #: whole atlas) counts as degenerate.  At 16k x 16k one texel is ~3.7e-9, so
@@ -113,11 +114,14 @@ def find_overlap(uv, faces, width: int, height: int, layout: WrappedUVs | None =
     # each texel's distinct faces in order; neighbours in that order make the pairs (every
     # pair where two faces stack, the usual case; a chain where more do)
     span = int(face.max(initial=0)) + 1
-    texel, face = np.divmod(np.unique(texel * span + face), span)
+    texel, face = np.divmod(unique_ints(texel * span + face), span)
     same = texel[1:] == texel[:-1]
-    pairs = np.unique(np.sort(np.column_stack([face[:-1][same], face[1:][same]]), axis=1),
-                      axis=0).astype(np.int64).reshape(-1, 2)
-    involved = np.unique(face)
+    low = np.minimum(face[:-1][same], face[1:][same]).astype(np.int64)
+    high = np.maximum(face[:-1][same], face[1:][same]).astype(np.int64)
+    # the distinct (low, high) rows in lexicographic order, as np.unique(axis=0) gives
+    # them (its sort of row records took 0.6 s for a 1024^2 map that overlaps everywhere)
+    pairs = np.stack(np.divmod(unique_ints(low * span + high), span), axis=1).reshape(-1, 2)
+    involved = distinct(face, span)
     area = _signed_uv_area(uv, faces)
     sign = np.sign(area)
     minority = -1.0 if np.count_nonzero(sign > 0) >= np.count_nonzero(sign < 0) else 1.0
