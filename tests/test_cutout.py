@@ -162,3 +162,31 @@ def test_primary_rays_pass_cut_out_texels_and_bad_setups_are_said(tmp_path):
     assert (plain.channels["depth"][plain.covered] < 3 - HEIGHT / 2).all()
     with pytest.raises(aobake.InputError, match="--alpha-cutout"):
         aobake.bake_points(path, *floor_points(), rays=4, alpha_cutout=True, method="discs")
+
+
+def test_cage_rays_land_on_opaque_texels_only(tmp_path):
+    """High-to-low: a cage ray meets the alpha-tested plate where its texel is opaque (the
+    checker's squares) and passes to the floor where it is cut out; without the option it
+    lands on the plate everywhere.  Rays straight down through each texel's centre, from
+    above the plate to a low point between plate and floor."""
+    from aobake.config import BakeConfig
+    from aobake.occluders import build
+    from aobake.scene import load_scene
+    from aobake.targets.projected_cage import project
+
+    scene = load_scene(scene_file(tmp_path, checker()))
+    size = 2 * HALF / CHECKER
+    row, col = np.indices((CHECKER, CHECKER)).reshape(2, -1)
+    x, y = -HALF + (col + 0.5) * size, HALF - (row + 0.5) * size  # row 0 at y = +HALF
+    low = np.column_stack([x, y, np.full(x.size, HEIGHT / 2)])
+    cage = low + [0.0, 0.0, HEIGHT]
+    opaque = checker()[row, col] >= 128
+    plate = np.isclose(scene.vertices[scene.faces].mean(axis=1)[:, 2], HEIGHT)
+    for cut in (True, False):
+        projection = project(build(scene, BakeConfig(alpha_cutout=cut)), scene, low, cage)
+        assert projection.hit.all()
+        on_plate = plate[projection.faces]
+        expected = opaque if cut else np.ones_like(opaque)
+        np.testing.assert_array_equal(on_plate, expected)
+        np.testing.assert_allclose(projection.points[:, 2], np.where(expected, HEIGHT, 0.0),
+                                   atol=1e-6)

@@ -195,11 +195,17 @@ def project(occluders, high, low_points: np.ndarray, cage_points: np.ndarray,
         tmax = np.nextafter((2.0 * length * built.scale).astype(np.float32),
                             np.float32(np.inf))
         cast = length > 0  # no cage ray: a miss
-        t, found = built.backend.intersect(origins[cast], unit[cast].astype(np.float32),
-                                           tmax[cast])
+        directions = unit[cast].astype(np.float32)
+        t, found = built.backend.intersect(origins[cast], directions, tmax[cast])
         found = found.astype(np.int64)
         if faces_of is not None:  # back to the scene's face indices
             found = np.where(found >= 0, faces_of[np.maximum(found, 0)], -1)
+        cutout = getattr(built, "cutout", None)
+        if cutout is not None:  # --alpha-cutout: the first opaque texel of those faces
+            tc, pc = cutout.intersect(origins[cast], directions, tmax[cast])
+            nearer = (pc >= 0) & ((found < 0) | (tc < t))
+            t = np.where(nearer, tc, t)
+            found = np.where(nearer, cutout.scene_faces[np.maximum(pc, 0)], found)
         where = np.flatnonzero(cast)[found >= 0]
         t, found = t[found >= 0], found[found >= 0]
         index = lo + where
