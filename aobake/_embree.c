@@ -345,6 +345,164 @@ done:
     return result;
 }
 
+/* One alpha-tested face's alpha at a point (as aobake.backends.cutout.alpha_at, the same
+ * float64 operations in the same order): barycentrics from the corners, the UV, the
+ * material's factor times its image bilinearly (repeat wrapping, texel centres at
+ * (i + 0.5) / W, v = 0 at the image's bottom). */
+typedef struct {
+    const double *corners, *uv, *normals, *factor, *cutoff;
+    const int64_t *material, *offset, *width, *height;
+    const float *pixels;
+} Cutout;
+
+static double cutout_alpha(const Cutout *c, Py_ssize_t f, const double p[3])
+{
+    const double *v = c->corners + 9 * f;
+    double e1[3], e2[3], q[3];
+    for (int k = 0; k < 3; k++) {
+        e1[k] = v[3 + k] - v[k];
+        e2[k] = v[6 + k] - v[k];
+        q[k] = p[k] - v[k];
+    }
+    double d11 = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2];
+    double d12 = e1[0] * e2[0] + e1[1] * e2[1] + e1[2] * e2[2];
+    double d22 = e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2];
+    double q1 = q[0] * e1[0] + q[1] * e1[1] + q[2] * e1[2];
+    double q2 = q[0] * e2[0] + q[1] * e2[1] + q[2] * e2[2];
+    double det = d11 * d22 - d12 * d12;
+    double safe = det > 0 ? det : 1.0;
+    double b1 = (d22 * q1 - d12 * q2) / safe;
+    double b2 = (d11 * q2 - d12 * q1) / safe;
+    double b0 = 1.0 - b1 - b2;
+    const double *t = c->uv + 6 * f;
+    double u = b0 * t[0] + b1 * t[2] + b2 * t[4];
+    double w = b0 * t[1] + b1 * t[3] + b2 * t[5];
+    int64_t m = c->material[f];
+    double alpha = c->factor[m];
+    if (c->offset[m] < 0)
+        return alpha;
+    int64_t width = c->width[m], height = c->height[m];
+    const float *image = c->pixels + c->offset[m];
+    double x = u * (double)width - 0.5, y = (1.0 - w) * (double)height - 0.5;
+    double x0 = floor(x), y0 = floor(y);
+    double fx = x - x0, fy = y - y0;
+    int64_t i0 = ((int64_t)x0 % width + width) % width, j0 = ((int64_t)y0 % height + height) % height;
+    int64_t i1 = (i0 + 1) % width, j1 = (j0 + 1) % height;
+    double a00 = image[j0 * width + i0], a01 = image[j0 * width + i1];
+    double a10 = image[j1 * width + i0], a11 = image[j1 * width + i1];
+    return alpha * ((1 - fx) * (1 - fy) * a00 + fx * (1 - fy) * a01 + (1 - fx) * fy * a10
+                    + fx * fy * a11);
+}
+
+/* One ray through the alpha-tested faces (as aobake.backends.cutout.march, per ray): the
+ * nearest hit; an opaque texel ends it (t = the distance travelled, prim its face), a
+ * cut-out one is stepped past by `step` and the ray cast again, up to `layers` times
+ * (then it is blocked where it is: t travelled, prim -1); a miss gives inf and -1. */
+static int cutout_march(RTCScene scene, const Cutout *c, const float *org0, const float *dir,
+                        float limit, float step, int layers, int front, float *t_out,
+                        int64_t *prim_out)
+{
+    float org[3] = {org0[0], org0[1], org0[2]};
+    float travelled = 0.0f;
+    for (int layer = 0; layer < layers; layer++) {
+        float remaining = limit - travelled;
+        if (!(remaining > 0.0f)) /* np.maximum(x, 0): a zero limit once at the end */
+            remaining = 0.0f;
+        struct RTCRayHit rh;
+        rh.ray = (struct RTCRay){org[0], org[1], org[2], 0.0f, dir[0], dir[1], dir[2], 0.0f,
+                                 remaining, 0xFFFFFFFFu, 0, 0};
+        rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+        rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
+        p_rtcIntersect1(scene, &rh, NULL);
+        if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) {
+            *t_out = INFINITY;
+            *prim_out = -1;
+            return layer + 1;
+        }
+        float t = rh.ray.tfar;
+        Py_ssize_t f = (Py_ssize_t)rh.hit.primID;
+        double d[3] = {dir[0], dir[1], dir[2]};
+        double p[3];
+        for (int k = 0; k < 3; k++)
+            p[k] = (double)org[k] + (double)t * d[k];
+        int solid = cutout_alpha(c, f, p) >= c->cutoff[c->material[f]];
+        if (front) {
+            const double *n = c->normals + 3 * f;
+            solid = solid && (n[0] * d[0] + n[1] * d[1] + n[2] * d[2]) <= 0;
+        }
+        if (solid) {
+            *t_out = travelled + t;
+            *prim_out = (int64_t)f;
+            return layer + 1;
+        }
+        float advance = t + step;
+        travelled += advance;
+        for (int k = 0; k < 3; k++)
+            org[k] += advance * dir[k];
+    }
+    *t_out = travelled;
+    *prim_out = -1;
+    return layers;
+}
+
+/* march(scene, origins f32 (n*3), directions f32 (n*3), tmax f32 (n), corners f64 (k*9),
+ * uv f64 (k*6), material i64 (k), normals f64 (k*3), factor f64 (m), cutoff f64 (m),
+ * offset i64 (m) (-1: no image), width i64 (m), height i64 (m), pixels f32, step, layers,
+ * front, t out f32 (n), prim out i64 (n)) -> the rays cast (recasts included): the cut-out
+ * faces' first opaque hits. */
+static PyObject *march(PyObject *self, PyObject *args)
+{
+    PyObject *capsule;
+    Py_buffer b[15] = {{0}};
+    float step;
+    int layers, front;
+    if (!PyArg_ParseTuple(args, "Oy*y*y*y*y*y*y*y*y*y*y*y*y*fipw*w*", &capsule, &b[0], &b[1],
+                          &b[2], &b[3], &b[4], &b[5], &b[6], &b[7], &b[8], &b[9], &b[10],
+                          &b[11], &b[12], &step, &layers, &front, &b[13], &b[14]))
+        return NULL;
+    PyObject *result = NULL;
+    RTCScene scene = scene_of(capsule);
+    Py_ssize_t n = b[2].len / 4, k = b[5].len / 8, m = b[7].len / 8, np_ = b[12].len / 4;
+    if (scene == NULL || check(&b[0], "origins", 4, 3 * n) || check(&b[1], "directions", 4, 3 * n)
+        || check(&b[2], "tmax", 4, n) || check(&b[3], "corners", 8, 9 * k)
+        || check(&b[4], "uv", 8, 6 * k) || check(&b[5], "material", 8, k)
+        || check(&b[6], "normals", 8, 3 * k) || check(&b[7], "factor", 8, m)
+        || check(&b[8], "cutoff", 8, m) || check(&b[9], "offset", 8, m)
+        || check(&b[10], "width", 8, m) || check(&b[11], "height", 8, m)
+        || check(&b[12], "pixels", 4, np_) || check(&b[13], "t", 4, n)
+        || check(&b[14], "prim", 8, n))
+        goto done;
+    Cutout c = {b[3].buf, b[4].buf, b[6].buf, b[7].buf, b[8].buf, b[5].buf, b[9].buf,
+                b[10].buf, b[11].buf, b[12].buf};
+    for (Py_ssize_t f = 0; f < k; f++) /* every face's material and image in range */
+        if (c.material[f] < 0 || c.material[f] >= m) {
+            PyErr_Format(PyExc_ValueError, "material: %lld of %zd", (long long)c.material[f], m);
+            goto done;
+        }
+    for (Py_ssize_t i = 0; i < m; i++)
+        if (c.offset[i] >= 0 && (c.width[i] < 1 || c.height[i] < 1 ||
+                                 c.offset[i] + c.width[i] * c.height[i] > np_)) {
+            PyErr_Format(PyExc_ValueError, "image %zd: outside the pixels", i);
+            goto done;
+        }
+    const float *org = b[0].buf, *dir = b[1].buf, *tmax = b[2].buf;
+    float *t = b[13].buf;
+    int64_t *prim = b[14].buf;
+    long long cast = 0;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < n; i++)
+        cast += cutout_march(scene, &c, org + 3 * i, dir + 3 * i, tmax[i], step, layers, front,
+                             t + i, prim + i);
+    Py_END_ALLOW_THREADS
+    if (device_error("rtcIntersect1"))
+        goto done;
+    result = PyLong_FromLongLong(cast);
+done:
+    for (int i = 0; i < 15; i++)
+        PyBuffer_Release(&b[i]);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"open", open_library, METH_VARARGS,
      "open(path) -> (version, packet width): load libembree4 from path (once)."},
@@ -354,6 +512,9 @@ static PyMethodDef methods[] = {
      "occluded(scene, origins, directions, tfar, out, width): out[i] = any hit in (0, tfar[i]]."},
     {"intersect", intersect, METH_VARARGS,
      "intersect(scene, origins, directions, tfar, t, prim): the nearest hit (prim -1: none)."},
+    {"march", march, METH_VARARGS,
+     "march(scene, origins, directions, tmax, corners, uv, material, normals, factor, cutoff, "
+     "offset, width, height, pixels, step, layers, front, t, prim): alpha-tested first hits."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -80,6 +80,7 @@ class Counting:
     def __init__(self):
         import threading
 
+        from aobake.backends import native
         from aobake.backends.embree import EmbreeBackend
 
         self.rays, self._lock, self._cls = 0, threading.Lock(), EmbreeBackend
@@ -91,9 +92,22 @@ class Counting:
                 counter.rays += len(origins)
             return inner(backend, origins, directions, tmax)
         EmbreeBackend.intersect = counted
+        # the compiled cut-out march (aobake._embree) returns the rays it cast
+        self._module = (native.binding() or (None,))[0]
+        if self._module is not None:
+            self._march = march = self._module.march
+
+            def counted_march(*args):
+                cast = march(*args)
+                with counter._lock:
+                    counter.rays += cast
+                return cast
+            self._module.march = counted_march
 
     def close(self):
         self._cls.intersect = self._intersect
+        if self._module is not None:
+            self._module.march = self._march
 
 
 def main(argv=None) -> list:

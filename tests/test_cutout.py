@@ -190,3 +190,47 @@ def test_cage_rays_land_on_opaque_texels_only(tmp_path):
         np.testing.assert_array_equal(on_plate, expected)
         np.testing.assert_allclose(projection.points[:, 2], np.where(expected, HEIGHT, 0.0),
                                    atol=1e-6)
+
+
+@pytest.mark.parametrize("front", [False, True])
+def test_compiled_march_is_the_numpy_march(tmp_path, front):
+    """The cut-out pass in C (aobake._embree's march: each ray's layers in one loop) gives the
+    numpy march's bits: the same t and face for every ray, through up to three stacked
+    plates (checkers of different sizes, one facing up, a noise alpha with factor 0.8 and
+    cutoff 0.3), on rays in every direction, some ending inside the stack."""
+    from aobake.config import BakeConfig
+    from aobake.occluders import build
+    from aobake.scene import load_scene
+
+    rng = np.random.default_rng(7)
+    parts = []
+    for k, (z, down, alpha, factor, cutoff) in enumerate((
+            (0.2, True, checker(), 1.0, 0.5),
+            (0.5, False, np.kron(checker()[:8, :8], np.ones((3, 3), np.uint8)), 1.0, 0.5),
+            (0.8, True, (rng.random((17, 23)) * 255).astype(np.uint8), 0.8, 0.3))):
+        v, f, uv = square(HALF, z, down=down)
+        parts.append(dict(vertices=v, faces=f, uv=uv * (1.0 + k),  # UVs beyond 1: repeat
+                          material={"alphaMode": "MASK", "factor": [1, 1, 1, factor],
+                                    "alphaCutoff": cutoff, "png": png(alpha)}))
+    scene = load_scene(write_gltf(tmp_path / "stack.gltf", parts))
+    occluders = build(scene, BakeConfig(alpha_cutout=True))
+    cutout = occluders.cutout
+    if cutout.backend.native_scene() is None:
+        pytest.skip("aobake._embree was not built")
+    n = 20000
+    origins = np.column_stack([rng.uniform(-1.2, 1.2, (n, 2)), rng.uniform(-0.5, 1.5, n)])
+    directions = rng.normal(size=(n, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    local = occluders.to_local(origins).astype(np.float32)
+    tmax = (rng.uniform(0.05, 3.0, n) * occluders.scale).astype(np.float32)
+    compiled = cutout.march(local, directions.astype(np.float32), tmax, front=front)
+    reference = cutout.march(local, directions.astype(np.float32), tmax, front=front,
+                             compiled=False)
+    np.testing.assert_array_equal(compiled[0], reference[0])
+    np.testing.assert_array_equal(compiled[1], reference[1])
+    hit = reference[1] >= 0
+    assert 0.05 < hit.mean() < 0.95 and np.isinf(reference[0][~hit]).any()
+    # many rays passed a cut-out texel first: their face is not the first face they meet
+    t_first, first = cutout.backend.intersect(local, directions.astype(np.float32), tmax)
+    passed = (first >= 0) & (first != reference[1])
+    assert passed.mean() > 0.1 and (hit & passed).any()

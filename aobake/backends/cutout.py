@@ -22,6 +22,8 @@ import io
 
 import numpy as np
 
+from aobake.vectors import distinct
+
 #: cut-out layers a ray crosses before it counts as blocked where it is
 MAX_LAYERS = 64
 
@@ -88,7 +90,7 @@ class CutoutOccluder:
         self.material = np.asarray(material, dtype=np.int64)
         self.step = np.float32(step)
         self.scene_faces = np.asarray(scene_faces, dtype=np.int64)
-        used = np.unique(self.material)
+        used = distinct(self.material, len(materials))
         self.alpha = {int(i): decode_alpha(materials[i].get("base_color_png")) for i in used}
         self.factor = np.ones(len(materials))
         self.cutoff = np.full(len(materials), 0.5)
@@ -97,19 +99,40 @@ class CutoutOccluder:
             if factor is not None:
                 self.factor[i] = float(factor[3])
             self.cutoff[i] = float(m.get("alpha_cutoff", 0.5))
+        # The compiled march's view of the same data (aobake/_embree.c: march): the images
+        # one after another in one float32 array, each material's offset (-1: none) and size.
+        self._offset = np.full(len(materials), -1, dtype=np.int64)
+        self._width = np.zeros(len(materials), dtype=np.int64)
+        self._height = np.zeros(len(materials), dtype=np.int64)
+        images, start = [], 0
+        for index, image in self.alpha.items():
+            if image is not None:
+                self._offset[index], start = start, start + image.size
+                self._height[index], self._width[index] = image.shape
+                images.append(image.reshape(-1))
+        self._pixels = np.concatenate(images).astype(np.float32) if images \
+            else np.zeros(0, dtype=np.float32)
 
     def alpha_at(self, prim: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """(n,) float64 the alpha at ``points`` (n, 3) float64 local on faces ``prim`` (n,)."""
+        """(n,) float64 the alpha at ``points`` (n, 3) float64 local on faces ``prim`` (n,).
+        Sums are written out left to right (np.einsum's order depends on the CPU), as the
+        compiled march adds them."""
         c = self.corners[prim]
         e1, e2, q = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0], points - c[:, 0]
-        d11, d12, d22 = (np.einsum("ij,ij->i", a, b) for a, b in ((e1, e1), (e1, e2), (e2, e2)))
-        q1, q2 = np.einsum("ij,ij->i", q, e1), np.einsum("ij,ij->i", q, e2)
+
+        def dot(a, b):
+            return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+        d11, d12, d22 = dot(e1, e1), dot(e1, e2), dot(e2, e2)
+        q1, q2 = dot(q, e1), dot(q, e2)
         det = d11 * d22 - d12 * d12
         safe = np.where(det > 0, det, 1.0)
         b1 = (d22 * q1 - d12 * q2) / safe
         b2 = (d11 * q2 - d12 * q1) / safe
-        bary = np.stack([1.0 - b1 - b2, b1, b2], axis=1)
-        uv = np.einsum("ik,ikc->ic", bary, self.uv[prim])
+        b0 = 1.0 - b1 - b2
+        corner_uv = self.uv[prim]
+        uv = (b0[:, None] * corner_uv[:, 0] + b1[:, None] * corner_uv[:, 1]
+              + b2[:, None] * corner_uv[:, 2])
         material = self.material[prim]
         alpha = self.factor[material].copy()
         for index, image in self.alpha.items():
@@ -120,10 +143,26 @@ class CutoutOccluder:
                 alpha[rows] *= bilinear(image, uv[rows])
         return alpha
 
-    def march(self, origins, directions, tmax, front: bool = False):
+    def march(self, origins, directions, tmax, front: bool = False, compiled: bool = True):
         """(t (n,) float32 the first opaque hit's distance, inf on a miss; prim (n,) int64
         its face, -1 on a miss) of local float32 rays, passing cut-out texels (and, with
-        ``front``, back-facing hits)."""
+        ``front``, back-facing hits).  Compiled (``aobake._embree``'s march: each ray's layers
+        in one C loop, the same operations in the same order) where the backend is the
+        compiled Embree binding, else (or ``compiled`` False) in numpy, layer by layer."""
+        native = getattr(self.backend, "native_scene", lambda: None)() if compiled else None
+        if native is not None:
+            module, handle = native
+            n = len(origins)
+            t = np.empty(n, dtype=np.float32)
+            prim = np.empty(n, dtype=np.int64)
+            limit = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, dtype=np.float32),
+                                                         (n,)))
+            module.march(handle, _f32(origins), _f32(directions), limit,
+                         np.ascontiguousarray(self.corners), np.ascontiguousarray(self.uv),
+                         np.ascontiguousarray(self.material), np.ascontiguousarray(self.normals),
+                         self.factor, self.cutoff, self._offset, self._width, self._height,
+                         self._pixels, float(self.step), MAX_LAYERS, bool(front), t, prim)
+            return t, prim
         n = len(origins)
         result = np.full(n, np.inf, dtype=np.float32)
         prim_out = np.full(n, -1, dtype=np.int64)
@@ -144,7 +183,9 @@ class CutoutOccluder:
             points = org[idx].astype(np.float64) + t.astype(np.float64)[:, None] * d
             solid = self.alpha_at(prim, points) >= self.cutoff[self.material[prim]]
             if front:
-                solid &= np.einsum("ij,ij->i", self.normals[prim], d) <= 0
+                n_hit = self.normals[prim]
+                solid &= (n_hit[:, 0] * d[:, 0] + n_hit[:, 1] * d[:, 1]
+                          + n_hit[:, 2] * d[:, 2]) <= 0
             result[idx[solid]] = travelled[idx[solid]] + t[solid]
             prim_out[idx[solid]] = prim[solid]
             through = ~solid
@@ -171,3 +212,7 @@ class CutoutOccluder:
     def intersect(self, origins, directions, tmax):
         """(t (n,) float32, prim (n,) int64 -1 on a miss) of the first opaque hit."""
         return self.march(origins, directions, tmax)
+
+
+def _f32(rows) -> np.ndarray:
+    return np.ascontiguousarray(rows, dtype=np.float32)

@@ -56,6 +56,11 @@ class EmbreeBackend(TriangleBackend):
         probe = np.zeros((1, 3), dtype=np.float32)
         self._scene.run(probe, np.array([[0, 0, 1]], dtype=np.float32), query="OCCLUDED")
 
+    def native_scene(self):
+        """(aobake._embree, its scene) when the compiled binding traces, else None (for a
+        compiled query beside the ones here: the cut-out march)."""
+        return None if self._native is None else (self._native, self._handle)
+
     @staticmethod
     def _tfar(tmax, n):
         tfar = np.empty(n, dtype=np.float32)
