@@ -386,7 +386,8 @@ static double cutout_alpha(const Cutout *c, Py_ssize_t f, const double p[3])
     double x = u * (double)width - 0.5, y = (1.0 - w) * (double)height - 0.5;
     double x0 = floor(x), y0 = floor(y);
     double fx = x - x0, fy = y - y0;
-    int64_t i0 = ((int64_t)x0 % width + width) % width, j0 = ((int64_t)y0 % height + height) % height;
+    int64_t i0 = ((int64_t)x0 % width + width) % width;
+    int64_t j0 = ((int64_t)y0 % height + height) % height;
     int64_t i1 = (i0 + 1) % width, j1 = (j0 + 1) % height;
     double a00 = image[j0 * width + i0], a01 = image[j0 * width + i1];
     double a10 = image[j1 * width + i0], a11 = image[j1 * width + i1];

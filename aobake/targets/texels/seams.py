@@ -59,7 +59,10 @@ kept, as an upper bound (tests/test_seams.py computes the exact sd(x_t) =
 sqrt(sum_j K_tj^2 se_j^2) of x = K b and checks it).  AO and obscurance are solved within
 [0, 1] (``_bounded``): for a given set of texels held at 0 or 1 (constants), the free ones
 are the same kind of solution with a principal submatrix of I + H, so the bound holds for
-them too.  Gutter texels stay the dilation's fill (docs/conventions.md), not estimates
+them too.  The same holds at any seam weight, so where a solve raises the weight (the
+seams still above SEAM_TARGET) the bound holds given the weight it ended at; that choice
+reads the map's own seam residual, which is its systematic steps far more than its noise.
+Gutter texels stay the dilation's fill (docs/conventions.md), not estimates
 of their own.
 """
 
@@ -789,8 +792,8 @@ class Erased:
     are changed in place), info : dict seam_edges, seam_points, points_dropped,
     texels_adjusted, gutter_texels (read by the seams, filled by the dilation), iterations,
     kappa (the highest seam weight any channel was solved at), converged, bound_texels (held
-    at 0 or 1 by the bounded solve), rms_before / rms_after, max_before / max_after (of the first value channel, AO when baked: lookup differences
-    over the seam points).
+    at 0 or 1 by the bounded solve), rms_before / rms_after, max_before / max_after (of the
+    first value channel, AO when baked: lookup differences over the seam points).
     """
 
     adjusted: np.ndarray
