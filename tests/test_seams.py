@@ -749,3 +749,19 @@ def test_the_report_says_which_seam_weight_ran():
     assert fine["texture"]["seams"]["kappa"] == seams.KAPPA
     assert coarse["texture"]["seams"]["kappa"] > seams.KAPPA
     assert coarse["texture"]["seams"]["rms_after"] <= seams.SEAM_TARGET
+
+
+def test_seam_rounds_stop_at_the_range_or_where_a_round_no_longer_helps(monkeypatch):
+    """With no target met (SEAM_TARGET 0) the weight rises to KAPPA x KAPPA_RANGE; a round
+    that leaves more than PLATEAU of the last one's difference is the last (PLATEAU 0: the
+    round after the first)."""
+    scene = _sphere_through_box()
+    options = dict(rays=16, texel_samples=1, padding=2, unwrap="always", quantities=("ao",),
+                   seed=0, resolution=48, seams="erase")
+    monkeypatch.setattr(seams, "SEAM_TARGET", 0.0)
+    monkeypatch.setattr(seams, "KAPPA_RANGE", 16.0)
+    ran = bake_texels(scene, **options).report["texture"]["seams"]
+    assert ran["kappa"] == 16 * seams.KAPPA
+    monkeypatch.setattr(seams, "PLATEAU", 0.0)
+    ran = bake_texels(scene, **options).report["texture"]["seams"]
+    assert ran["kappa"] == 4 * seams.KAPPA
