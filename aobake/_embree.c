@@ -302,6 +302,21 @@ done:
     return result;
 }
 
+/* One ray's nearest hit within (0, tfar] (rtcIntersect1): its face, -1 on a miss; *t is
+ * Embree's tfar after the query (the hit's distance, or tfar unchanged on a miss). */
+static int64_t nearest1(RTCScene scene, const float *org, const float *dir, float tfar,
+                        float *t)
+{
+    struct RTCRayHit rh;
+    rh.ray = (struct RTCRay){org[0], org[1], org[2], 0.0f, dir[0], dir[1], dir[2], 0.0f,
+                             tfar, 0xFFFFFFFFu, 0, 0};
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
+    p_rtcIntersect1(scene, &rh, NULL);
+    *t = rh.ray.tfar;
+    return rh.hit.geomID == RTC_INVALID_GEOMETRY_ID ? -1 : (int64_t)rh.hit.primID;
+}
+
 /* intersect(scene, origins, directions, tfar, t out f32 (n), prim out i32 (n)): the nearest
  * hit within (0, tfar]; t = tfar unchanged and prim = -1 on a miss. */
 static PyObject *intersect(PyObject *self, PyObject *args)
@@ -320,17 +335,8 @@ static PyObject *intersect(PyObject *self, PyObject *args)
     float *t = rt.buf;
     int32_t *prim = rp.buf;
     Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t i = 0; i < n; i++) {
-        struct RTCRayHit rh;
-        rh.ray = (struct RTCRay){org[3 * i], org[3 * i + 1], org[3 * i + 2], 0.0f,
-                                 dir[3 * i], dir[3 * i + 1], dir[3 * i + 2], 0.0f,
-                                 tfar[i], 0xFFFFFFFFu, 0, 0};
-        rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-        rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
-        p_rtcIntersect1(scene, &rh, NULL);
-        t[i] = rh.ray.tfar;
-        prim[i] = rh.hit.geomID == RTC_INVALID_GEOMETRY_ID ? -1 : (int32_t)rh.hit.primID;
-    }
+    for (Py_ssize_t i = 0; i < n; i++)
+        prim[i] = (int32_t)nearest1(scene, org + 3 * i, dir + 3 * i, tfar[i], t + i);
     Py_END_ALLOW_THREADS
     if (device_error("rtcIntersect1"))
         goto done;
@@ -409,19 +415,14 @@ static int cutout_march(RTCScene scene, const Cutout *c, const float *org0, cons
         float remaining = limit - travelled;
         if (!(remaining > 0.0f)) /* np.maximum(x, 0): a zero limit once at the end */
             remaining = 0.0f;
-        struct RTCRayHit rh;
-        rh.ray = (struct RTCRay){org[0], org[1], org[2], 0.0f, dir[0], dir[1], dir[2], 0.0f,
-                                 remaining, 0xFFFFFFFFu, 0, 0};
-        rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-        rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
-        p_rtcIntersect1(scene, &rh, NULL);
-        if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) {
+        float t;
+        int64_t hit = nearest1(scene, org, dir, remaining, &t);
+        if (hit < 0) {
             *t_out = INFINITY;
             *prim_out = -1;
             return layer + 1;
         }
-        float t = rh.ray.tfar;
-        Py_ssize_t f = (Py_ssize_t)rh.hit.primID;
+        Py_ssize_t f = (Py_ssize_t)hit;
         double d[3] = {dir[0], dir[1], dir[2]};
         double p[3];
         for (int k = 0; k < 3; k++)
