@@ -101,8 +101,10 @@ class Scene:
     #: alpha-cutout occluders: a list of {"name": str, "base_color_png": bytes | None,
     #: "base_color_factor": [r, g, b, a] | None, "metallic_roughness_png": bytes | None (glTF:
     #: G roughness, B metalness; for --orm), "alpha_mode": "OPAQUE" | "MASK" | "BLEND",
-    #: "alpha_cutoff": float (glTF's, default 0.5)}, or None when the input has none (or no
-    #: UVs to map them with)
+    #: "alpha_cutoff": float (glTF's, default 0.5), and for a MASK material whose declared
+    #: base-colour texture cannot be read, "base_color_error": str (the texture and why;
+    #: ``--alpha-cutout`` refuses such a material, see ``aobake.backends.cutout``)}, or None
+    #: when the input has none (or no UVs to map them with)
     materials: list | None = None
     #: (f,) int64 index into ``materials`` of each face (None with ``materials``)
     face_material: np.ndarray | None = None
@@ -552,8 +554,92 @@ def _obj_materials(path: Path, data) -> tuple[list | None, np.ndarray | None]:
     return materials, face_material
 
 
-def _trimesh_material(mesh, index: int) -> dict:
-    """Base colour of one trimesh mesh's PBR (or simple) material."""
+def _image_name(header: dict, index) -> str:
+    """How a message names glTF ``images[index]``: its file, else its place in the file."""
+    image = header["images"][index]
+    uri = image.get("uri")
+    if isinstance(uri, str) and not uri.startswith("data:"):
+        return uri
+    return f"images[{index}] (embedded)"
+
+
+def _image_bytes(path: Path, header: dict, binary: bytes | None, index) -> bytes:
+    """The bytes of glTF ``images[index]``; OSError / ValueError / KeyError / IndexError /
+    TypeError where the file does not hold them."""
+    import base64
+    from urllib.parse import unquote
+
+    def uri_bytes(uri: str) -> bytes:
+        if uri.startswith("data:"):
+            return base64.b64decode(uri.split(",", 1)[1], validate=False)
+        return (path.parent / unquote(uri)).read_bytes()
+
+    image = header["images"][index]
+    if "uri" in image:
+        return uri_bytes(str(image["uri"]))
+    view = header["bufferViews"][image["bufferView"]]
+    buffer = header["buffers"][view["buffer"]]
+    data = uri_bytes(str(buffer["uri"])) if "uri" in buffer else binary
+    if data is None:
+        raise ValueError("the GLB has no binary chunk")
+    start = int(view.get("byteOffset", 0))
+    end = start + int(view["byteLength"])
+    if end > len(data):
+        raise ValueError(f"bufferView {image['bufferView']} ends past its buffer")
+    return data[start:end]
+
+
+def _gltf_broken_textures(path: Path) -> dict:
+    """glTF material name (None: unnamed) -> "texture X: problem" for every alphaMode MASK
+    material whose declared baseColorTexture cannot be read or decoded.
+
+    trimesh drops such an image without a word (its loader only logs at debug level), and a
+    cut-out material without its alpha would occlude everywhere: wrong AO, not an error,
+    unless it is noticed here.  Only MASK materials are checked (only their alpha is used)."""
+    import io
+
+    from PIL import Image
+
+    from aobake import uvsets
+
+    try:
+        header, binary = uvsets.read_json(path)
+    except InputError:
+        return {}  # trimesh has read it: let its result stand
+    broken = {}
+    materials = header.get("materials") if isinstance(header, dict) else None
+    for material in materials if isinstance(materials, list) else []:
+        if not isinstance(material, dict) or material.get("alphaMode") != "MASK":
+            continue
+        pbr = material.get("pbrMetallicRoughness")
+        texture = pbr.get("baseColorTexture") if isinstance(pbr, dict) else None
+        if texture is None:
+            continue
+        name, what = material.get("name"), "its baseColorTexture"
+        try:
+            source = header["textures"][texture["index"]]["source"]
+            what = f"texture {_image_name(header, source)}"
+            data = _image_bytes(path, header, binary, source)
+        except FileNotFoundError:
+            broken[name] = f"{what}: no such file"
+            continue
+        except (OSError, ValueError, KeyError, IndexError, TypeError) as exc:
+            broken[name] = f"{what}: cannot be read ({type(exc).__name__}: {exc})"
+            continue
+        try:
+            with Image.open(io.BytesIO(data)) as image:
+                image.load()  # open() reads the header alone; a truncated image fails here
+        except Image.UnidentifiedImageError:
+            broken[name] = f"{what}: not an image PIL can decode ({len(data)} bytes)"
+        except (OSError, ValueError, Image.DecompressionBombError) as exc:
+            broken[name] = f"{what}: corrupt image ({exc})"
+    return broken
+
+
+def _trimesh_material(mesh, index: int, broken: dict | None = None) -> dict:
+    """Base colour of one trimesh mesh's PBR (or simple) material; ``broken`` as
+    :func:`_gltf_broken_textures` returns (its entries mark MASK materials left without
+    their texture)."""
     material = getattr(mesh.visual, "material", None)
     out = _white(getattr(material, "name", None) or f"material_{index}")
     if material is None:
@@ -600,19 +686,23 @@ def _trimesh_material(mesh, index: int) -> dict:
             out["base_color_factor"] = (rgba + [1.0] * 4)[:4] if len(rgba) >= 3 else None
     except (OSError, ValueError, TypeError, AttributeError) as exc:
         log.warning("base colour of material %r not kept (%s)", out["name"], exc)
+    raw = getattr(material, "name", None)
+    if broken and out["alpha_mode"] == "MASK" and raw in broken and out["base_color_png"] is None:
+        out["base_color_error"] = broken[raw]
     return out
 
 
-def _trimesh_materials(meshes) -> tuple[list, np.ndarray]:
+def _trimesh_materials(meshes, broken: dict | None = None) -> tuple[list, np.ndarray]:
     """One entry per distinct material object of the meshes, and each face's index."""
     index, materials, per_mesh = {}, [], []
     for mesh in meshes:
-        material = _trimesh_material(mesh, len(materials))
+        material = _trimesh_material(mesh, len(materials), broken)
         # By content: trimesh's scene dump may copy one shared material per node.
         factor = material["base_color_factor"]
         key = (material["name"], material["base_color_png"], tuple(factor) if factor else None,
                material["metallic_roughness_png"], material["roughness_factor"],
-               material["metallic_factor"], material["alpha_mode"], material["alpha_cutoff"])
+               material["metallic_factor"], material["alpha_mode"], material["alpha_cutoff"],
+               material.get("base_color_error"))
         if key not in index:
             index[key] = len(materials)
             materials.append(material)
@@ -655,8 +745,12 @@ def _load_with_trimesh(path: Path, uv_set: int = 0):
         raise InputError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from None
     if isinstance(loaded, trimesh.Scene):
         meshes = []
+        try:  # dump() copies each material, decoding its images: a truncated one fails here
+            dumped = loaded.dump()
+        except Exception as exc:  # noqa: BLE001 - PIL raises several types for a bad image
+            raise InputError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from None
         # dump() applies every node's transform; one entry per node instance.
-        for geom in loaded.dump():
+        for geom in dumped:
             if isinstance(geom, trimesh.Trimesh) and len(geom.faces):
                 meshes.append(geom)
         if not meshes:
@@ -694,9 +788,12 @@ def _load_with_trimesh(path: Path, uv_set: int = 0):
             if any(uv is None for uv in per_mesh):  # a primitive trimesh did not load as given
                 raise InputError(f"{path}: cannot read TEXCOORD_{k} of every mesh")
             sets[k] = np.concatenate(per_mesh)
+    materials = None
+    if uvs:
+        broken = _gltf_broken_textures(path) if path.suffix.lower() in (".gltf", ".glb") else {}
+        materials = _trimesh_materials(meshes, broken)
     return (vertices, faces, np.concatenate(normals) if normals else None,
-            np.concatenate(uvs) if uvs else None, _trimesh_materials(meshes) if uvs else None,
-            names, sets)
+            np.concatenate(uvs) if uvs else None, materials, names, sets)
 
 
 def _trimesh_names(meshes) -> dict:

@@ -22,20 +22,26 @@ import io
 
 import numpy as np
 
+from aobake.errors import InputError
 from aobake.vectors import distinct
 
 #: cut-out layers a ray crosses before it counts as blocked where it is
 MAX_LAYERS = 64
 
 
-def decode_alpha(png: bytes | None) -> np.ndarray | None:
-    """(H, W) float32 alpha in [0, 1] of PNG/JPEG bytes (row 0 = the image's top), or None."""
+def decode_alpha(png: bytes | None, name: str = "base colour") -> np.ndarray | None:
+    """(H, W) float32 alpha in [0, 1] of PNG/JPEG bytes (row 0 = the image's top), or None.
+    InputError naming ``name`` (the material) where the bytes are no image."""
     if png is None:
         return None
     from PIL import Image
 
-    with Image.open(io.BytesIO(png)) as image:
-        rgba = np.asarray(image.convert("RGBA"))
+    try:
+        with Image.open(io.BytesIO(png)) as image:
+            rgba = np.asarray(image.convert("RGBA"))
+    except (OSError, ValueError, Image.DecompressionBombError) as exc:
+        raise InputError(f"--alpha-cutout: the base-colour texture of material {name!r} "
+                         f"cannot be decoded ({type(exc).__name__}: {exc})") from None
     return (rgba[..., 3].astype(np.float32) / np.float32(255.0))
 
 
@@ -58,12 +64,25 @@ def bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 def cutout_faces(scene) -> np.ndarray | None:
     """(f,) bool the faces of ``scene`` whose material is alpha-tested (MASK), or None when
-    none is (or the scene has no materials: they need UVs)."""
+    none is (or the scene has no materials: they need UVs).
+
+    InputError (naming the file, the material and its texture) where a MASK material some
+    face uses declares a base-colour texture that could not be read (``Scene.materials``'
+    "base_color_error"): without its alpha the material would occlude everywhere, a wrong
+    bake that looks like a right one."""
     if scene.materials is None or scene.face_material is None:
         return None
     masked = np.array([m.get("alpha_mode") == "MASK" for m in scene.materials], dtype=bool)
     cut = masked[scene.face_material]
-    return cut if cut.any() else None
+    if not cut.any():
+        return None
+    for index in distinct(scene.face_material[cut], len(scene.materials)):
+        material = scene.materials[int(index)]
+        if material.get("base_color_error"):
+            raise InputError(f"{scene.source}: --alpha-cutout: material "
+                             f"{material.get('name')!r} (alphaMode MASK): "
+                             f"{material['base_color_error']}")
+    return cut
 
 
 class CutoutOccluder:
@@ -91,7 +110,8 @@ class CutoutOccluder:
         self.step = np.float32(step)
         self.scene_faces = np.asarray(scene_faces, dtype=np.int64)
         used = distinct(self.material, len(materials))
-        self.alpha = {int(i): decode_alpha(materials[i].get("base_color_png")) for i in used}
+        self.alpha = {int(i): decode_alpha(materials[i].get("base_color_png"),
+                                           materials[i].get("name", str(i))) for i in used}
         self.factor = np.ones(len(materials))
         self.cutoff = np.full(len(materials), 0.5)
         for i, m in enumerate(materials):
