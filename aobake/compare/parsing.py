@@ -279,9 +279,16 @@ def _ply_binary(data: bytes, offset: int, elements, order: str) -> dict:
                 dtype += [(prop[0] + "#count", order + prop[1]), (prop[0], order + prop[2], (3,))]
         dtype = np.dtype(dtype)
         if offset + dtype.itemsize * count > len(data):
-            if name == "vertex" or "vertex" not in out:
-                raise Unreadable(f"truncated: element {name!r} runs past the end of the file")
-            break
+            lists = [p[0] for p in props if len(p) == 3]
+            whole = max(len(data) - offset, 0) // dtype.itemsize  # the items the bytes hold
+            head = np.frombuffer(data, dtype=dtype, count=whole, offset=offset) if whole \
+                else None
+            if lists and (head is None or any((head[p + "#count"] != 3).any() for p in lists)):
+                break  # not all triangles: read as 3-lists, its true size is unknown here
+            # the vertex element, or a triangle list, that ends before its count: a file cut
+            # short (the faces cannot be dropped: the values would be read without them)
+            raise Unreadable(f"truncated: element {name!r} runs past the end of the file "
+                             f"({count} items declared, {whole} there)")
         array = np.frombuffer(data, dtype=dtype, count=count, offset=offset)
         lists = [p[0] for p in props if len(p) == 3]
         if any((array[p + "#count"] != 3).any() for p in lists):
@@ -305,9 +312,13 @@ def _ply_ascii(body: bytes, elements) -> dict:
         width = len(props) + 3 * len(lists)  # every list assumed to hold 3 (checked)
         chunk = tokens[at:at + width * count]
         if len(chunk) < width * count:
-            if name == "vertex" or "vertex" not in out:
-                raise Unreadable(f"truncated: element {name!r} runs past the end of the file")
-            break
+            whole = len(chunk) // width
+            counts = np.array(chunk[:whole * width], dtype=object).reshape(whole, width)
+            counts = counts[:, _lists_at(props)].astype(np.float64)
+            if (counts != 3).any():
+                break  # not all triangles: read as 3-lists, its true length is unknown here
+            raise Unreadable(f"truncated: element {name!r} runs past the end of the file "
+                             f"({count} items declared, {whole} there)")
         table = np.array(chunk, dtype=np.float64).reshape(count, width)
         columns, col = {}, 0
         for prop in props:
@@ -329,6 +340,19 @@ def _ply_ascii(body: bytes, elements) -> dict:
             out["face"] = columns[props[lists[0]][0]]
         if "vertex" in out and "face" in out:
             break
+    return out
+
+
+def _lists_at(props) -> list:
+    """The token offsets of the list counts in one row of ``props``, every list read as
+    holding 3 (``_ply_ascii``'s layout)."""
+    at, out = 0, []
+    for prop in props:
+        if len(prop) == 3:
+            out.append(at)
+            at += 4
+        else:
+            at += 1
     return out
 
 
