@@ -57,7 +57,8 @@ from aobake.compare.parsing import Unreadable
 from aobake.compare.readers import read_table
 from aobake.compare.screen import format_screen, is_view, score_view
 from aobake.compare.settings import check_same_quantity
-from aobake.compare.values import TEXEL_SUFFIXES, VERTEX_SUFFIXES, Values, kind, pick, target_of
+from aobake.compare.values import (IMAGE_KINDS, TEXEL_SUFFIXES, VERTEX_SUFFIXES, Values,
+                                   image_kind, kind, pick, target_of)
 from aobake.errors import InputError
 from aobake.quantities import QUANTITIES
 
@@ -111,6 +112,12 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
     if candidate.target != reference.target:
         raise InputError(f"{candidate_path}: holds {kind(candidate.target)}, but the reference "
                          f"{reference_path} holds {kind(reference.target)}")
+    if target == "texels":  # a view's pixels and a lightmap's texels are not the same points
+        ref_kind, cand_kind = image_kind(reference), image_kind(candidate)
+        if ref_kind and cand_kind and ref_kind != cand_kind:
+            raise InputError(f"{candidate_path}: holds {IMAGE_KINDS[cand_kind]}, but the "
+                             f"reference {reference_path} holds {IMAGE_KINDS[ref_kind]}: "
+                             "their values are not of the same points")
     warnings = reference.warnings + candidate.warnings
     warnings += check_same_quantity(reference, candidate, quantity)
     if candidate_convention == "occlusion":
@@ -138,7 +145,9 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
         big, path = (big_ref, reference_path) if big_ref > big_cand else (big_cand, candidate_path)
         raise InputError(f"{path}: {quantity} values as large as {big:.3g}: their difference "
                          "from the other file's is beyond float64's range")
-    result = {"quantity": quantity, "target": target, "reference": str(reference_path),
+    view = target == "texels" and is_view(reference)  # a camera view: its pixels
+    result = {"quantity": quantity, "target": "view" if view else target,
+              "reference": str(reference_path),
               "candidate": str(candidate_path), "reference_key": reference.key,
               "candidate_key": candidate.key, "candidate_convention": candidate_convention}
     try:
@@ -149,7 +158,7 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
     notes = reference.notes + candidate.notes + extra.pop("notes")
     result.update(extra)
     result["screen"] = None
-    if target == "texels" and is_view(reference):  # a camera view: scored as screen-space AO
+    if view:  # scored as screen-space AO
         result["screen"] = score_view(reference, candidate, where)
         result["matched_by"] = "pixel"
     result["heatmap"], result["heatmap_scale"] = None, None
@@ -164,7 +173,8 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
         write_heatmap(heatmap, reference, error, where, scale, quantity)
         result["heatmap"], result["heatmap_scale"] = str(heatmap), scale
         log.info("wrote %s (full colour at |error| = %.6g)", heatmap, scale)
-    log.info("compared %s over %d %s: rmse %.6g, bias %+.6g", quantity, result["n"], target,
+    log.info("compared %s over %d %s: rmse %.6g, bias %+.6g", quantity, result["n"],
+             "pixels" if view else target,
              result["rmse"], result["bias"])
     return result
 
@@ -308,8 +318,9 @@ def format_table(result: dict) -> str:
              f"{result['n']} {where}"]
     width = max(len(label) for label, _ in rows)
     lines += [f"  {label:<{width}}  {value}" for label, value in rows]
-    if result["n_uncovered_in_candidate"] and result["target"] == "texels":
-        lines.append(f"  ({result['n_uncovered_in_candidate']} texels the reference covers are "
+    if result["n_uncovered_in_candidate"] and result["target"] in ("texels", "view"):
+        points = "pixels" if result["target"] == "view" else "texels"
+        lines.append(f"  ({result['n_uncovered_in_candidate']} {points} the reference covers are "
                      "not covered by the candidate: left out)")
     lines += [f"  note: {text}" for text in result["notes"]]
     if result.get("screen"):

@@ -56,6 +56,19 @@ def kind(target: str) -> str:
     return "per-vertex values" if target == "vertices" else "a lightmap (per texel)"
 
 
+def image_kind(values: "Values") -> str | None:
+    """What an image file holds by its aobake metadata: "view" (an ``aobake view``: a camera
+    record), "lightmap" (any other aobake image: texels of a UV atlas), None (another tool's
+    image: it says nothing, and is compared as the reference's kind)."""
+    if not values.metadata:
+        return None
+    return "view" if isinstance(values.metadata.get("camera"), dict) else "lightmap"
+
+
+#: how a message names each kind of image
+IMAGE_KINDS = {"view": "a camera view (per pixel)", "lightmap": "a lightmap (per texel)"}
+
+
 def target_of(path: Path) -> str:
     """'vertices' | 'texels' by the suffix; InputError for a format compare does not read."""
     suffix = path.suffix.lower()
