@@ -48,9 +48,11 @@ from aobake.outputs.report import to_jsonable
 log = logging.getLogger(__name__)
 
 LDR_SUFFIXES = (".png", ".tif", ".tiff")
-#: EXR channels kept float32 under --half: counts, which half would round above 2048 and
-#: turn into inf above 65504
-FULL_PRECISION = ("rays",)
+#: EXR channels kept float32 under --half: counts and ids, which half would round above 2048
+#: and turn into inf above 65504
+FULL_PRECISION = ("rays", "object_id", "primitive_id")
+#: the largest finite half float; a channel with a finite value beyond it stays float32
+HALF_MAX = 65504.0
 #: oiio:ColorSpace name that makes OIIO tag a PNG with gAMA = 1.0 (linear).
 LINEAR_COLORSPACE = "lin_rec709_scene"
 
@@ -147,8 +149,11 @@ def write_exr(path, channels: Mapping[str, np.ndarray], metadata: Mapping[str, A
     metadata : stored as one string attribute 'aobake:<key>' per key (JSON
         text for non-strings) plus 'aobake:metadata', the whole dict as JSON.
     half : store 16-bit half floats instead of 32-bit floats (about 3 decimal
-        digits, largest finite 65504); the ``FULL_PRECISION`` channels (ray counts) stay
-        float32, so they stay exact and finite at any ray count.
+        digits, largest finite 65504); the ``FULL_PRECISION`` channels (ray counts, ids)
+        stay float32, so they stay exact and finite at any count.  So does any channel with
+        a finite value beyond half's range (a view's depth, distance and P of a scene far
+        from the origin or larger than 65504 units): half would store inf there.  Those
+        channels are named in a warning and in the ``aobake:float_channels`` attribute.
     """
     if not channels:
         raise ValueError("write_exr needs at least one channel")
@@ -165,9 +170,22 @@ def write_exr(path, channels: Mapping[str, np.ndarray], metadata: Mapping[str, A
     # The pixels are handed over as float32; OIIO converts to half where asked.
     formats = None
     if half:
-        formats = [oiio.FLOAT if name in FULL_PRECISION else oiio.HALF for name in names]
+        beyond = [name for name, array in zip(names, arrays)
+                  if name not in FULL_PRECISION and _largest_finite(array) > HALF_MAX]
+        if beyond:
+            log.warning("%s: %s hold values beyond half float's range (%g): written as "
+                        "float32, not half", path, ", ".join(beyond), HALF_MAX)
+            attrs["aobake:float_channels"] = json.dumps(beyond)
+        full = set(FULL_PRECISION) | set(beyond)
+        formats = [oiio.FLOAT if name in full else oiio.HALF for name in names]
     _write(path, np.stack(arrays, axis=-1), oiio.HALF if half else oiio.FLOAT, names, attrs,
            formats)
+
+
+def _largest_finite(array: np.ndarray) -> float:
+    """The largest |value| of the finite values of ``array`` (0 when there is none)."""
+    finite = np.abs(array[np.isfinite(array)])
+    return float(finite.max()) if finite.size else 0.0
 
 
 def quantize(x, bit_depth: int) -> np.ndarray:
