@@ -134,14 +134,17 @@ class Camera:
         eye = _vector("look-from", self.eye)
         target = _vector("look-at", self.target)
         up = _vector("up", self.up)
-        view = target - eye
-        distance = np.linalg.norm(view)
+        with np.errstate(over="ignore"):  # an overflow is the error below, not a warning
+            view = target - eye
+        distance = math.hypot(*view)  # no overflow of the squares (np.linalg.norm's)
         if not distance > 0:
             raise InputError("camera: look-from equals look-at")
-        if not np.isfinite(distance):
-            raise InputError("camera: look-from and look-at are too far apart (overflow)")
+        if not math.isfinite(distance):
+            raise InputError(f"camera: look-from {eye.tolist()} and look-at "
+                             f"{target.tolist()} are too far apart: their distance is "
+                             "beyond float64's range")
         forward = view / distance
-        up_length = np.linalg.norm(up)
+        up_length = math.hypot(*up)  # no overflow: an up of 1e300 is a direction too
         if not up_length > 0:
             raise InputError("camera: up vector is zero")
         up = up / up_length
@@ -336,8 +339,14 @@ def fit_clip(camera: Camera, lo, hi) -> Camera:
     The 1% margins keep the box's own faces off the clip planes.
     """
     corners = _corners(lo, hi)
-    depth = (corners - camera.eye) @ camera.forward
-    farthest = float(np.linalg.norm(corners - camera.eye, axis=1).max())
+    with np.errstate(over="ignore"):  # beyond float64: the error below, not a warning
+        offsets = corners - camera.eye
+        depth = offsets @ camera.forward
+    farthest = max(math.hypot(*row) for row in offsets)  # hypot: no overflow of squares
+    if not (np.isfinite(depth).all() and math.isfinite(farthest)):
+        raise InputError(f"camera: the eye {camera.eye.tolist()} is too far from the scene "
+                         f"(box {np.asarray(lo).tolist()} - {np.asarray(hi).tolist()}): "
+                         "their distance is beyond float64's range")
     if depth.max() > 0:
         far = 1.01 * float(depth.max())
     elif farthest > 0:
@@ -506,6 +515,10 @@ def _gltf_json(path: Path) -> dict:
         data = path.read_bytes()
     except OSError as error:
         raise InputError(f"{path}: cannot read: {error.strerror or error}") from None
+    if data[:4] != _GLB_MAGIC and path.suffix.lower() not in (".gltf", ".glb"):
+        raise InputError(f"{path}: a camera is read from a glTF file (.gltf or .glb); this "
+                         f"is a {path.suffix or 'file without extension'}, which has no "
+                         "cameras (--camera needs a glTF)")
     if data[:4] == _GLB_MAGIC or path.suffix.lower() == ".glb":
         # GLB: 12-byte header (magic, version, total length), then chunk 0: length, type, JSON.
         if len(data) < 12:

@@ -57,7 +57,10 @@ class CameraTarget:
         if sum(given) > 1:
             raise InputError("view: give one camera (a Camera, --look-from/--look-at, or "
                              "--camera), not several")
-        self.camera, self.look, self.gltf = camera, look, gltf
+        if camera is not None and not isinstance(camera, cameras.Camera):
+            raise InputError(f"view: camera must be an aobake.camera.Camera (made by "
+                             f"aobake.camera.look_at), got {_shown(camera)}")
+        self.camera, self.look, self.gltf = camera, _look(look), _gltf(gltf)
         self.size, self.fov = cameras._size(size), fov
 
     def rays_per_point(self, config) -> int:
@@ -77,6 +80,7 @@ class CameraTarget:
             cam = cameras.gltf_camera(path, name, size=self.size)
         else:
             return cameras.default_camera(lo, hi, self.size, self.fov, up_axis=config.up_axis)
+        _check_reach(scene, cam)
         if cam.near is None or cam.far is None:
             cam = cameras.fit_clip(cam, lo, hi)
         return cam
@@ -239,3 +243,70 @@ def _shading(scene, prim: np.ndarray, bary: np.ndarray, ng: np.ndarray) -> np.nd
     flip = np.einsum("ij,ij->i", out, ng) < 0
     out[flip] = -out[flip]
     return out
+
+
+#: the keys of a ``look`` dict: the two points are needed, up and fov have defaults
+LOOK_KEYS = ("look_from", "look_at", "up", "fov")
+
+
+def _shown(value) -> str:
+    """A value as a message shows it: its type, and its repr when short."""
+    text = repr(value)
+    return f"{type(value).__name__} {text}" if len(text) <= 60 else type(value).__name__
+
+
+def _look(look) -> dict | None:
+    """``look`` checked: a dict with look_from and look_at (and optionally up, fov); the
+    values themselves are checked by ``aobake.camera.look_at``."""
+    if look is None:
+        return None
+    if not isinstance(look, dict):
+        raise InputError(f"view: look must be a dict with keys {', '.join(LOOK_KEYS)} "
+                         f"(look_from and look_at required), got {_shown(look)}")
+    unknown = sorted(map(str, set(look) - set(LOOK_KEYS)))
+    if unknown:
+        raise InputError(f"view: look has unknown key(s) {', '.join(unknown)}; its keys are "
+                         f"{', '.join(LOOK_KEYS)}")
+    missing = [key for key in ("look_from", "look_at") if look.get(key) is None]
+    if missing:
+        raise InputError(f"view: look needs {' and '.join(missing)} (a point: 3 numbers)")
+    return dict(look)
+
+
+def _gltf(gltf) -> tuple | None:
+    """``gltf`` checked: a (path, camera name or None) pair."""
+    if gltf is None:
+        return None
+    import os
+
+    if not isinstance(gltf, (tuple, list)) or len(gltf) != 2:
+        raise InputError(f"view: gltf must be a pair (path of a .gltf/.glb file, camera name "
+                         f"or None), got {_shown(gltf)}")
+    path, name = gltf
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputError(f"view: gltf's path must be a file path, got {_shown(path)}")
+    if name is not None and not isinstance(name, str):
+        raise InputError(f"view: gltf's camera name must be text or None, got {_shown(name)}")
+    return path, name
+
+
+#: how many scene sizes from the scene an eye may be: the backend casts a ray's origin to
+#: float32 in a frame where the scene spans about [-1, 1], so the eye's coordinate there must
+#: stay far below float32's largest (2^128); and from 2^24 sizes away the whole scene is
+#: within one float32 step of the eye's coordinate, smaller than a pixel of any view
+MAX_EYE_SIZES = 2.0 ** 64
+
+
+def _check_reach(scene, cam) -> None:
+    """InputError where ``cam``'s eye is more than ``MAX_EYE_SIZES`` scene sizes from the
+    scene's box centre (a float32 ray from there overflows or cannot resolve the scene)."""
+    lo, hi = scene.bounds
+    centre = (np.asarray(lo, dtype=np.float64) + np.asarray(hi, dtype=np.float64)) / 2
+    size = max(float(np.max(np.asarray(hi) - np.asarray(lo))), np.finfo(np.float64).tiny)
+    with np.errstate(over="ignore"):
+        offset = cam.eye - centre
+    distance = math.hypot(*offset)  # inf only where the offset itself overflowed
+    if not distance <= MAX_EYE_SIZES * size:
+        raise InputError(f"{scene.source}: the camera's eye {cam.eye.tolist()} is "
+                         f"{distance:.3g} from the scene (size {size:.3g}): more than 2^64 "
+                         "times its size, beyond what float32 rays resolve; move it closer")
