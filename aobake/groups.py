@@ -91,12 +91,38 @@ def match(scene, pattern: str) -> np.ndarray:
     return selected
 
 
-def _available(scene) -> str:
-    if not scene.names:
-        return "it names no object, group, node, mesh or material"
-    parts = [f"{kind} {', '.join(repr(n) for n in names[:12])}"
-             f"{' ...' if len(names) > 12 else ''}" for kind, (names, _) in scene.names.items()]
-    return "its names: " + "; ".join(parts)
+#: names listed per kind in a "matches no face's name" message (then how many more)
+LISTED = 20
+
+
+def _available(scene, pattern: str | None = None) -> str:
+    """What a "matches no face's name" message says the file has: every kind's names (the
+    first ``LISTED`` of each, and how many more), and for ``pattern``: a ``kind:`` prefix
+    that is no kind, a kind the file gives no names, names that differ only in case."""
+    names = {kind: given for kind, (given, _) in (scene.names or {}).items() if given}
+    notes = []
+    if pattern is not None:
+        kind, sep, glob = pattern.partition(":")
+        if sep and kind not in KINDS and kind.isidentifier():
+            notes.append(f"{kind!r} is not a kind of name: the kinds are {', '.join(KINDS)}")
+        elif sep and kind in KINDS and names and kind not in names:
+            notes.append(f"it gives no face a {kind} name")
+        kinds, glob = _split(pattern)
+        near = sorted({name for k in kinds for name in names.get(k, ())
+                       if fnmatch.fnmatchcase(name.lower(), glob.lower())})
+        if near:  # the glob is case-sensitive
+            notes.append(f"names are matched case-sensitively; ignoring case it would match "
+                         f"{', '.join(map(repr, near[:5]))}{' ...' if len(near) > 5 else ''}")
+    if not names:
+        listed = "it names no object, group, node, mesh or material"
+    else:
+        parts = []
+        for kind, given in names.items():
+            more = len(given) - LISTED
+            parts.append(f"{kind} {', '.join(repr(n) for n in given[:LISTED])}"
+                         f"{f' and {more} more' if more > 0 else ''}")
+        listed = "its names: " + "; ".join(parts)
+    return "; ".join(notes + [listed])
 
 
 def apply(scene, selection: Selection) -> Applied:
@@ -113,7 +139,7 @@ def apply(scene, selection: Selection) -> Applied:
             hit = match(scene, pattern)
             if not hit.any():
                 raise InputError(f"{scene.source}: --{role.replace('_', '-')} {pattern!r} "
-                                 f"matches no face's name ({_available(scene)})")
+                                 f"matches no face's name ({_available(scene, pattern)})")
             mask |= hit
         masks[role] = mask
     exclude = masks["exclude"]

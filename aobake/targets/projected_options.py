@@ -29,12 +29,27 @@ def _path(value) -> str:
     return str(value)
 
 
-def _patterns(value) -> tuple:
-    values = (value,) if isinstance(value, str) else tuple(value or ())
-    for pattern in values:
-        if not isinstance(pattern, str) or not pattern:
-            raise InputError(f"a name pattern must be a non-empty string, got {pattern!r}")
-    return values
+def _patterns(role: str):
+    """The parser of one role's name patterns (``aobake.groups``): one glob (str) or a list
+    or tuple of them, None for none; InputError naming the role for anything else (an int
+    is not iterable, bytes would iterate as numbers, a dict as its keys)."""
+    def parse(value) -> tuple:
+        if value is None:
+            return ()
+        if isinstance(value, str):
+            values = (value,)
+        elif isinstance(value, (list, tuple)):
+            values = tuple(value)
+        else:
+            raise InputError(f"{role} takes a name pattern (str) or a list of them, got "
+                             f"{type(value).__name__} {value!r}")
+        for pattern in values:
+            if not isinstance(pattern, str) or not pattern:
+                raise InputError(f"{role}: a name pattern must be a non-empty string, got "
+                                 f"{pattern!r}")
+        return values
+    parse.__name__ = f"parse_{role}"
+    return parse
 
 
 @dataclass(frozen=True)
@@ -66,13 +81,15 @@ class StudioOptions:
     exclude: tuple = setting(
         (), "parsed", "Faces whose object/group/node/mesh/material name matches this glob "
         "('material:glass*' for one kind) neither occlude nor are baked (repeatable).",
-        section="studio", parse=_patterns, multiple=True, show_default=False)
+        section="studio", parse=_patterns("exclude"), multiple=True, show_default=False)
     receive_only: tuple = setting(
         (), "parsed", "Faces matching this glob are baked but cast nothing (repeatable).",
-        section="studio", parse=_patterns, multiple=True, show_default=False)
+        section="studio", parse=_patterns("receive_only"), multiple=True,
+        show_default=False)
     occluder_only: tuple = setting(
         (), "parsed", "Faces matching this glob cast but are not baked (with --from: cage "
-        "rays pass through them) (repeatable).", section="studio", parse=_patterns,
+        "rays pass through them) (repeatable).", section="studio",
+        parse=_patterns("occluder_only"),
         multiple=True, show_default=False)
 
     def __post_init__(self):
