@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -107,20 +108,19 @@ def refit(bake, *, tau=None, max_distance=None, quantities=None, source: str = "
     """
     start = time.perf_counter()
     if not isinstance(bake, BakeResult):
+        if not isinstance(bake, (str, os.PathLike)):
+            raise InputError(f"refit: bake must be a BakeResult made with keep_distances=True "
+                             f"or the path of its .npz, got {type(bake).__name__}")
         source = str(bake)
         bake = load(bake)
     if not bake.kept:
         raise InputError(f"{source}: no kept ray distances: bake it with keep_distances=True")
+    wanted = _quantities(quantities, source)
     old, params, (diagonal, scale, baked), rows, point, samples = _check(bake, source)
-    if quantities is None:
-        quantities = [q for q in old.quantities if q in REFITTABLE]
-        if tau is not None and "obscurance" not in quantities:
-            quantities.append("obscurance")
-    wanted = [q for q in quantities]
-    bad = sorted(set(wanted) - set(REFITTABLE))
-    if bad:
-        raise InputError(f"{source}: refit computes {list(REFITTABLE)} from distances; "
-                         f"{bad} need(s) the ray directions: bake again")
+    if wanted is None:
+        wanted = [q for q in old.quantities if q in REFITTABLE]
+        if tau is not None and "obscurance" not in wanted:
+            wanted.append("obscurance")
     if not wanted:
         raise InputError(f"{source}: nothing to refit (ask for ao or obscurance)")
     changes = {"quantities": tuple(wanted)}
@@ -157,6 +157,10 @@ def refit(bake, *, tau=None, max_distance=None, quantities=None, source: str = "
         for name, array in values.items():
             out[name][sel] = array
     fields = {name: array[point] for name, array in out.items()}
+    # The kept distances a fresh bake at this max distance would keep: its hits are the ones
+    # below it, the rest misses.  So the result is that bake's, kept distances too, and can
+    # be refitted again (a hit beyond its own max distance is refused there: ``_check``).
+    rows = np.where(rows < tfar, rows, np.float32(np.inf))
     report = json.loads(json.dumps(bake.report, default=str))
     report["config"] = new.to_dict()
     report["parameters"] = dict(params, max_distance=distance, tau=new.resolve_tau(diagonal))
@@ -167,6 +171,32 @@ def refit(bake, *, tau=None, max_distance=None, quantities=None, source: str = "
     kept = {"ray_distances": rows, "ray_point": point.astype(np.int32)}
     return BakeResult(bake.positions, bake.faces, bake.normals,
                       np.asarray(bake.rays).astype(np.int32), fields, report, kept=kept)
+
+
+def _quantities(quantities, source: str) -> list | None:
+    """``refit``'s ``quantities`` checked: None, or a name or a list of names of
+    ``REFITTABLE`` quantities; InputError for anything else (a str is one name, not its
+    letters; a quantity refit cannot compute is named as such, an unknown name too)."""
+    if quantities is None:
+        return None
+    if isinstance(quantities, str):
+        quantities = [quantities]
+    elif not isinstance(quantities, (list, tuple)) or \
+            not all(isinstance(q, str) for q in quantities):
+        raise InputError(f"refit: quantities must be a name or a list of names from "
+                         f"{list(REFITTABLE)}, got {quantities!r}")
+    wanted = list(dict.fromkeys(quantities))
+    unknown = [q for q in wanted if q not in QUANTITIES]
+    if unknown:
+        raise InputError(f"refit: unknown quantit{'ies' if len(unknown) > 1 else 'y'} "
+                         f"{', '.join(map(repr, unknown))}; refit computes "
+                         f"{' and '.join(REFITTABLE)}")
+    bad = [q for q in wanted if q not in REFITTABLE]
+    if bad:
+        raise InputError(f"{source}: refit computes {' and '.join(REFITTABLE)} from the kept "
+                         f"distances; {', '.join(bad)} need{'s' if len(bad) == 1 else ''} the "
+                         "ray directions, which are not kept: bake again")
+    return wanted
 
 
 def _check(bake: BakeResult, source: str):

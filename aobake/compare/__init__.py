@@ -94,12 +94,13 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
     problem (missing, unreadable, no such key, meshes or images that do not line up,
     different weightings) and ``OutputError`` when the heatmap cannot be written.
     """
-    if quantity not in COMPARABLE:
+    if not isinstance(quantity, str) or quantity not in COMPARABLE:
         raise InputError(f"quantity must be one of {COMPARABLE}, got {quantity!r}")
-    if candidate_convention not in CONVENTIONS:
+    if not isinstance(candidate_convention, str) or candidate_convention not in CONVENTIONS:
         raise InputError(f"candidate_convention must be one of {tuple(CONVENTIONS)}, "
                          f"got {candidate_convention!r}")
-    reference_path, candidate_path = Path(reference_path), Path(candidate_path)
+    reference_path = _file(reference_path, "reference")
+    candidate_path = _file(candidate_path, "candidate")
     target = target_of(reference_path)
     heatmap = None if heatmap is None else Path(heatmap)
     if heatmap is not None:
@@ -253,6 +254,19 @@ def _mean(values: np.ndarray, largest: float) -> float:
     return largest * float(np.mean(values / largest))
 
 
+def _file(path, role: str) -> Path:
+    """``path`` as a Path; InputError naming ``role`` for what is no file path (None, a
+    number, a dict, bytes, a result object: compare reads files)."""
+    if isinstance(path, (str, os.PathLike)) and not isinstance(path, bytes):
+        path = os.fspath(path)
+        if isinstance(path, str) and path:
+            return Path(path)
+    hint = (" (write it with aobake.write first)"
+            if type(path).__name__.endswith("Result") else "")
+    raise InputError(f"compare: the {role} must be a file path, got "
+                     f"{type(path).__name__}{hint}")
+
+
 def read(path, quantity: str = "ao", *, key: str | None = None, role: str = "reference") -> Values:
     """Read ``quantity`` (and its stderr, positions, coverage where the file has them) from an
     NPZ, PLY, GLB, EXR, PNG or TIFF file.
@@ -261,7 +275,7 @@ def read(path, quantity: str = "ao", *, key: str | None = None, role: str = "ref
     aobake's name for it); role : 'reference' | 'candidate' (for the messages).
     Raises InputError('FILE: problem').
     """
-    path = Path(path)
+    path = _file(path, role)
     target = target_of(path)
     if not path.exists():
         raise InputError(f"{path}: no such file")
