@@ -49,7 +49,7 @@ REPORT_SUFFIX = ".report.json"
 _ASSET_KEYS = ("mesh", "output", "target", "options")
 #: settings that name input files (high-to-low's source and cage): read like ``mesh``, and
 #: hashed with it for resuming
-_PATH_SETTINGS = ("source", "cage")
+_PATH_SETTINGS = ("source", "cage", "ao_from")
 #: bytes read at a time when hashing an input
 _HASH_BLOCK = 1 << 20
 
@@ -280,13 +280,12 @@ def _row(row: dict, where: Path, suffix, target, source: str) -> Asset:
 
 def parse_setting(name: str, value):
     """(field name, value) of a manifest's setting: ``max-distance``, ``max_distance`` or
-    a long flag (``from`` for ``source``); a text value (a CSV cell) is read by the command line's own type for it (a list
-    separated by ``;``, ``,`` or spaces for a repeatable one).  InputError for an unknown
+    a long flag (``from`` for ``source``); a text value (a CSV cell) is read as the command
+    line reads it (``aobake.options.from_text``; a list separated by ``;``, ``,`` or spaces
+    for a repeatable one).  InputError for an unknown
     setting or a bad value."""
-    import click
-
-    from aobake.cli_options import _type
     from aobake.config import SPECS
+    from aobake.options import from_text
 
     key = str(name).strip().lstrip("-").replace("-", "_")
     # a setting by its field name or its long flag (``from`` for ``source``)
@@ -302,15 +301,12 @@ def parse_setting(name: str, value):
     if text.lower() in ("", "none") and spec.optional:
         return key, None
     try:
-        if spec.kind == "flag":
-            return key, click.BOOL.convert(text, None, None)
-        kind = _type(key, spec)
         if spec.multiple:
-            return key, tuple(kind.convert(part, None, None)
+            return key, tuple(from_text(key, spec, part)
                               for part in re.split(r"[;,\s]+", text) if part)
-        return key, kind.convert(text, None, None)
-    except click.ClickException as exc:
-        raise InputError(f"{name}: {exc.format_message()}") from None
+        return key, from_text(key, spec, text)
+    except InputError as exc:
+        raise InputError(f"{name}: {exc}") from None
 
 
 def report_path(out: Path) -> Path:
@@ -417,51 +413,26 @@ def bake_assets(assets, out_dir, settings: dict, *, run: dict, write: dict,
 
 def _bake(asset: Asset, out_dir: Path, settings: dict, run: dict, write: dict,
           force: bool) -> dict:
-    import aobake
-    from aobake.outputs.registry import default_target
-    from aobake.targets import TARGETS
+    from aobake import job
 
     if not Path(asset.mesh).is_file():
         raise InputError(f"{asset.mesh}: no such file")
-    config = aobake.BakeConfig(**{**settings, **asset.options})
     out = output_path(out_dir, asset.output)
-    target = asset.target or default_target(out)
     report = output_path(out_dir, report_path(asset.output))
-    extra = tuple(getattr(config, name, None) for name in _PATH_SETTINGS)
-    where = aobake.outputs.plan(out, target, mesh=asset.mesh, report=report,
-                                quantities=config.quantities, inputs=extra)
+    planned = job.plan(asset.mesh, out, {**settings, **asset.options}, target=asset.target,
+                       report=report, **write, **run)
+    config, where = planned.config, planned.outputs
     for companion in (where.mesh_out, where.camera):  # beside the output, in the folder
         if companion is not None:
             output_path(out_dir, Path(asset.output).with_name(companion.name))
-    if config.keep_distances and out.suffix.lower() != ".npz":
-        raise InputError(f"keep_distances needs an .npz output (got {out.name})")
-    if config.denoise and (target != "texels" or out.suffix.lower() != ".exr"):
-        raise InputError(f"denoise adds channels to a lightmap: it needs an .exr output (got "
-                         f"{out.name})")
-    for path in extra:
-        if path is not None and not Path(path).is_file():
-            raise InputError(f"{path}: no such file")
     source = inputs(asset.mesh, config)
-    method = run.get("method", "rays")
-    scene, kind = asset.mesh, None
-    if getattr(config, "source", None) is not None:  # high-to-low: the source is the scene
-        scene, kind = config.source, config.target(target, asset.mesh)
     if not force:
-        why = finished(out, config, kind.name if kind else target, method, source)
+        why = finished(out, config, planned.target, planned.method, source)
         if why is not None:
             return {"status": "skipped", "reason": why}
-    unwrapping = None
-    if target == "texels" and config.unwrap != "never":
-        from aobake.targets.texels import unwrap as unwrapping
-
-        unwrapping.prestart()  # its start overlaps the loading (as the main command's)
-    try:
-        result = aobake.run(config, scene, kind or TARGETS[target](), **run)
-    finally:
-        if unwrapping is not None:
-            unwrapping.discard_prestarted()
+    result = planned.bake()
     result.report["input"] = source
-    written = aobake.write(result, out, mesh=asset.mesh, report=report, **write)
+    written = planned.save(result)
     data = result.report
     return {"status": "ok", "points": int(data["points"]), "rays": data.get("rays_cast"),
             "outputs": [str(p) for p in written], "warnings": list(data.get("warnings", []))}

@@ -34,6 +34,8 @@ from aobake.targets.texels.options import (BENT_SPACES, DEFAULT_RESOLUTION,  # n
 from aobake.warp import WEIGHTINGS
 
 NORMALS = ("file", "angle", "area")
+#: the settings that name files a bake reads, with their flags (no output may overwrite one)
+INPUT_FILES = {"source": "--from", "cage": "--cage", "ao_from": "--ao-from"}
 #: default tau for obscurance, in units of 1 / diagonal: rho reaches 1 - 1/e at a tenth of the scene size.
 DEFAULT_TAU_DIAGONALS = 10.0
 
@@ -117,15 +119,15 @@ class CommonOptions:
                            "camera).", choices=AXES)
     albedo: float = setting(
         0.5, "float", "-q indirect: the albedo rho of every surface (two-sided Lambertian) "
-        "under a uniform white sky.", low=0.0, high=1.0)
+        "under a uniform white sky.", low=0.0, high=1.0, panel="indirect")
     backend: str = setting(
         "embree", "choice", "Tracing backend: embree, or reference (float64 numpy, every ray "
         "against every triangle: slow, for validating on small scenes).",
-        choices=tuple(BACKENDS))
+        choices=tuple(BACKENDS), panel="run")
     embree_mode: str = setting(
         "robust", "choice", "Embree's traversal: robust (watertight: no ray slips between two "
         "triangles sharing an edge) or fast (Embree's default flags). The report says which "
-        "ran (docs/performance.md).", choices=("robust", "fast"))
+        "ran (docs/performance.md).", choices=("robust", "fast"), panel="run")
 
 
 @dataclass(frozen=True)

@@ -20,3 +20,9 @@ class InputError(AobakeError, ValueError):
 
 class OutputError(AobakeError, OSError):
     """An output cannot be written (unwritable path, would overwrite the input...)."""
+
+
+class UsageError(InputError):
+    """A request whose settings cannot go together (a method the target cannot serve, a
+    format that cannot hold what was asked): refused before any work.  The command line
+    exits 2 for it, as for any misuse of its options."""

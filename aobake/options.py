@@ -34,7 +34,8 @@ class Spec:
     label : the name in messages (default: the field name with spaces); flags : the CLI's
     flag names (default ``--field-name``); cli : False to leave it off the command line;
     multiple : the flag repeats (a tuple value); show_default : what ``--help`` shows as
-    the default (None: the default itself).
+    the default (None: the default itself); panel : the ``--help`` panel it is listed in
+    (None: its section's).
     """
 
     kind: str
@@ -54,6 +55,7 @@ class Spec:
     cli: bool = True
     multiple: bool = False
     show_default: object = None
+    panel: str | None = None
 
 
 def setting(default, kind: str, help: str, **spec):
@@ -129,6 +131,36 @@ def range_text(spec: Spec) -> str:
         return f"a number {'<' if spec.high_open else '<='} {spec.high:.15g}"
     return (f"a number in {'(' if spec.low_open else '['}{spec.low:.15g}, {spec.high:.15g}"
             f"{')' if spec.high_open else ']'}")
+
+
+def from_text(name: str, spec: Spec, text: str):
+    """The value of setting ``name`` written as ``text`` (a command-line argument, a
+    manifest's cell), checked like the library's own: one element of a repeatable setting
+    (the caller collects them).  InputError naming the setting otherwise."""
+    text = str(text).strip()
+    what = label(name, spec)
+    if spec.optional and text.lower() in ("", "none"):
+        return None
+    if spec.kind == "flag":
+        words = {"1": True, "true": True, "yes": True, "on": True, "y": True, "t": True,
+                 "0": False, "false": False, "no": False, "off": False, "n": False, "f": False}
+        if text.lower() not in words:
+            raise InputError(f"{what} must be true or false, got {text!r}")
+        return words[text.lower()]
+    if spec.kind == "int":
+        try:
+            value = int(text, 10)
+        except ValueError:
+            raise InputError(f"{what} must be {spec.words or _integer_words(spec.low)}, got "
+                             f"{text!r}") from None
+        return normalise(name, value, spec)
+    if spec.kind == "float":
+        return normalise(name, text, spec)
+    if spec.kind == "choice":
+        return normalise(name, text, spec)
+    if spec.multiple:  # one element: the record's parser reads a sequence of them
+        return spec.parse((text,))[0]
+    return spec.parse(text)
 
 
 def check(record, names=None) -> None:

@@ -29,7 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from aobake.bake import bake_texels  # noqa: E402
+from aobake.api import bake_texels  # noqa: E402
 from aobake.scene import load_scene  # noqa: E402
 from aobake.targets.texels.raster import rasterize  # noqa: E402
 from aobake.targets.texels.surface import surface_points  # noqa: E402

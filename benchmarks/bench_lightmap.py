@@ -39,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_throughput import bare_loop  # noqa: E402
 
-from aobake.bake import bake_texels  # noqa: E402
+from aobake.api import bake_texels  # noqa: E402
 from aobake.config import DEFAULTS, BakeConfig  # noqa: E402
 from aobake.outputs.texture import write_texture  # noqa: E402
 from aobake.scene import load_scene  # noqa: E402

@@ -20,7 +20,7 @@ What it measures (docs/scale.md has the table and what it means):
   method), the workers' tracing, and the rest (scheduling, result gathering, waiting) as
   a fraction of the work.
 * **cli**: the first ``--cli-assets`` assets baked by one ``aobake`` process each against
-  one ``python -m aobake.cli_batch`` process for all of them (what batch saves per asset:
+  one ``python -m aobake.cli.batch`` process for all of them (what batch saves per asset:
   the interpreter's start and the imports).
 
 The machine is shared (2 cores): the load average is printed before and after; compare
@@ -230,7 +230,7 @@ def run_cli(meshes, out_root: Path, rays: int) -> dict:
                        stdout=subprocess.DEVNULL)
     single = time.perf_counter() - clock
     clock = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "aobake.cli_batch", *[str(p) for p, _ in meshes],
+    subprocess.run([sys.executable, "-m", "aobake.cli.batch", *[str(p) for p, _ in meshes],
                     "--out-dir", str(out_root / "batch"), "--format", "npz", "--rays",
                     str(rays), "--quiet", "--threads", "2"], check=True, env=env)
     together = time.perf_counter() - clock

@@ -39,7 +39,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from aobake.bake import bake_texels  # noqa: E402
+from aobake.api import bake_texels  # noqa: E402
 from aobake.targets.texels import seams  # noqa: E402
 from aobake.targets.texels.seams import (SeamMesh, bilinear, bilinear_stencil,  # noqa: E402
                                          seam_points)

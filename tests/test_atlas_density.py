@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from aobake.bake import bake_texels
+from aobake.api import bake_texels
 from aobake.targets.texels import charts, packing
 from aobake.targets.texels.raster import rasterize
 from aobake.targets.texels.charts import chart_texel_density, connected_labels

@@ -16,7 +16,7 @@ import trimesh
 from click.testing import CliRunner
 
 from aobake import batch
-from aobake.cli_batch import batch_command
+from aobake.cli.batch import batch_command
 from aobake.errors import InputError, OutputError
 
 

@@ -241,7 +241,7 @@ def test_absurd_ray_counts_are_refused_up_front(mesh_path, tmp_path, monkeypatch
     def never(*args, **kwargs):
         raise AssertionError("the mesh was loaded")
 
-    monkeypatch.setattr(importlib.import_module("aobake.bake"), "load_scene", never)
+    monkeypatch.setattr(importlib.import_module("aobake.api"), "load_scene", never)
     res = run_cli(mesh_path, "--out", tmp_path / "ao.npz", "--rays", 10**12)
     assert res.exit_code == 2 and "16777216" in res.output
     assert not (tmp_path / "ao.npz").exists()

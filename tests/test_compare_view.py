@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import aobake
-from aobake.bake import UNBOUNDED
+from aobake.api import UNBOUNDED
 from aobake.compare import compare
 from aobake.compare.screen import camera_of
 from aobake.compare.values import Values

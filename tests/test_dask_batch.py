@@ -125,7 +125,7 @@ def test_ctrl_c_stops_the_batch_and_its_cluster(tmp_path):
     trimesh.creation.torus(1.0, 0.4, major_sections=96, minor_sections=48).export(
         folder / "b.ply")
     out = tmp_path / "out"
-    command = [sys.executable, "-c", "from aobake.cli_batch import main; main()",
+    command = [sys.executable, "-c", "from aobake.cli.batch import main; main()",
                str(folder), "--out-dir", str(out), "--format", "npz", "--rays", "16384",
                "--executor", "dask", "--workers", "2", "--chunk-points", "64"]
     # 16384 rays: the torus takes ~5 s of tracing, so it is surely on the cluster when the

@@ -13,7 +13,7 @@ import sys
 import numpy as np
 import pytest
 
-from aobake.bake import bake_texels
+from aobake.api import bake_texels
 from aobake.targets.texels.denoise import CREASE_ANGLE, Guide, denoise
 from tests.test_seams import differences, lookup_noise, random_seam_points, seam_mesh, torus_obj
 

@@ -71,5 +71,7 @@ def test_cli_ao_from_picks_the_file_method(plane, tmp_path):
 def test_vertices_have_no_triangle_to_interpolate_on(plane, tmp_path):
     path, bake = plane
     result = run_cli(path, "--ao-from", bake, "--out", tmp_path / "again.npz")
-    assert result.exit_code == 1
-    assert "aobake: error:" in result.output and "use a view or a lightmap" in result.output
+    # refused before anything is read: the method's need against what the target provides
+    assert result.exit_code == 2
+    assert "aobake: error:" in result.output and "a lightmap or a view" in result.output
+    assert "per-vertex bake (vertices) has none" in result.output

@@ -25,7 +25,7 @@ import scipy.ndimage
 import trimesh
 
 from aobake import post
-from aobake.bake import bake_texels
+from aobake.api import bake_texels
 from aobake.targets.texels import gather
 from conftest import run_cli
 from readers import read_image

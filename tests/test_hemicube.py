@@ -61,7 +61,7 @@ def resolution(monkeypatch):
     field, as ``--hemicube-resolution`` sets it) unless they give it."""
     import importlib
 
-    bake_module = importlib.import_module("aobake.bake")  # aobake.bake is also a function
+    bake_module = importlib.import_module("aobake.api")
     original = bake_module._config
 
     def set_resolution(r):

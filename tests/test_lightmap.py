@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from aobake.bake import bake, bake_texels
+from aobake.api import bake, bake_texels
 from analytic import dof_for, z_bound
 from conftest import run_cli
 from readers import read_accessor, read_glb, read_image

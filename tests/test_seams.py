@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from aobake.bake import bake_texels
+from aobake.api import bake_texels
 from aobake.config import CHOICES, DEFAULTS, BakeConfig
 from aobake.errors import InputError
 from aobake.targets.texels import seams

@@ -22,7 +22,7 @@ import trimesh
 
 import aobake
 from aobake import groups
-from aobake.bake import bake_grouped
+from aobake.api import bake_grouped
 from aobake.errors import InputError
 from aobake.scene import load_scene
 from aobake.targets import TexelTarget, VertexTarget

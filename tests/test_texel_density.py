@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from aobake.bake import bake_texels
+from aobake.api import bake_texels
 from aobake.config import BakeConfig
 from aobake.errors import InputError
 from aobake.targets.texels.charts import chart_texel_density

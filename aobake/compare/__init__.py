@@ -375,7 +375,7 @@ def main(reference, candidate, quantity, candidate_key, reference_key, candidate
     from another tool (see --candidate-key, --candidate-convention).  Uniform- and
     cosine-weighted AO are different quantities and are not compared.
     """
-    from aobake.cli_common import guarded  # the CLI's contract: errors, signals, exit codes
+    from aobake.cli.common import guarded  # the CLI's contract: errors, signals, exit codes
 
     def run():
         result = compare(reference, candidate, quantity, candidate_key=candidate_key,

@@ -39,8 +39,9 @@ class RaysOptions:
 
     rays: int = setting(
         256, "int", "Rays per vertex, or per texel (split over --texel-samples), or per "
-        "pixel; at most 2^24. stratified rounds up to a multiple of 8 replicates, sobol to "
-        "8 x 2^k. Above 65536 a point's rays stream in pieces: memory does not grow.",
+        "pixel; at most 2^24. stratified rounds up to a multiple of --replicates (R, "
+        f"default {REPLICATES}), sobol to R x 2^k. Above 65536 a point's rays stream in "
+        "pieces: memory does not grow.",
         section="rays", low=1, high=MAX_RAYS, too_high=_TOO_MANY)
     sampler: str = setting(
         "sobol", "choice", "random: i.i.d.; stratified: --replicates jittered grids; sobol: "
@@ -73,7 +74,7 @@ class RaysOptions:
     bounces: int = setting(
         1, "int", "-q indirect: reflections a path may take before it reaches the sky (its "
         "sample is albedo^k after k); 1 is one bounce of indirect light.", section="rays",
-        low=1, high=64)
+        low=1, high=64, panel="indirect")
     keep_distances: bool = setting(
         False, "flag", "NPZ: keep every ray's hit distance (4 bytes per ray), so that "
         "'aobake refit' recomputes ao/obscurance for another --max-distance (up to this "

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aobake.errors import OutputError
+from aobake.errors import OutputError, UsageError
 from aobake.outputs.registry import (MESH_OUTPUTS, WRITERS, WriteOptions, default_target,
                                      suffixes, writer_for)
 
@@ -39,12 +39,17 @@ class Outputs:
 
 
 def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=None,
-         quantities=None, inputs=(), orm: bool = False) -> Outputs:
+         quantities=None, inputs=(), orm: bool = False, keep_distances: bool = False,
+         denoise: bool = False) -> Outputs:
     """Resolve and check a bake's output paths before baking (fail before any work).
 
-    target : 'vertices' | 'texels' | None (from the extension; texels with ``orm``); mesh : the input path, which
-    no output may overwrite; quantities : what will be baked (an image needs ao or
-    obscurance).  Raises OutputError naming the path and the problem.
+    target : 'vertices' | 'texels' | 'view' | None (from the extension; texels with
+    ``orm``); mesh : the input path, which no output may overwrite; inputs : the other
+    files the bake reads (a dict flag -> path, or paths), none of which an output may
+    overwrite either; quantities : what will be baked (an image needs ao or obscurance);
+    keep_distances : the bake keeps its rays' distances (only .npz holds them); denoise :
+    the lightmap has denoised channels (only .exr holds them beside the raw ones).  Raises
+    OutputError naming the path and the problem.
     """
     out = Path(out)
     # an ORM map is a lightmap: --orm makes a .glb --out one without --target texels
@@ -53,6 +58,13 @@ def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=Non
         raise OutputError(f"{out}: --orm packs a lightmap: write one of "
                           f"{', '.join(suffixes('texels'))}")
     writer_for(out, target)  # the format exists for this target
+    if keep_distances and out.suffix.lower() != ".npz":
+        raise UsageError(f"{out}: --keep-distances needs an .npz output (only it holds the "
+                         f"ray distances; a {out.suffix or 'suffix-less'} file would drop them)")
+    if denoise and (target != "texels" or out.suffix.lower() != ".exr"):
+        # the denoised map goes beside the raw one, never instead: only EXR has the channels
+        raise UsageError(f"{out}: --denoise adds channels beside the raw ones: it needs an "
+                         ".exr lightmap output")
     if orm and target != "texels":
         raise OutputError(f"{out}: --orm packs a lightmap (--target texels), not a "
                           f"{target} bake")
@@ -83,9 +95,11 @@ def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=Non
     seen = {}
     if mesh is not None:
         seen[mesh.resolve()] = "the input mesh"
-    for other in inputs:
+    named = inputs.items() if isinstance(inputs, Mapping) else (("an input", p) for p in inputs)
+    for flag, other in named:
         if isinstance(other, (str, os.PathLike)):
-            seen.setdefault(Path(other).resolve(), "the input mesh")
+            seen.setdefault(Path(other).resolve(), f"the input {flag}" if flag.startswith("-")
+                            else flag if flag.startswith("the ") else "the input mesh")
     for role, path in roles:
         if path is None:
             continue
@@ -96,7 +110,7 @@ def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=Non
         where = path.resolve()  # symlinks and .. resolved: one file, one role
         if where in seen:
             hint = (" (choose another with --mesh-out PATH)" if "default" in role else "")
-            what = "overwrite " + seen[where] if seen[where] == "the input mesh" else \
+            what = "overwrite " + seen[where] if seen[where].startswith("the input") else \
                 f"write {role} over {seen[where]}"
             raise OutputError(f"{path}: refusing to {what}: every output needs its own file"
                               f"{hint}")
@@ -134,8 +148,18 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
     _check_write_arguments(result, out, mesh_out, report, half, bit_depth, r_only)
     orm = orm or orm_from is not None
     target = result.target  # each result says what made it: no guessing from its attributes
+    config = result.report.get("config", {}) if isinstance(result.report, dict) else {}
+    from aobake.config import INPUT_FILES
+
+    read = {flag: config.get(name) for name, flag in INPUT_FILES.items()}
+    read["--orm-from"] = orm_from
     where = plan(out, target, mesh=mesh, mesh_out=mesh_out, report=report, orm=orm,
-                 inputs=() if orm_from is None else (orm_from,))
+                 inputs={k: v for k, v in read.items() if v is not None},
+                 # a bake asked to keep its distances (a refit keeps them for another
+                 # refit, and may be written to any format: ``aobake refit``'s help)
+                 keep_distances=bool(getattr(result, "kept", None))
+                 and "refit" not in result.report,
+                 denoise=bool(config.get("denoise")))
     options = WriteOptions(half=half, bit_depth=int(bit_depth), r_only=r_only, orm=orm,
                            orm_from=None if orm_from is None else str(orm_from))
     meta = metadata(result)

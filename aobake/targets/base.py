@@ -1,7 +1,7 @@
 """What a target is: where AO is measured, and how per-point estimates become a result.
 
 A target turns a scene into sample points (``sample``), and a method's estimates
-at those points into its result (``finish``).  ``aobake.bake.run`` calls them in
+at those points into its result (``finish``).  ``aobake.api.run`` calls them in
 that order, with the method in between.  The scene's occluders are built before
 ``sample`` and handed to it as a function returning them (it waits for their build):
 a target that needs first hits (the camera) casts its primary rays through them; one

@@ -293,8 +293,8 @@ def bake_projected(low, source, config=None, *, per: str = "texels", cage_offset
     ``low``'s UVs (``per="texels"``) or vertices (``per="vertices"``) through a cage
     (``cage_offset`` or ``cage``, see :class:`ProjectedTexelTarget`); ``low_occludes``: the
     low mesh occludes too.  ``options`` are
-    BakeConfig fields and ``aobake.bake.run``'s keywords (method, executor, ...)."""
-    from aobake.bake import _config, _split, run
+    BakeConfig fields and ``aobake.api.run``'s keywords (method, executor, ...)."""
+    from aobake.api import _config, _split, run
 
     targets = {"texels": ProjectedTexelTarget, "vertices": ProjectedVertexTarget}
     if per not in targets:

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
-from aobake.cli_common import guarded
-from aobake.cli_options import DistanceType, TauType
+from aobake.cli.common import guarded
+from aobake.cli.options import DistanceType, TauType
 
 
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})

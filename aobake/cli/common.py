@@ -1,7 +1,6 @@
 """What every command of the CLI shares: the error, signal and exit-code contract
 (``guarded``), warnings routed to one line, and the allocator setting of the process.
-A leaf of the CLI: the sub-commands (view, refit, compare) import it, never ``aobake.cli``
-itself, so no command imports another that imports it back."""
+A leaf of the CLI: every command imports it, and it imports no command."""
 
 from __future__ import annotations
 
@@ -10,7 +9,11 @@ import sys
 
 import click
 
-from aobake.errors import AobakeError
+from aobake.cli.signals import Terminated, catch_signals, interrupted, restore_signals
+from aobake.errors import AobakeError, UsageError
+
+__all__ = ["Terminated", "catch_signals", "guarded", "keep_freed_memory", "restore_signals",
+           "route_python_warnings"]
 
 
 #: glibc mallopt parameters (malloc.h)
@@ -54,15 +57,15 @@ def guarded(quiet: bool, function, *args) -> None:
     previous = catch_signals()
     try:
         function(*args)
+    except UsageError as exc:  # settings that cannot go together: misuse, as click's own
+        click.echo(f"aobake: error: {exc}", err=True)
+        sys.exit(2)
     except (AobakeError, ValueError) as exc:
         click.echo(f"aobake: error: {exc}", err=True)
         sys.exit(1)
-    except KeyboardInterrupt:  # SIGINT; the output transaction has removed its temporary files
-        click.echo("aobake: error: interrupted (SIGINT): no output written", err=True)
-        sys.exit(130)
-    except Terminated as exc:
-        click.echo(f"aobake: error: terminated ({exc.name}): no output written", err=True)
-        sys.exit(128 + exc.signum)
+    except (KeyboardInterrupt, Terminated) as exc:
+        # the output transaction has removed its temporary files on the way here
+        sys.exit(interrupted(exc))
     finally:
         restore_signals(previous)
 
@@ -77,40 +80,3 @@ def route_python_warnings(quiet: bool) -> None:
             click.echo(f"aobake: warning: {category.__name__}: {message}", err=True)
 
     warnings.showwarning = show
-
-
-class Terminated(BaseException):
-    """SIGTERM or SIGHUP arrived: unwinds like KeyboardInterrupt (so every temporary file
-    is removed) and exits 128 + the signal number (143 for SIGTERM)."""
-
-    def __init__(self, signum: int):
-        import signal
-
-        super().__init__(signum)
-        self.signum, self.name = signum, signal.Signals(signum).name
-
-
-def catch_signals() -> dict:
-    """SIGTERM and SIGHUP handled like SIGINT (only in the main thread, where Python can)."""
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        return {}
-
-    def handler(signum, frame):
-        raise Terminated(signum)
-
-    previous = {}
-    for name in ("SIGTERM", "SIGHUP"):
-        if hasattr(signal, name):
-            signum = getattr(signal, name)
-            previous[signum] = signal.signal(signum, handler)
-    return previous
-
-
-def restore_signals(previous: dict) -> None:
-    import signal
-
-    for signum, handler in previous.items():
-        signal.signal(signum, handler)

@@ -11,12 +11,16 @@ from pathlib import Path
 
 import click
 
-from aobake.cli_common import guarded
-from aobake.cli_options import RUN_OPTIONS, FiniteRange, given, settings
+from aobake import capabilities
+from aobake.cli.common import guarded
+from aobake.cli.options import (FiniteRange, PanelCommand, given, in_panel, method_for,
+                                run_options, settings)
 
 #: settings that mean nothing for a camera view (kept distances are an NPZ's; a view sees
-#: the scene, it is not projected from another mesh)
-NOT_FOR_VIEWS = ("keep_distances", "source", "cage_offset", "cage")
+#: the scene, it is not projected from another mesh, so no low mesh occludes)
+NOT_FOR_VIEWS = ("keep_distances", "source", "cage_offset", "cage", "low_occludes")
+#: the methods a view can run (``aobake.capabilities``): --method's choices
+METHODS = capabilities.methods_for(("view",))
 
 
 class _VectorType(click.ParamType):
@@ -46,12 +50,7 @@ class _SizeType(click.ParamType):
 
 
 def _camera_options() -> list:
-    return [
-        click.Argument(["mesh"], type=click.Path(path_type=Path)),
-        click.Option(["--out", "-o", "out"], required=True,
-                     type=click.Path(dir_okay=False, path_type=Path),
-                     help="Output: .exr (G-buffer + AO channels, float32; --half for 16-bit) "
-                          "or .png/.tif (the AO as a picture; coverage in alpha)."),
+    return in_panel("camera", [
         click.Option(["--look-from"], type=_VectorType(), default=None,
                      help="Eye position X,Y,Z (scene units)."),
         click.Option(["--look-at"], type=_VectorType(), default=None,
@@ -70,17 +69,37 @@ def _camera_options() -> list:
                           "in one .exr: ao bounded at --ssao-radius (what the method can see) "
                           "and ao_unbounded, with the G-buffer and camera "
                           "(docs/screen-space.md)."),
-    ]
+    ])
 
 
-def view_command(main: click.Command) -> click.Command:
-    """The ``view`` command: camera options, every setting but the lightmap target's, the
-    run options and ``main``'s image-output options."""
-    outputs = [p for p in main.params if p.name in ("half", "bit_depth", "report_path",
-                                                    "quiet")]
-    bake = settings(skip_sections=("texels",), exclude=NOT_FOR_VIEWS)
-    return click.Command(
-        "view", params=_camera_options() + bake + RUN_OPTIONS + outputs, callback=_view,
+def _output_options() -> list:
+    return in_panel("output", [
+        click.Option(["--out", "-o", "out"], required=True,
+                     type=click.Path(dir_okay=False, path_type=Path),
+                     help="Output: .exr (G-buffer + AO channels, float32; --half for 16-bit) "
+                          "or .png/.tif (the AO as a picture; coverage in alpha)."),
+        click.Option(["--report", "report_path"],
+                     type=click.Path(dir_okay=False, path_type=Path),
+                     help="Write the JSON report (configuration, camera, parameters, "
+                          "statistics) here."),
+        click.Option(["--quiet"], is_flag=True, help="No progress bar or warnings."),
+        click.Option(["--half"], is_flag=True, help="EXR: 16-bit half floats instead of "
+                                                    "32-bit."),
+        click.Option(["--bit-depth"], default="8", show_default=True,
+                     type=click.Choice(["8", "16"]),
+                     help="PNG/TIFF integer depth: value = round(clip(x, 0, 1) * "
+                          "(2^bits - 1))."),
+    ])
+
+
+def view_command() -> click.Command:
+    """The ``view`` command: camera and output options, the settings a view can use, and
+    the methods a view can run."""
+    params = ([click.Argument(["mesh"], type=click.Path(path_type=Path))] + _output_options()
+              + _camera_options() + settings(("view",), METHODS, exclude=NOT_FOR_VIEWS)
+              + run_options(METHODS))
+    return PanelCommand(
+        "view", params=params, callback=_view, shown=("output", "camera", "common", "rays"),
         context_settings={"help_option_names": ["-h", "--help"]},
         help="Render a camera view of MESH: one primary ray per pixel centre (Embree), the "
              "G-buffer (depth, distance, hardware depths, view-space position and normals, "
@@ -105,25 +124,15 @@ def _view(mesh, out, look_from, look_at, up, fov, size, camera, truths, threads,
     elif up is not None:
         raise click.UsageError("--up goes with --look-from/--look-at")
     gltf = None if camera is None else (mesh, None if camera == "first" else camera)
-    method = _method_for(method, config)
+    method = method_for(method, config)
     if truths:
         _check_truths(out, method, quantities)
-    run = dict(threads=threads, method=method, executor=executor, workers=workers,
-               chunk_points=chunk_points, scheduler=scheduler)
-    guarded(quiet, _run, mesh, out, look, gltf, size, fov, truths, run, quiet,
-             given(dict(config, quantities=quantities)),
-             dict(report=report_path, half=half, bit_depth=int(bit_depth)))
-
-
-def _method_for(method: str, config: dict) -> str:
-    """--ao-from FILE means --method file (the default method otherwise)."""
-    if config.get("ao_from") is None:
-        return method
-    source = click.get_current_context().get_parameter_source("method")
-    if source == click.core.ParameterSource.COMMANDLINE and method != "file":
-        raise click.UsageError(f"--ao-from reads a bake: it goes with --method file, not "
-                               f"--method {method}")
-    return "file"
+    view = dict(look=look, gltf=gltf, size=size, fov=fov)
+    request = dict(view=view, truths=truths, method=method, report=report_path, half=half,
+                   bit_depth=int(bit_depth), threads=threads, executor=executor,
+                   workers=workers, chunk_points=chunk_points, scheduler=scheduler)
+    guarded(quiet, _run, mesh, out, request, quiet,
+            given(dict(config, quantities=quantities)))
 
 
 def _check_truths(out: Path, method: str, quantities) -> None:
@@ -141,15 +150,10 @@ def _check_truths(out: Path, method: str, quantities) -> None:
         raise click.UsageError("--truths bakes ao only")
 
 
-def _run(mesh, out, look, gltf, size, fov, truths, run, quiet, config, files):
-    import aobake
+def _run(mesh, out, request, quiet, config):
+    from aobake import job
 
-    config = aobake.BakeConfig(**config)
-    aobake.outputs.plan(out, "view", mesh=mesh, report=files["report"],
-                        quantities=config.quantities)
-    bake = aobake.bake_view_truths if truths else aobake.bake_view
-    result = bake(mesh, config, look=look, gltf=gltf, size=size, fov=fov, **run)
-    written = aobake.write(result, out, mesh=mesh, **files)
+    result, written = job.bake_file(mesh, out, config, **request)
     if not quiet:
         report = result.report
         cam = report["camera"]

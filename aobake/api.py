@@ -1,4 +1,4 @@
-"""The one place that wires the stages together.
+"""The public bake functions and the one place that wires the stages together (``run``).
 
 scene -> sample points (a target) -> rays (a sampler) -> trace (a backend)
 -> estimate (quantities) -> result (+ report)
@@ -19,7 +19,7 @@ import numpy as np
 from dataclasses import replace
 from typing import Callable
 
-from aobake import _native, groups
+from aobake import _native, capabilities, groups
 from aobake import occluders as occluder_stage
 from aobake import report as reports
 from aobake.backends.cutout import cutout_faces
@@ -69,10 +69,12 @@ def run(
     estimated; if it has a ``phase(name)`` attribute, that is called as each stage starts
     ("loading", "unwrapping", "rasterising", "tracing", ...), so a long unwrap shows too.
     """
-    if getattr(target, "check", None):
-        target.check(config)
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; choose from {', '.join(sorted(METHODS))}")
+    # what the method and target declare they can do, checked before any file is read
+    capabilities.check(method, target.name, config)
+    if getattr(target, "check", None):
+        target.check(config)
     if executor not in EXECUTORS:
         raise InputError(f"unknown executor {executor!r}; choose from "
                          f"{', '.join(sorted(EXECUTORS))}")
@@ -98,15 +100,9 @@ def run(
     warnings: list = []
     selection = config.selection()
     if selection:  # what occludes what: faces left out, or only casting, or only baked
-        if selection.receive_only and not METHODS[method].casts_rays:
-            raise InputError(f"--receive-only needs rays that pass the faces it names; "
-                             f"--method {method} builds from every face of the scene")
         applied = groups.apply(scene, selection)
         scene, target = applied.scene, groups.GroupedTarget(target, applied)
     if config.alpha_cutout:
-        if not METHODS[method].casts_rays:
-            raise InputError(f"--alpha-cutout needs rays that pass cut-out texels; --method "
-                             f"{method} builds from every face of the scene")
         if cutout_faces(scene) is None:
             warnings.append(f"{scene.source}: --alpha-cutout: no material has alphaMode MASK "
                             "(with UVs): nothing is cut out")

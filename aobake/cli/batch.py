@@ -17,27 +17,18 @@ from pathlib import Path
 
 import click
 
-from aobake.cli_common import guarded
-from aobake.cli_options import RUN_OPTIONS, given, settings
+from aobake.cli.common import guarded
+from aobake.cli.options import (BAKE_METHODS as METHODS, BAKE_TARGETS as TARGETS,
+                                PanelCommand, given, in_panel, method_for, run_options,
+                                settings)
 from aobake.outputs.registry import suffixes
-from aobake.targets import CLI_TARGETS
 
 #: every output extension a batch can write, without its dot
-FORMATS = tuple(sorted({s[1:] for target in CLI_TARGETS for s in suffixes(target)}))
-
-SCHEDULER = click.Option(
-    ["--scheduler"], default=None, metavar="ADDRESS",
-    help="--executor dask: an existing Dask scheduler (tcp:// or tls://host:port; TLS "
-         "through Dask's configuration, docs/scale.md). Default: a local cluster of "
-         "--workers processes on 127.0.0.1.")
+FORMATS = tuple(sorted({s[1:] for target in TARGETS for s in suffixes(target)}))
 
 
 def _batch_options() -> list:
-    run = list(RUN_OPTIONS)
-    if "scheduler" not in {p.name for p in run}:
-        run.append(SCHEDULER)
-    return [
-        click.Argument(["inputs"], nargs=-1, required=True),
+    output = in_panel("output", [
         click.Option(["--out-dir", "-o", "out_dir"], required=True,
                      type=click.Path(file_okay=False, path_type=Path),
                      help="Folder every output goes into (made if missing); a manifest's "
@@ -45,14 +36,8 @@ def _batch_options() -> list:
         click.Option(["--format", "-f", "fmt"], type=click.Choice(FORMATS), default=None,
                      help="Output format of the assets a manifest does not name an output "
                           "for: " + ", ".join(FORMATS) + "."),
-        click.Option(["--target"], type=click.Choice(CLI_TARGETS), default=None,
+        click.Option(["--target"], type=click.Choice(TARGETS), default=None,
                      help="vertices or texels. Default: from each output's extension."),
-        *settings(),
-        *run,
-        click.Option(["--half"], is_flag=True, help="EXR: 16-bit half floats."),
-        click.Option(["--bit-depth"], default="8", show_default=True,
-                     type=click.Choice(["8", "16"]), help="PNG/TIFF integer depth."),
-        click.Option(["--r-only"], is_flag=True, help="PNG/TIFF: AO in R only."),
         click.Option(["--force"], is_flag=True,
                      help="Bake every asset again, even one whose output and matching report "
                           "exist."),
@@ -62,12 +47,20 @@ def _batch_options() -> list:
                           "Default: OUT_DIR/batch-summary.json."),
         click.Option(["--quiet"], is_flag=True,
                      help="Only failed assets and the final line on stderr; no warnings."),
-    ]
+    ])
+    formats = in_panel("texels", [
+        click.Option(["--half"], is_flag=True, help="EXR: 16-bit half floats."),
+        click.Option(["--bit-depth"], default="8", show_default=True,
+                     type=click.Choice(["8", "16"]), help="PNG/TIFF integer depth."),
+        click.Option(["--r-only"], is_flag=True, help="PNG/TIFF: AO in R only."),
+    ])
+    return ([click.Argument(["inputs"], nargs=-1, required=True)] + output
+            + settings(TARGETS, METHODS) + run_options(METHODS) + formats)
 
 
 def batch_command() -> click.Command:
     """The ``batch`` sub-command."""
-    return click.Command(
+    return PanelCommand(
         "batch", params=_batch_options(), callback=_batch,
         context_settings={"help_option_names": ["-h", "--help"]},
         help="Bake many assets in one process: INPUTS are mesh files, folders (searched "
@@ -80,15 +73,13 @@ def batch_command() -> click.Command:
 
 def _batch(inputs, out_dir, fmt, target, threads, method, executor, workers, chunk_points,
            half, bit_depth, r_only, force, summary_path, quiet, scheduler=None, **config):
-    from aobake.cli_view import _method_for
-
     context = click.get_current_context()
     source = context.get_parameter_source("resolution")
     if source == click.core.ParameterSource.COMMANDLINE and config["texel_density"] is not None:
         raise click.UsageError("give --resolution or --texel-density, not both")
     if scheduler is not None and executor != "dask":
         raise click.UsageError("--scheduler goes with --executor dask")
-    run = dict(threads=threads, method=_method_for(method, config), executor=executor,
+    run = dict(threads=threads, method=method_for(method, config), executor=executor,
                workers=workers, chunk_points=chunk_points)
     write = dict(half=half, bit_depth=int(bit_depth), r_only=r_only)
     guarded(quiet, _run, inputs, out_dir, fmt, target, run, write, force,
@@ -163,7 +154,7 @@ def _line(record, index, total, quiet) -> None:
 
 
 def main(args=None) -> None:
-    """``python -m aobake.cli_batch`` (``aobake batch`` once it is a sub-command)."""
+    """``python -m aobake.cli.batch``: the same as ``aobake batch``."""
     batch_command().main(args, prog_name="aobake batch")
 
 

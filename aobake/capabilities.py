@@ -1,0 +1,189 @@
+"""What each method and target can do, declared without importing them, and the one check
+of a request against those declarations.
+
+pbrt-v4 refuses an incompatible integrator/camera/film pair when it creates them, not
+halfway through a render; aobake does the same: :func:`check` runs before any file is
+loaded (``aobake.api.run`` calls it first, and the command line before it plans its
+outputs), and each command's ``--method``, ``-q`` and ``--target`` choices are read from
+the declarations (:func:`methods_for`), so a command offers only what it can run.
+
+A method *needs* things of the target's points; a target *provides* them:
+
+- ``points``: positions and normals (every target);
+- ``triangles``: the triangle and barycentrics under each point (lightmap texels, view
+  pixels): what ``--method file`` interpolates on;
+- ``gbuffer``: a camera's G-buffer (the view target): what screen-space methods read.
+
+A method serves a target when the target provides everything the method needs.  The
+plugins' own ``prepare`` keeps the checks that need the scene (an empty mesh, an EGL
+context); everything decidable from names and settings is here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from aobake.errors import InputError, UsageError
+
+#: every quantity a ray-traced bake computes (``aobake.quantities.QUANTITIES``' keys; kept
+#: here as names so that reading a declaration imports no quantity)
+ALL_QUANTITIES = ("ao", "obscurance", "bent_normal", "indirect", "thickness")
+
+
+@dataclass(frozen=True)
+class MethodCapabilities:
+    """What a method computes and needs.
+
+    quantities : the quantities it estimates; needs : what it reads of the target's points
+    (``points`` | ``triangles`` | ``gbuffer``); error_bars : it reports a per-point stderr
+    and interval (``--denoise`` and ``--tolerance`` weigh by them); traces_scene : it casts
+    rays through the scene's faces (what ``--alpha-cutout``, ``--receive-only``,
+    ``--tolerance`` and ``--keep-distances`` act on); ground_plane : it honours
+    ``--ground-plane``; weightings : the AO conventions it computes; sections : the
+    settings sections it reads beside the common ones (what its report records); what :
+    one line for ``--help``.
+    """
+
+    quantities: tuple
+    needs: tuple = ("points",)
+    error_bars: bool = False
+    traces_scene: bool = False
+    ground_plane: bool = True
+    weightings: tuple = ("cosine", "uniform")
+    sections: tuple = ()
+    what: str = ""
+
+
+@dataclass(frozen=True)
+class TargetCapabilities:
+    """What a target's points provide, the settings sections it reads, and what it is.
+
+    provides : ``points`` | ``triangles`` | ``gbuffer``; sections : its settings sections
+    (what its report records); what : how messages name it.
+    """
+
+    provides: tuple
+    sections: tuple = ()
+    what: str = ""
+
+
+_SCREEN = dict(quantities=("ao",), needs=("points", "gbuffer"), weightings=("cosine",))
+
+#: method name -> its declaration (the registry ``aobake.methods.METHODS`` names the class)
+METHODS = {
+    "rays": MethodCapabilities(
+        ALL_QUANTITIES, error_bars=True, traces_scene=True, sections=("rays",),
+        what="ray-traced, with error bars: the reference"),
+    "discs": MethodCapabilities(
+        ("ao", "indirect"), ground_plane=False, sections=("discs",),
+        what="Bunnell's disc approximation (GPU Gems 2 ch. 14)"),
+    "hemicube": MethodCapabilities(
+        ("ao",), ground_plane=False, sections=("hemicube",),
+        what="rasterised hemicubes (OpenGL)"),
+    "file": MethodCapabilities(
+        ("ao", "obscurance"), needs=("points", "triangles"), sections=("file",),
+        what="a per-vertex bake's values (--ao-from), interpolated on the triangles"),
+    "crytek": MethodCapabilities(**_SCREEN, sections=("ssao", "crytek"),
+                                 what="Crytek's screen-space AO"),
+    "shanmugam": MethodCapabilities(**_SCREEN, sections=("ssao",),
+                                    what="Shanmugam and Arikan's screen-space AO"),
+    "gtao": MethodCapabilities(**_SCREEN, sections=("ssao", "gtao"),
+                               what="ground-truth-based AO (Jimenez et al. 2016)"),
+    "heightfield": MethodCapabilities(
+        **_SCREEN, error_bars=True, sections=("rays", "ssao", "heightfield"),
+        what="rays against the G-buffer's height field (the screen methods' own truth)"),
+}
+
+#: target name -> its declaration (``aobake.targets.TARGETS`` names the class)
+TARGETS = {
+    "vertices": TargetCapabilities(("points",), what="a per-vertex bake"),
+    "points": TargetCapabilities(("points",), what="query points"),
+    "texels": TargetCapabilities(("points", "triangles"), ("texels",), what="a lightmap"),
+    "view": TargetCapabilities(("points", "triangles", "gbuffer"), ("view",),
+                               what="a camera view"),
+    "projected_texels": TargetCapabilities(("points",), ("texels", "studio"),
+                                           what="a high-to-low lightmap"),
+    "projected_vertices": TargetCapabilities(("points",), ("studio",),
+                                             what="a high-to-low per-vertex bake"),
+}
+
+#: what each need is, in a message
+_NEEDS = {"triangles": "a triangle under each point (a lightmap or a view)",
+          "gbuffer": "a camera's G-buffer (aobake view)"}
+
+
+def serves(method: str, target: str) -> bool:
+    """Whether ``target`` provides everything ``method`` needs."""
+    return set(METHODS[method].needs) <= set(TARGETS[target].provides)
+
+
+def methods_for(targets) -> tuple:
+    """The methods that serve at least one of ``targets``, in registry order."""
+    return tuple(m for m in METHODS if any(serves(m, t) for t in targets))
+
+
+def quantities_for(methods) -> tuple:
+    """The quantities at least one of ``methods`` computes, in ``ALL_QUANTITIES`` order."""
+    have = {q for m in methods for q in METHODS[m].quantities}
+    return tuple(q for q in ALL_QUANTITIES if q in have)
+
+
+def sections_used(method: str, target: str) -> tuple:
+    """The settings sections a bake of ``method`` at ``target`` reads: the common settings,
+    the method's and the target's (what its report's config records)."""
+    out = ["common"]
+    for section in METHODS[method].sections + TARGETS[target].sections:
+        if section not in out:
+            out.append(section)
+    return tuple(out)
+
+
+def check(method: str, target: str, config) -> None:
+    """Refuse a request the declarations say cannot run, before any work.
+
+    method : a ``METHODS`` name; target : a ``TARGETS`` name; config : a ``BakeConfig``.
+    Raises UsageError (an InputError) with one line naming both sides.
+    """
+    if method not in METHODS:
+        raise UsageError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+    if target not in TARGETS:
+        raise UsageError(f"unknown target {target!r}; choose from {', '.join(TARGETS)}")
+    can, where = METHODS[method], TARGETS[target]
+    for need in can.needs:
+        if need not in where.provides:
+            hint = (" (methods for it: " + ", ".join(methods_for([target])) + ")")
+            raise UsageError(f"--method {method} needs {_NEEDS[need]}; {where.what} "
+                             f"({target}) has none{hint}")
+    quantities = tuple(config.quantities)
+    missing = [q for q in quantities if q not in can.quantities]
+    if missing:
+        raise UsageError(f"--method {method} computes {', '.join(can.quantities)} only; it "
+                         f"cannot bake -q {', '.join(missing)}")
+    if config.weighting not in can.weightings:
+        raise UsageError(f"--method {method} computes {' or '.join(can.weightings)}-weighted "
+                         f"AO, not --weighting {config.weighting}")
+    if config.ground_plane and not can.ground_plane:
+        raise UsageError(f"--method {method} has no ground plane (it builds from the mesh's "
+                         "faces only): drop --ground-plane or use --method rays")
+    rays_only = [(config.tolerance is not None, "--tolerance sets a per-point ray count"),
+                 (config.keep_distances, "--keep-distances keeps every ray's distance"),
+                 (config.alpha_cutout, "--alpha-cutout lets rays through cut-out texels"),
+                 (bool(config.receive_only), "--receive-only needs rays that pass the faces "
+                                             "it names")]
+    for asked, what in rays_only:
+        if asked and not can.traces_scene:
+            raise UsageError(f"{what}: --method {method} casts no rays through the scene")
+    if config.tolerance is not None and method != "rays":
+        raise UsageError(f"--tolerance adapts the ray-traced method's counts: not with "
+                         f"--method {method}")
+    if config.keep_distances and method != "rays":
+        raise UsageError(f"--keep-distances keeps the ray-traced method's distances: not "
+                         f"with --method {method}")
+    if config.denoise:
+        if not can.error_bars:
+            raise UsageError(f"--denoise filters by each texel's stderr: --method {method} "
+                             "reports none")
+        if target not in ("texels", "projected_texels"):
+            raise UsageError(f"--denoise filters a lightmap: {where.what} ({target}) is not one")
+    if method == "file" and config.ao_from is None:
+        raise UsageError("--method file needs --ao-from FILE (a per-vertex bake of the mesh)")
