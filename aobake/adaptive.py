@@ -268,9 +268,12 @@ def summary(tracer, estimates) -> dict:
         "points_capped": int(np.count_nonzero(~met & capped & (rays > 0))),
         "worst_reach": worst,
         "rays_total": int(rays.astype(np.int64).sum()),
-        "final_rays": {"min": int(final_rays[traced].min()) if len(traced) else 0,
-                       "median": float(np.median(final_rays[traced])) if len(traced) else 0.0,
-                       "max": int(final_rays[traced].max()) if len(traced) else 0},
+        # the last stage's count: the rays in each point's estimate
+        "final_rays": _spread(final_rays[traced]),
+        # every ray a point cast after the pilot (all its stages: a point whose final stage
+        # was its third cast the two before it too), and with the pilot
+        "rays_after_pilot": _spread(rays[traced].astype(np.int64) - tracer.samples.rays),
+        "rays_per_point": _spread(rays[traced].astype(np.int64)),
         # A fixed count reaching the same worst case: every point at the largest final count
         # (the count the worst point needed), and no pilot.
         "fixed_budget_rays": fixed,
@@ -278,6 +281,14 @@ def summary(tracer, estimates) -> dict:
     section["saving_vs_fixed"] = (fixed / section["rays_total"]) if section["rays_total"] \
         else None
     return section
+
+
+def _spread(counts: np.ndarray) -> dict:
+    """{"min", "median", "max"} of per-point ray counts (zeros for no point)."""
+    if not len(counts):
+        return {"min": 0, "median": 0.0, "max": 0}
+    return {"min": int(counts.min()), "median": float(np.median(counts)),
+            "max": int(counts.max())}
 
 
 def min_final_dof(config) -> int:
