@@ -494,6 +494,30 @@ def _whole(value) -> bool:
 # images
 
 
+def read_size(path) -> tuple[int, int, int]:
+    """(width, height, channels) of an image from its header, as :func:`read_pixels` would
+    read it: a PNG checked first (libpng would write its own complaint on stderr), whatever
+    the image library says kept off the terminal; ``Unreadable`` for a broken file."""
+    import OpenImageIO as oiio
+
+    with open(path, "rb") as handle:
+        if handle.read(len(_PNG_SIGNATURE)) == _PNG_SIGNATURE:
+            handle.seek(0)
+            check_png(handle.read())
+    with quiet_stderr() as said:
+        inp = oiio.ImageInput.open(str(path))
+        if inp is None:
+            raise Unreadable(oiio.geterror() or "OpenImageIO cannot open it")
+        try:
+            spec = inp.spec()
+            size = (spec.width, spec.height, spec.nchannels)
+        finally:
+            inp.close()
+    if said:
+        log.debug("%s: the image library said: %s", path, " ".join(said))
+    return size
+
+
 def read_pixels(path) -> tuple[np.ndarray, list[str], dict]:
     """The first subimage through OpenImageIO, alpha unassociated (colour is not multiplied by
     alpha; in aobake's files alpha is coverage, not opacity).

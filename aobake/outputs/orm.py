@@ -62,16 +62,13 @@ def pack(result, value: np.ndarray, orm_from=None) -> tuple[np.ndarray, str]:
 def check_source(path, resolution) -> None:
     """Refuse an ``orm_from`` texture whose size is not ``resolution`` (width, height) before
     a bake (the header alone is read); OutputError naming it."""
-    import OpenImageIO as oiio
+    from aobake.compare.parsing import Unreadable, read_size
 
-    source = oiio.ImageInput.open(str(path))
-    if source is None:
-        raise OutputError(f"{path}: cannot read the ORM source ({oiio.geterror()})")
-    try:
-        spec = source.spec()
-        size, channels = (spec.width, spec.height), spec.nchannels
-    finally:
-        source.close()
+    try:  # the image library's own complaints (libpng's) stay off the terminal
+        width, height, channels = read_size(path)
+    except (Unreadable, OSError) as exc:
+        raise OutputError(f"{path}: cannot read the ORM source ({exc})") from None
+    size = (width, height)
     if channels < 3:
         raise OutputError(f"{path}: has {channels} channels; an ORM / metallic-roughness "
                           "texture needs G (roughness) and B (metalness)")
