@@ -100,9 +100,11 @@ def refit(bake, *, tau=None, max_distance=None, quantities=None, source: str = "
     NPZ written with ``--keep-distances``) at a new ``tau`` and/or ``max_distance`` (at most
     the baked one), without tracing.
 
-    quantities : which of ao/obscurance to compute (default: those baked, plus obscurance
-    when tau is given).  Returns a BakeResult whose arrays equal a fresh bake's of the same
-    seed and parameters, with the kept distances carried over (so it can be refitted again).
+    quantities : which of ao/obscurance to compute, a name or a list of names (default:
+    those baked, plus obscurance when tau is given).  Returns a BakeResult whose arrays equal a fresh bake's of the same
+    seed and parameters, kept distances included: those of hits below the new max distance,
+    the rest misses, as that bake keeps them (so it can be refitted again, at a max distance
+    up to its own).
     Everything read from ``bake`` is checked against its own metadata first (``_check``):
     a malformed or hand-edited file is an InputError naming it, never a wrong answer.
     """
