@@ -362,7 +362,8 @@ def finished(out: Path, config, target: str, method: str, source: dict) -> str |
     if not isinstance(data, dict):
         return None
     parameters = data.get("parameters") or {}
-    if data.get("config") != _jsonable(config.to_dict()) or data.get("target") != target \
+    if data.get("config") != _jsonable(config.record(method, target)) \
+            or data.get("target") != target \
             or parameters.get("method") != method \
             or _contents(data.get("input") or {}) != _contents(source):
         return None

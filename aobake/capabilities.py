@@ -77,12 +77,12 @@ METHODS = {
     "discs": MethodCapabilities(
         ("ao", "indirect"), ground_plane=False, sections=("discs",),
         what="Bunnell's disc approximation (GPU Gems 2 ch. 14)"),
-    "hemicube": MethodCapabilities(
-        ("ao",), ground_plane=False, sections=("hemicube",),
-        what="rasterised hemicubes (OpenGL)"),
     "file": MethodCapabilities(
         ("ao", "obscurance"), needs=("points", "triangles"), sections=("file",),
         what="a per-vertex bake's values (--ao-from), interpolated on the triangles"),
+    "hemicube": MethodCapabilities(
+        ("ao",), ground_plane=False, sections=("hemicube",),
+        what="rasterised hemicubes (OpenGL)"),
     "crytek": MethodCapabilities(**_SCREEN, sections=("ssao", "crytek"),
                                  what="Crytek's screen-space AO"),
     "shanmugam": MethodCapabilities(**_SCREEN, sections=("ssao",),

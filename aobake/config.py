@@ -170,12 +170,29 @@ class BakeConfig(StudioOptions, LightmapOptions, HeightfieldOptions, GtaoOptions
         """tau per scene unit."""
         return DEFAULT_TAU_DIAGONALS / diagonal if self.tau is None else self.tau
 
-    def to_dict(self) -> dict:
-        """Plain JSON types; ``from_dict(to_dict())`` gives an equal config."""
+    def to_dict(self, sections=None) -> dict:
+        """Plain JSON types; ``from_dict(to_dict())`` gives an equal config.  sections : the
+        settings sections to keep (None: all of them)."""
         out = asdict(self)
         out["quantities"] = list(self.quantities)
         out["resolution"] = list(self.resolution)
+        if sections is not None:
+            out = {name: value for name, value in out.items() if SECTIONS[name] in sections}
         return out
+
+    def record(self, method: str, target: str) -> dict:
+        """The config a report of a bake by ``method`` at ``target`` records: the common
+        settings and the sections of the method and the target that ran
+        (``capabilities.sections_used``), and the studio's when any of them is set (groups
+        and cut-outs apply to every target).  ``from_dict`` of it re-bakes the bake bit for
+        bit: what is left out is what the bake did not read."""
+        from aobake.capabilities import sections_used
+
+        sections = sections_used(method, target)
+        studio = [name for name, section in SECTIONS.items() if section == "studio"]
+        if any(getattr(self, name) != DEFAULTS[name] for name in studio):
+            sections += ("studio",)
+        return self.to_dict(sections)
 
     @classmethod
     def from_dict(cls, data: dict) -> "BakeConfig":

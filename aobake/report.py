@@ -67,7 +67,7 @@ def build(target: str, scene, config, record: dict, method, done, *, wall: float
     report = {
         "aobake_report": 1,
         "target": target,
-        "config": config.to_dict(),
+        "config": config.record(method.name, target),
         "conventions": conventions(config.weighting),
         "scene": scene.stats(),
         "parameters": parameters,

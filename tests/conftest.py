@@ -6,6 +6,9 @@
 - ``box_ply`` writes a unit box as PLY (a mesh without UVs);
 - ``backend``, ``sampler``, ``weighting`` run a test once per registered tracing backend,
   sampler and hemisphere weighting (a test that means a subset parametrises its own);
+- ``method_name``, ``executor_name``, ``target_name`` run a test once per line of the
+  METHODS, EXECUTORS and TARGETS registries, so a new line gets the split, bit-identity
+  and refusal tests the day it is added;
 - ``kernel`` skips a test where ``aobake._kernels`` was not built (``.ci/run``
   asserts separately that CI built it).
 """
@@ -21,6 +24,9 @@ from click.testing import CliRunner  # noqa: E402
 
 from aobake import _native  # noqa: E402
 from aobake.backends import BACKENDS  # noqa: E402
+from aobake.executors import EXECUTORS  # noqa: E402
+from aobake.methods import METHODS  # noqa: E402
+from aobake.targets import TARGETS  # noqa: E402
 from aobake.samplers import SAMPLERS  # noqa: E402
 from aobake.warp import WEIGHTINGS  # noqa: E402
 
@@ -56,6 +62,24 @@ def sampler(request):
 @pytest.fixture(params=list(WEIGHTINGS))
 def weighting(request):
     """Each hemisphere weighting's name (cosine, uniform)."""
+    return request.param
+
+
+@pytest.fixture(params=list(METHODS))
+def method_name(request):
+    """Each registered method's name (``aobake.methods.METHODS``)."""
+    return request.param
+
+
+@pytest.fixture(params=list(EXECUTORS))
+def executor_name(request):
+    """Each registered executor's name (``aobake.executors.EXECUTORS``)."""
+    return request.param
+
+
+@pytest.fixture(params=list(TARGETS))
+def target_name(request):
+    """Each registered target's name (``aobake.targets.TARGETS``)."""
     return request.param
 
 

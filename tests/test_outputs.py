@@ -668,18 +668,24 @@ def test_outputs_get_ordinary_file_permissions(tmp_path):
 
 
 def test_query_points_write_as_point_sets(tmp_path):
-    """bake_points results (no faces; with kept distances too) write to NPZ and PLY as
-    point sets and read back; GLB, a mesh format, is refused with the reason."""
+    """bake_points results (no faces) write to NPZ and PLY as point sets and read back;
+    GLB, a mesh format, is refused with the reason; kept distances go to NPZ only (a PLY
+    asked to hold them is refused, not written without them)."""
     import trimesh
 
     import aobake
     from aobake.compare import read
 
     points = np.array([[0.0, 0.0, 0.6], [0.1, 0.0, 0.6], [0.0, 0.2, 0.6]])
-    res = aobake.bake_points(trimesh.creation.box(), points, np.tile([0.0, 0.0, 1.0], (3, 1)),
-                             rays=8, keep_distances=True)
-    for suffix in (".npz", ".ply"):
-        aobake.write(res, tmp_path / f"p{suffix}")
+    normals = np.tile([0.0, 0.0, 1.0], (3, 1))
+    kept = aobake.bake_points(trimesh.creation.box(), points, normals, rays=8,
+                              keep_distances=True)
+    res = aobake.bake_points(trimesh.creation.box(), points, normals, rays=8)
+    with pytest.raises(aobake.UsageError, match="--keep-distances needs an .npz"):
+        aobake.write(kept, tmp_path / "kept.ply")
+    assert not (tmp_path / "kept.ply").exists()
+    for suffix, result in ((".npz", kept), (".ply", res)):
+        aobake.write(result, tmp_path / f"p{suffix}")
         back = read(tmp_path / f"p{suffix}")
         np.testing.assert_allclose(back.value, res.ao, rtol=1e-6)
         np.testing.assert_allclose(back.positions, points)
