@@ -187,6 +187,15 @@ def _prepare(building, scene, config, method: str, rays_per_point: int, compiled
     return METHODS[method].prepare(scene, config, built, rays_per_point, compiled=compiled)
 
 
+def _projected(config: BakeConfig, mesh, per: str):
+    """(scene, target) of a bake of ``mesh`` per ``per`` ('vertices' | 'texels'): with
+    ``config.source`` a high-to-low bake, the source the scene and ``mesh`` the low mesh
+    (as ``aobake MESH --from HIGH``); else ``mesh`` and the plain target."""
+    if config.source is None:
+        return mesh, TARGETS[per]()
+    return config.source, config.target(per, mesh)
+
+
 def _config(config: BakeConfig | None, options: dict) -> BakeConfig:
     if config is None:
         return BakeConfig(**options)
@@ -213,7 +222,9 @@ def bake(mesh, config: BakeConfig | None = None, *, threads: int | None = None,
     line up with ``result.positions`` (the scene's vertices, in file order).
     """
     options, run_kw = _split(options)
-    return run(_config(config, options), mesh, TARGETS["vertices"](), threads=threads,
+    config = _config(config, options)
+    scene, target = _projected(config, mesh, "vertices")
+    return run(config, scene, target, threads=threads,
                chunk_rays=chunk_rays, progress=progress, **run_kw)
 
 
@@ -226,9 +237,9 @@ def bake_grouped(mesh, target, config: BakeConfig | None = None, *, exclude=(),
     for name in ("threads", "chunk_rays", "progress"):
         if name in options:
             keywords[name] = options.pop(name)
-    config = _config(config, dict(options, exclude=tuple(exclude),
-                                  receive_only=tuple(receive_only),
-                                  occluder_only=tuple(occluder_only)))
+    # the patterns as given: the setting's own check reads a string or a list of them
+    config = _config(config, dict(options, exclude=exclude, receive_only=receive_only,
+                                  occluder_only=occluder_only))
     return run(config, mesh, target, **keywords)
 
 
@@ -245,8 +256,9 @@ def bake_points(mesh, points, normals, config: BakeConfig | None = None, *, poin
     ray offset, like vertices.
     """
     options, run_kw = _split(options)
+    config = _config(config, options)
     target = TARGETS["points"](points, normals, point_ids, point_sizes)
-    return run(_config(config, options), mesh, target, threads=threads, chunk_rays=chunk_rays,
+    return run(config, mesh, target, threads=threads, chunk_rays=chunk_rays,
                progress=progress, **run_kw)
 
 
@@ -262,7 +274,9 @@ def bake_texels(mesh, config: BakeConfig | None = None, *, threads: int | None =
     when valid, else xatlas | 'always' | 'never'), bent_space ('object' | 'tangent').
     """
     options, run_kw = _split(options)
-    return run(_config(config, options), mesh, TARGETS["texels"](), threads=threads,
+    config = _config(config, options)
+    scene, target = _projected(config, mesh, "texels")
+    return run(config, scene, target, threads=threads,
                chunk_rays=chunk_rays, progress=progress, **run_kw)
 
 

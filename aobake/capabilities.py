@@ -185,5 +185,9 @@ def check(method: str, target: str, config) -> None:
                              "reports none")
         if target not in ("texels", "projected_texels"):
             raise UsageError(f"--denoise filters a lightmap: {where.what} ({target}) is not one")
+    # (a projected target may also be handed its source as the scene: bake_projected)
+    if config.source is not None and not target.startswith("projected_"):
+        raise UsageError(f"--from (source) bakes a high mesh onto a low mesh's vertices or "
+                         f"lightmap: {where.what} ({target}) is not one")
     if method == "file" and config.ao_from is None:
         raise UsageError("--method file needs --ao-from FILE (a per-vertex bake of the mesh)")

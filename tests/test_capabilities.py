@@ -55,8 +55,6 @@ def test_refused_requests_are_refused_before_anything_is_read(method_name, targe
                                                               quantity, tmp_path):
     """A request the declarations refuse raises UsageError naming the method and the
     target's kind, for a mesh that does not even exist: nothing was loaded first."""
-    if target_name.startswith("projected"):
-        pytest.skip("a projected target is built from a low mesh (tested through --from)")
     can = capabilities.METHODS[method_name]
     serves = capabilities.serves(method_name, target_name)
     allowed = serves and quantity in can.quantities
@@ -64,6 +62,10 @@ def test_refused_requests_are_refused_before_anything_is_read(method_name, targe
     missing = tmp_path / "no such mesh.obj"
     if allowed:
         capabilities.check(method_name, target_name, config)  # no error
+        return
+    if target_name.startswith("projected"):  # built from a low mesh: the check alone
+        with pytest.raises(UsageError, match=f"--method {method_name}"):
+            capabilities.check(method_name, target_name, config)
         return
     with pytest.raises(UsageError) as refused:
         aobake.run(config, str(missing), _target(target_name), method=method_name)
@@ -225,3 +227,26 @@ def test_view_refuses_a_lightmap_method_mismatch_too(scene, tmp_path):
                      "-q", "obscurance")
     assert result.exit_code == 2 and "--method discs computes ao, indirect only" in \
         result.output
+
+
+def test_the_library_bakes_high_to_low_as_the_command_line_does(tmp_path):
+    """``bake(low, source=HIGH)`` is ``aobake LOW --from HIGH`` (it once baked LOW alone and
+    ignored the source); a missing source is an error; a source where no low mesh is baked
+    onto (query points, a view) is refused before anything is read."""
+    low, high = tmp_path / "low.obj", tmp_path / "high.obj"
+    trimesh.creation.icosphere(1, 1.0).export(low)
+    trimesh.creation.icosphere(3, 1.0).export(high)
+    library = aobake.bake(str(low), source=str(high), rays=8)
+    assert library.report["target"] == "projected_vertices"
+    result = run_cli(low, "--from", high, "--out", tmp_path / "cli.npz", "--rays", 8,
+                     "--quiet")
+    assert result.exit_code == 0, result.output
+    with np.load(tmp_path / "cli.npz") as cli:
+        np.testing.assert_array_equal(cli["ao"], library.ao.astype(np.float32))
+    with pytest.raises(aobake.InputError, match="no such file"):
+        aobake.bake(str(low), source=str(tmp_path / "missing.obj"), rays=8)
+    with pytest.raises(UsageError, match="query points"):
+        aobake.bake_points(str(tmp_path / "missing.obj"), [[0, 0, 2.0]], [[0, 0, 1.0]],
+                           source=str(high))
+    with pytest.raises(UsageError, match="camera view"):
+        aobake.bake_view(str(tmp_path / "missing.obj"), source=str(high), size=(4, 4))
