@@ -27,17 +27,21 @@ def entry() -> None:
     the library, and ``main`` run inside another program (click's test runner), end as
     usual.
     """
-    from aobake.cli.signals import Terminated, catch_signals, interrupted
-
-    catch_signals()  # from here on SIGTERM/SIGHUP unwind like SIGINT's KeyboardInterrupt
     code = 0
-    try:
+    try:  # first: a SIGINT from here on is this command's, never a traceback
+        from aobake.cli.signals import catch_signals
+
+        catch_signals()  # from here on SIGTERM/SIGHUP unwind like SIGINT's KeyboardInterrupt
         from aobake.cli.bake import main
 
         main()  # click's standalone mode ends with SystemExit, 0 included
     except SystemExit as exc:
         code = exc.code
-    except (KeyboardInterrupt, Terminated) as exc:  # while importing or parsing
+    except BaseException as exc:  # noqa: BLE001 - a signal while importing or parsing
+        from aobake.cli.signals import Terminated, interrupted
+
+        if not isinstance(exc, (KeyboardInterrupt, Terminated)):
+            raise
         code = interrupted(exc)
     if code is None:
         code = 0
