@@ -219,6 +219,10 @@ def _manifest(path: Path, suffix, target) -> list:
                         continue
                     try:
                         row = json.loads(line)
+                    except RecursionError:  # nested deeper than the parser goes
+                        rows.append((number, None, f"{path} line {number}: nested too deeply "
+                                                   "to be a manifest row"))
+                        continue
                     except json.JSONDecodeError as exc:
                         rows.append((number, None, f"{path} line {number}: not JSON ({exc.msg})"))
                         continue
@@ -357,7 +361,7 @@ def finished(out: Path, config, target: str, method: str, source: dict) -> str |
         return None
     try:
         data = json.loads(report.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):  # unreadable or hand-edited: bake again
         return None
     if not isinstance(data, dict):
         return None
@@ -439,6 +443,26 @@ def _bake(asset: Asset, out_dir: Path, settings: dict, run: dict, write: dict,
             "outputs": [str(p) for p in written], "warnings": list(data.get("warnings", []))}
 
 
+def check_summary(path, assets, out_dir, settings: dict) -> None:
+    """OutputError when the summary at ``path`` would replace a file the batch reads (an
+    asset's mesh, --from, --cage or --ao-from) or writes (an asset's output or report):
+    checked before any asset is baked."""
+    from aobake.config import INPUT_FILES
+
+    where = Path(path).resolve()
+    for asset in assets:
+        options = {**settings, **asset.options}
+        named = [("the input mesh", asset.mesh)]
+        named += [(f"the input {flag}", options.get(name)) for name, flag in INPUT_FILES.items()]
+        if asset.output is not None:
+            named += [("an asset's output", Path(out_dir) / asset.output),
+                      ("an asset's report", Path(out_dir) / report_path(asset.output))]
+        for role, other in named:
+            if other is not None and Path(other).resolve() == where:
+                raise OutputError(f"{path}: refusing to write the batch summary over {role} "
+                                  f"({asset.source or asset.mesh}): choose another --summary")
+
+
 def summary(records, out_dir, executor: dict, seconds: float) -> dict:
     """The batch's summary: counts, the executor, and every asset's record."""
     counts = {status: sum(r["status"] == status for r in records)
@@ -447,6 +471,7 @@ def summary(records, out_dir, executor: dict, seconds: float) -> dict:
             "seconds": seconds, "counts": counts, "assets": records}
 
 
-__all__ = ["Asset", "MANIFESTS", "REPORT_SUFFIX", "SUMMARY_NAME", "bake_assets", "digest",
+__all__ = ["Asset", "MANIFESTS", "REPORT_SUFFIX", "SUMMARY_NAME", "bake_assets", "check_summary",
+           "digest",
            "find_assets", "finished", "inputs", "output_path", "parse_setting", "report_path",
            "summary"]

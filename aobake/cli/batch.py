@@ -95,6 +95,7 @@ def _run(inputs, out_dir, fmt, target, run, write, force, summary_path, quiet, s
     aobake.BakeConfig(**config)  # the command's settings checked before anything is read
     out_dir.mkdir(parents=True, exist_ok=True)
     assets = batch.find_assets(inputs, out_dir, fmt, target)
+    batch.check_summary(summary_path, assets, out_dir, config)
     executor = {"name": run["executor"], "workers": run["workers"],
                 "chunk_points": run["chunk_points"], "scheduler": scheduler}
     records, clock = [], time.perf_counter()
