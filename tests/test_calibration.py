@@ -15,6 +15,7 @@ import pytest
 from scipy import stats
 
 import aobake
+from aobake.samplers.base import REPLICATES
 from analytic import combine, polygon, quad, up
 
 K = 150
@@ -38,11 +39,13 @@ POINTS = np.array([[0.0, 0.0, 1e-6], [0.9, -0.4, 1e-6]])
 @functools.lru_cache(maxsize=None)
 def bakes_over_seeds(sampler: str, quantity: str) -> list:
     """K bakes (seeds 0..K-1) of POINTS under a tilted disc (cached: each point's test
-    reads the same bakes)."""
+    reads the same bakes).  Bent normals come with AO: its escape counts give the degrees
+    of freedom of their stderr."""
     mesh = combine(polygon([0.2, 0.1, 0.8], 1.0, 17), quad([0, 0, 0], 3, 3))
     nrm = up(len(POINTS))
+    quantities = ("ao", quantity) if quantity == "bent-normal" else (quantity,)
     return [aobake.bake_points(mesh, POINTS, nrm, rays=64, seed=seed, sampler=sampler,
-                               quantities=(quantity,), max_distance=2.0, tau=1.5, threads=1)
+                               quantities=quantities, max_distance=2.0, tau=1.5, threads=1)
             for seed in range(K)]
 
 
@@ -63,11 +66,23 @@ def test_bent_normal_angular_stderr_matches_spread_over_seeds(sampler, point):
     The scatter is 2-D (the tangent plane of the mean direction): sum over seeds of the
     squared angle / sigma^2 has between K - 1 and 2 (K - 1) degrees of freedom depending
     on how round the error ellipse is; the test uses the wider chi2(K - 1) interval.
+
+    The reported stderr is the measured one raised by t_nu(C) / z(C) for its nu degrees of
+    freedom (escaping rays - 1 with ``random``; R - 1 with QMC, where at 64 rays each of the
+    R replicates of 64 / R rays has an escape at these points, AO 0.41 and 0.62), so that
+    z(C) of it is a cone at C (aobake.stats.normal_equivalent; that coverage is
+    tests/test_bent_normal_coverage.py); the raise is divided out here.
     """
     results = bakes_over_seeds(sampler, "bent-normal")
     bent = np.array([res.bent_normal[point] for res in results])  # (K, 3)
-    var = np.array([res.bent_normal_stderr[point] ** 2 for res in results])  # (K,)
-    assert np.all(var > 0) and np.all(var < (np.pi / 2) ** 2)
+    reported = np.array([res.bent_normal_stderr[point] for res in results])  # (K,)
+    assert np.all(reported > 0) and np.all(reported < np.pi / 2)
+    if sampler == "random":
+        dof = np.array([round(res.ao[point] * res.rays[point]) - 1 for res in results])
+    else:
+        dof = np.full(K, min(REPLICATES, 64) - 1)
+    raise_ = stats.t.ppf(0.975, dof) / stats.norm.ppf(0.975)  # the default confidence 0.95
+    var = (reported / raise_) ** 2
     mean = bent.mean(axis=0)
     mean /= np.linalg.norm(mean)
     perp = bent - np.outer(bent @ mean, mean)  # ~ angle vectors, radians

@@ -1,13 +1,16 @@
 """Bent normal: the normalised mean of the unoccluded sample directions.
 
 A unit vector (the surface normal when no ray escapes); its error is an angle in
-radians (:func:`estimate`).
+radians, one standard error raised for the few degrees of freedom it is measured on, so that
+the cone of z(C) of it around the bent normal (1.96 at --confidence 0.95) holds the true one
+with probability >= C (:func:`finish`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from aobake import stats
 from aobake.quantities.base import Field, Quantity, Traced
 from aobake.vectors import normalize
 
@@ -46,47 +49,57 @@ def finish(moments: dict, traced: Traced, m: int) -> dict:
 
     Returns {bent_normal: (k, 3) float64 unit, bent_normal_stderr: (k,) float64 radians}.
 
-    The bent normal is b / |b| with b the mean of f = d [ray escapes] over all rays.
-    Its error is the delta method for normalising: the component of b's error
-    perpendicular to b, over |b|: stderr^2 = tr(P Cov(b) P) / |b|^2 with
-    P = I - b b^T / |b|^2 (the expected squared angle to the true bent normal).
-    Cov(b) comes from the same source as the AO error: i.i.d. per-ray
-    contributions (``random``) or the spread of the R replicate means.  Capped at
-    pi/2, which is also the value when fewer than two rays (i.i.d.) or two replicates
-    (QMC) have an escaping ray (then the spread says nothing about the error, which can
-    be 90 degrees) or there is no spread.
+    The bent normal is b / |b| with b the sum of f = d [ray escapes] over all rays, a sum of
+    independent *units*: the rays (i.i.d., ``random``) or the R replicates' sums (QMC).  Its
+    error is the delta method for normalising: the component of b's error perpendicular to
+    b, over |b| (the expected squared angle to the true bent normal).  Only the u units with
+    an escaping ray say anything about the direction: the others add 0 to b and nothing
+    perpendicular to it.  So the variance is measured among those u, conditionally on which
+    escaped: with x_j the component of unit j's sum perpendicular to b (they sum to 0),
+
+        se^2 = u / (u - 1) sum_j |x_j|^2 / |b|^2,    on u - 1 degrees of freedom
+
+    (counting every ray or replicate instead, as before, made se too small by
+    sqrt((u - 1) n / (u (n - 1))) where few escape: 0.71 with two escaping rays).
+
+    The reported stderr is se t_{u-1}(C) / z(C) (:func:`aobake.stats.normal_equivalent`,
+    C = ``traced.confidence``): the bent normal has no interval field, so its one number
+    carries the degrees of freedom, and the cone of z(C) stderr (1.96 at C = 0.95) holds the
+    true bent normal with probability >= C.  The angle's error is 2-D; its squared length
+    over se^2 is an F ratio between F(1, u - 1) (all of it along one axis: exactly t^2, the
+    worst case) and F(2, 2 (u - 1)) (isotropic), so the t quantile is the bound that holds for
+    every error shape.  With the default 4 replicates the raise is 1.62 (t_3 / z at 0.95);
+    the rms of angle / stderr is then 0.75 (isotropic) to 1.07 (one-dimensional), and ~1
+    for ``random`` with many escaping rays.  Measured coverage: docs/conventions.md.
+
+    Capped at pi/2 (NO_INFORMATION_ANGLE), which is also the value when fewer than two units
+    have an escaping ray (then the spread says nothing about the error, which can be 90
+    degrees).
     """
     total, escapes, normals = moments["total"], moments["escapes"], traced.normals
-    k, groups = escapes.shape
-    if traced.iid:
-        count = groups * m
-        b = total.sum(axis=1) / count  # (k, 3)
-    else:
-        per = total / m  # replicate means (k, R, 3)
-        count = groups
-        b = per.sum(axis=1) / count
+    b = total.sum(axis=1)  # (k, 3)
     unit, length = normalize(b)
     length = length[:, 0]
     ok = length > 0
     bent = np.where(ok[:, None], unit, normals)
-    stderr = np.full(k, NO_INFORMATION_ANGLE)
-    if count >= 2:
-        if traced.iid:  # sum over rays of |dev_perp|^2 = tr(S) - u^T S u
-            scatter = moments["scatter"].sum(axis=1)  # (k, 3, 3); R = 1
-            perp2 = np.trace(scatter, axis1=1, axis2=2) \
-                - np.einsum("ki,kij,kj->k", unit, scatter, unit)
-        else:
-            dev = per - b[:, None, :]
-            along = np.einsum("kjc,kc->kj", dev, unit)
-            perp2 = (np.square(dev).sum(axis=2) - np.square(along)).sum(axis=1)
-        var = np.maximum(perp2, 0.0) / (count * (count - 1))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            angle = np.sqrt(var) / length
-        # A spread needs two independent contributions with an escape: two rays (i.i.d.) or
-        # two replicates (QMC: escapes inside one replicate tell nothing about its error).
-        escaped = escapes.sum(axis=1) if traced.iid else np.count_nonzero(escapes > 0, axis=1)
-        known = ok & (escaped >= 2)
-        stderr = np.where(known, np.minimum(angle, NO_INFORMATION_ANGLE), NO_INFORMATION_ANGLE)
+    # u and sum_j |x_j|^2 (a unit without an escape has x_j = 0)
+    if traced.iid:  # units = rays (R = 1)
+        units = escapes.sum(axis=1)
+        # the scatter about the mean ray: its part perpendicular to b is the rays' own
+        scatter = moments["scatter"].sum(axis=1)  # (k, 3, 3)
+        perp2 = np.trace(scatter, axis1=1, axis2=2) \
+            - np.einsum("ki,kij,kj->k", unit, scatter, unit)
+    else:  # units = replicates
+        units = np.count_nonzero(escapes > 0, axis=1).astype(np.float64)
+        # projected before squaring: |T|^2 - (T.u)^2 would cancel where T is nearly along u
+        along = np.einsum("kjc,kc->kj", total, unit)
+        perp2 = np.square(total - along[..., None] * unit[:, None, :]).sum(axis=(1, 2))
+    known = ok & (units >= 2)
+    dof = np.where(known, units - 1.0, 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        se = np.sqrt(np.maximum(perp2, 0.0) * units / dof) / length
+        angle = stats.normal_equivalent(np.where(known, se, 0.0), dof, traced.confidence)
+    stderr = np.where(known, np.minimum(angle, NO_INFORMATION_ANGLE), NO_INFORMATION_ANGLE)
     return {"bent_normal": bent, "bent_normal_stderr": stderr}
 
 
@@ -100,13 +113,23 @@ def summary(value: np.ndarray, error: np.ndarray) -> dict:
     return {"stderr_mean_rad": float(error.mean()), "stderr_p95_rad": float(np.percentile(error, 95))}
 
 
+#: what bent_normal_stderr means, in every output's metadata
+STDERR_CONVENTION = ("angular standard error of the bent normal in radians (delta method, "
+                     "measured on u - 1 degrees of freedom: u the escaping rays (random) or "
+                     "replicates with an escaping ray) times t_{u-1}(C) / z(C), C the "
+                     "confidence: the cone of z(C) stderr around the bent normal (1.96 at "
+                     "0.95) holds the true one with probability >= C; pi/2 when fewer than "
+                     "two rays or replicates have an escaping ray")
+
+
 QUANTITY = Quantity(
     name="bent_normal",
     value=Field("bent_normal", 3, np.float32, ("bent_normal_x", "bent_normal_y", "bent_normal_z"),
                 "_BENT_NORMAL", ("bent_normal.X", "bent_normal.Y", "bent_normal.Z"),
                 "mean unoccluded direction (unit)"),
     error=Field("bent_normal_stderr", 1, np.float32, ("bent_normal_stderr",), "_BENT_NORMAL_STDERR",
-                ("bent_normal_stderr",), "angular standard error of bent_normal (radians)"),
+                ("bent_normal_stderr",), "angular standard error of bent_normal (radians; "
+                "1.96 of it is a 95% cone at --confidence 0.95)"),
     moments=moments,
     extend=extend,
     finish=finish,
@@ -115,15 +138,11 @@ QUANTITY = Quantity(
         "cosine": {
             "bent_normal": "normalised mean of the unoccluded sample directions; the surface "
                            "normal if none",
-            "bent_normal_stderr": "angular standard error of the bent normal in radians (delta "
-                                  "method); pi/2 when nothing escapes or there is no spread to "
-                                  "measure"},
+            "bent_normal_stderr": STDERR_CONVENTION},
         "uniform": {
             "bent_normal": "normalised uniform-measure mean of the unoccluded directions; the "
                            "surface normal if none",
-            "bent_normal_stderr": "angular standard error of the bent normal in radians (delta "
-                                  "method); pi/2 when nothing escapes or there is no spread to "
-                                  "measure"},
+            "bent_normal_stderr": STDERR_CONVENTION},
     },
     texel="direction",
     summary=summary,
