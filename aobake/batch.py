@@ -374,7 +374,46 @@ def finished(out: Path, config, target: str, method: str, source: dict) -> str |
     for written in data.get("outputs") or []:
         if not (out.parent / Path(written).name).is_file():
             return None
+    if not intact(out):  # written, then damaged (truncated by a full disk, edited): again
+        return None
     return f"{out.name} and its report match this configuration"
+
+
+def intact(path: Path) -> bool:
+    """Whether the output at ``path`` reads back whole: an NPZ's every member passes its
+    CRC, an image decodes to its last scanline, a mesh loads (the cost of reading the file
+    once, against baking it again)."""
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".npz":
+            import zipfile
+
+            with zipfile.ZipFile(path) as archive:
+                return archive.testzip() is None
+        if suffix in (".exr", ".png", ".tif", ".tiff"):
+            import OpenImageIO as oiio
+
+            image = oiio.ImageInput.open(str(path))
+            if image is None:
+                oiio.geterror()  # taken, so that it is not printed at exit
+                return False
+            try:
+                pixels = image.read_image()
+                ok = pixels is not None and not image.has_error
+                if image.has_error:
+                    image.geterror()
+                return ok
+            finally:
+                image.close()
+        if suffix in (".ply", ".glb"):
+            import trimesh
+
+            loaded = trimesh.load(str(path), process=False)
+            return len(getattr(loaded, "vertices", [])) > 0 or bool(getattr(loaded, "geometry",
+                                                                             None))
+    except Exception:  # noqa: BLE001 - any failure to read it back: bake it again
+        return False
+    return True
 
 
 def bake_assets(assets, out_dir, settings: dict, *, run: dict, write: dict,

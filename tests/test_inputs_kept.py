@@ -127,3 +127,28 @@ def test_a_resumed_batch_with_a_report_nested_by_hand_bakes_again(baked, tmp_pat
     again = run_cli(*args)
     assert again.exit_code == 0, again.output
     assert json.loads((out_dir / "batch-summary.json").read_text())["counts"]["ok"] == 1
+
+
+@pytest.mark.parametrize("fmt", ["npz", "ply", "exr"])
+def test_a_resumed_batch_bakes_a_damaged_output_again(baked, tmp_path, fmt):
+    out_dir = tmp_path / "out"
+    args = ["batch", baked["mesh"], "--out-dir", out_dir, "--format", fmt, "--rays", 4,
+            "--resolution", 32]
+    assert run_cli(*args).exit_code == 0
+    out = out_dir / f"scene.{fmt}"
+    whole = out.read_bytes()
+    skipped = run_cli(*args)  # untouched: skipped
+    assert json.loads((out_dir / "batch-summary.json").read_text())["counts"]["skipped"] == 1
+    out.write_bytes(whole[: len(whole) // 2])  # a full disk's half file
+    again = run_cli(*args)
+    assert again.exit_code == 0, again.output
+    assert json.loads((out_dir / "batch-summary.json").read_text())["counts"]["ok"] == 1
+    assert out.read_bytes() == whole  # the same seed: the same bits
+    assert skipped.exit_code == 0
+
+
+def test_orm_names_its_target_an_extension_does_not_change_it(baked, tmp_path):
+    """A .glb is per vertex unless --target texels says otherwise, --orm included."""
+    result = run_cli(baked["mesh"], "--out", tmp_path / "x.glb", "--orm", "--rays", 4)
+    assert result.exit_code == 2 and "add --target texels" in result.output
+    assert not (tmp_path / "x.glb").exists()

@@ -50,8 +50,9 @@ def guarded(quiet: bool, function, *args) -> None:
     """Run a bake command's work under the CLI's contract: library errors as one line and
     exit 1, SIGINT 130, SIGTERM/SIGHUP 128 + the signal (outputs are one transaction: an
     interrupted bake leaves no file)."""
-    logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING,
-                        format="aobake: warning: %(message)s", stream=sys.stderr)
+    handler = _LineHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("aobake: warning: %(message)s"))
+    logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING, handlers=[handler])
     route_python_warnings(quiet)
     keep_freed_memory()
     previous = catch_signals()
@@ -68,6 +69,21 @@ def guarded(quiet: bool, function, *args) -> None:
         sys.exit(interrupted(exc))
     finally:
         restore_signals(previous)
+
+
+class _LineHandler(logging.StreamHandler):
+    """Each record on a line of its own: on a terminal the progress line ("aobake: loading
+    ...", written without a newline so that the next stage replaces it) is cleared first,
+    so a warning never shares its line."""
+
+    def emit(self, record) -> None:
+        stream = self.stream
+        try:
+            if stream is not None and stream.isatty():
+                stream.write("\r\033[K")
+        except (AttributeError, ValueError, OSError):  # a closed or odd stream: write as is
+            pass
+        super().emit(record)
 
 
 def route_python_warnings(quiet: bool) -> None:

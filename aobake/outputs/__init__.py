@@ -52,8 +52,9 @@ def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=Non
     OutputError naming the path and the problem.
     """
     out = Path(out)
-    # an ORM map is a lightmap: --orm makes a .glb --out one without --target texels
-    target = target or ("texels" if orm else default_target(out))
+    # the extension picks the output, --orm included: a .glb is per vertex unless the
+    # target says texels (an ORM .glb without it would bake what the user did not name)
+    target = target or default_target(out)
     if orm and out.suffix.lower() not in suffixes("texels"):
         raise OutputError(f"{out}: --orm packs a lightmap: write one of "
                           f"{', '.join(suffixes('texels'))}")
@@ -66,8 +67,10 @@ def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=Non
         raise UsageError(f"{out}: --denoise adds channels beside the raw ones: it needs an "
                          ".exr lightmap output")
     if orm and target != "texels":
-        raise OutputError(f"{out}: --orm packs a lightmap (--target texels), not a "
-                          f"{target} bake")
+        hint = " (add --target texels for a lightmap .glb)" if out.suffix.lower() == ".glb" \
+            else ""
+        raise UsageError(f"{out}: --orm packs a lightmap (--target texels), not a {target} "
+                         f"bake{hint}")
     if orm and out.suffix.lower() in (".png", ".tif", ".tiff") and quantities is not None \
             and "ao" not in quantities and "obscurance" not in quantities:
         raise OutputError(f"{out}: an ORM map's R is ao or obscurance; add -q ao")
