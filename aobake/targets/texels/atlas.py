@@ -17,7 +17,8 @@ from aobake.targets.texels.packing import MAX_RESOLUTION
 from aobake.targets.texels.raster import rasterize
 from aobake.targets.texels.unwrap import discard_prestarted
 from aobake.targets.texels.unwrap import unwrap as xatlas_unwrap
-from aobake.targets.texels.uvcheck import check_uvs, find_overlap, wrap_uvs
+from aobake.targets.texels.seams import degenerate_faces
+from aobake.targets.texels.uvcheck import bake_collapsed, check_uvs, find_overlap, wrap_uvs
 
 #: rough bytes held per texel sample (sample record, point, normal, estimates): for the memory check
 _BYTES_PER_SAMPLE = 320
@@ -220,13 +221,17 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
             # prestarted xatlas child (the CLI's) is ended: most own UVs are baked as they
             # are (if they are rejected after all, the unwrap starts its own child).
             discard_prestarted()
-            samples = layout.to_faces(raster(layout.uv, layout.faces))
+            laid = raster(layout.uv, layout.faces)  # the layout's triangles
+            samples = layout.to_faces(laid)
             clock = time.perf_counter()
+            has_area = ~degenerate_faces(scene.vertices, scene.faces)
             check = check_uvs(scene.uv, scene.faces_uv, width, height, shared=samples.shared,
-                              layout=layout)
+                              layout=layout, has_area=has_area)
         else:  # not baked as they are: a texel-centre (K = 1) pass for the report is enough
             clock = time.perf_counter()
-            check = check_uvs(scene.uv, scene.faces_uv, width, height, layout=layout)
+            has_area = ~degenerate_faces(scene.vertices, scene.faces)
+            check = check_uvs(scene.uv, scene.faces_uv, width, height, layout=layout,
+                              has_area=has_area)
         timings["uv_check_s"] = wrap_s + time.perf_counter() - clock
     accept = False  # own UVs baked although they overlap (--uv-overlap average)
     if check is not None and unwrap != "always" and check.overlapping_texels:
@@ -246,6 +251,11 @@ def make_atlas(scene, unwrap: str, width: int, height: int, padding: int, texel_
         check.valid or unwrap == "never" or accept)
     if use_own:
         discard_prestarted()
+        if check.collapsed_faces:  # faces with area whose UVs have none: baked, said so
+            laid, collapsed = bake_collapsed(laid, layout.uv, layout.faces, has_area
+                                             if layout.face is None else has_area[layout.face])
+            samples = layout.to_faces(laid)
+            warnings.append(f"{scene.source}: {collapsed.message()}")
         keys, faces = split_corners(scene.faces, scene.faces_uv)
         atlas = Atlas(scene.vertices[keys[:, 0]], scene.vertex_normals[keys[:, 0]], faces,
                       scene.uv[keys[:, 1]], None, keys[:, 0], new=False, materials=scene.materials,

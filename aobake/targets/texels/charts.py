@@ -283,6 +283,178 @@ def _cap_share(area, faces) -> float:
     return float(per_chart[per_chart >= CAP_FULL * CHART_FACES].sum()) / total if total else 0.0
 
 
+def collapsed_faces(uv, faces, face_chart, face_uv_area=None) -> np.ndarray:
+    """(f,) bool the faces of UV islands without UV area: in an xatlas atlas, the faces it
+    charted nowhere (``attach_collapsed``).  uv (m, 2), faces (f, 3), face_chart (f,);
+    face_uv_area: ``uv_face_areas(uv, faces)`` when already made."""
+    if face_uv_area is None:
+        face_uv_area = uv_face_areas(uv, faces)
+    n_charts = int(face_chart.max()) + 1 if len(face_chart) else 0
+    return np.bincount(face_chart, face_uv_area, n_charts)[face_chart] == 0
+
+
+def _plane_frame(p: np.ndarray) -> np.ndarray:
+    """(3, 2) float64 the corners p (3, 3) of a triangle with area in an orthonormal frame
+    of its plane: x along its longest edge from that edge's first corner."""
+    k = int(np.argmax(np.linalg.norm(p - np.roll(p, -1, axis=0), axis=1)))
+    p = np.roll(p, -k, axis=0)
+    e1 = p[1] - p[0]
+    e1 /= np.linalg.norm(e1)
+    n = np.cross(p[1] - p[0], p[2] - p[0])
+    e2 = np.cross(n / np.linalg.norm(n), e1)
+    flat = np.stack([(p - p[0]) @ e1, (p - p[0]) @ e2], axis=1)
+    return np.roll(flat, k, axis=0)
+
+
+def attach_collapsed(positions, face_area, vmapping, faces, uv, face_chart, face_uv_area=None):
+    """The faces xatlas charts nowhere, placed in a neighbour's chart.
+
+    xatlas leaves out of its charts every face it will not flatten: one whose float32 area
+    is at most FLT_EPSILON in its units (here the part's area-weighted mean triangle area,
+    ``chart_mesh``: a triangle below 1.2e-7 of it, such as the tiny triangles of a finely
+    tessellated spot or a short sliver), one with an edge of float32 length 0, and one of
+    no area at all (the ogre has four: three corners on one line, at T-junctions).  It hands them back at UV (0, 0), every corner,
+    sharing vertices only among themselves.  Packed as they came, each was a chart of one
+    point: a texel reserved for it that no sample reaches (no UV area), outside every
+    chart, so a lookup on the face read whatever the gutter was filled with (the ogre's
+    four zero-area faces at 1024^2, 64 rays: 0.81, 0.84, 0.00 and 0.78 where their
+    neighbours read 0.18, 0.22, 0.09 and 0.17; now 0.21, 0.23, 0.07 and 0.15 against 0.20, 0.23,
+    0.07 and 0.15).
+
+    Each such face now joins the chart that holds most of its corners (a vertex of the
+    chart at the same welded position; the first chart on a tie), taking that chart's
+    vertices there (copied when the chart's vertex is another input vertex at that place,
+    so ``vmapping[faces]`` stays the input faces).  A corner the chart lacks gets the UV
+    that the 3-D -> UV map of the chart's largest face at another of its corners gives it
+    (the affine map of that face, least squares in its plane).  So the face's UV triangle
+    lies in its neighbours' parameterisation, packing marks its texels with the chart's
+    (``packing._chart_masks`` marks a triangle of no UV area along its segment), and its
+    lookups read the texels of the surface around it.  A face that touches no chart yet
+    waits for its neighbours to attach (their new vertices count); one that touches none
+    at all and has surface area starts a chart of its own, flat in its plane (scaled to
+    its area like every chart: a fraction of a texel, whose texel the rasteriser's
+    fallback sample gives its value), which the faces around it then join.  A face of no
+    area that touches no chart keeps its point.
+
+    positions : (v, 3) float64 input positions; face_area : (f,) float64 their areas;
+    vmapping (m,) int64, faces (f, 3) int64, uv (m, 2) float64, face_chart (f,) int64 as
+    in ``chart_mesh``; face_uv_area: ``uv_face_areas(uv, faces)`` when already made.
+    Returns (vmapping, faces, uv, face_chart), vertices no face uses dropped and charts
+    numbered in order of their first face; the inputs themselves when no face is collapsed.
+    """
+    collapsed = collapsed_faces(uv, faces, face_chart, face_uv_area)
+    if not collapsed.any():
+        return vmapping, faces, uv, face_chart
+    positions = np.asarray(positions, dtype=np.float64)
+    faces, face_chart = faces.copy(), face_chart.copy()
+    # The places (exact positions) of the collapsed faces' corners, and the input vertices
+    # at them: only those are looked up (welding the whole mesh cost the ogre 30 ms).
+    spots = np.unique(positions[vmapping[faces[collapsed]]].reshape(-1, 3), axis=0)
+    label = {tuple(p): i for i, p in enumerate(spots.tolist())}
+    near = np.flatnonzero(np.isin(positions[:, 0], spots[:, 0]))
+    place = {int(v): label[tuple(p)] for v, p in zip(near.tolist(), positions[near].tolist())
+             if tuple(p) in label}  # input vertex -> its place
+    # where those places are in the charts: place -> chart -> vertices, and each such
+    # vertex's charted faces (for its 3-D -> UV map)
+    charted = np.flatnonzero(~collapsed)
+    at_place = np.zeros(len(positions), dtype=bool)
+    at_place[list(place)] = True
+    corner_v = faces[charted].reshape(-1)
+    keep = at_place[vmapping[corner_v]]
+    corner_v, corner_f = corner_v[keep], np.repeat(charted, 3)[keep]
+    at: dict = {}
+    faces_at: dict = {}
+    for v, f in sorted(zip(corner_v.tolist(), corner_f.tolist())):
+        by_chart = at.setdefault(place[int(vmapping[v])], {}).setdefault(int(face_chart[f]), [])
+        if not by_chart or by_chart[-1] != v:
+            by_chart.append(v)
+        faces_at.setdefault(v, []).append(f)
+    m = len(vmapping)
+    extra_vm, extra_uv = [], []  # vertices added after the m of xatlas
+
+    def source_of(v):
+        return int(vmapping[v]) if v < m else extra_vm[v - m]
+
+    def uv_of(v):
+        return uv[v] if v < m else extra_uv[v - m]
+
+    maps: dict = {}  # vertex -> (2, 3) its chart's 3-D -> UV map near it
+
+    def uv_map(v):
+        if v not in maps:
+            f = max(faces_at[v], key=lambda g: (face_area[g], -g))
+            x = positions[[source_of(i) for i in faces[f]]]
+            t = np.array([uv_of(i) for i in faces[f]])
+            e, d = (x[1:] - x[0]).T, (t[1:] - t[0]).T  # (3, 2), (2, 2)
+            maps[v] = d @ np.linalg.pinv(e)
+        return maps[v]
+
+    def add(source, where, chart, jacobian):
+        extra_vm.append(int(source))
+        extra_uv.append(np.asarray(where, dtype=np.float64))
+        v = m + len(extra_vm) - 1
+        at.setdefault(place[int(source)], {}).setdefault(chart, []).append(v)
+        if jacobian is not None:
+            maps[v] = jacobian
+        return v
+
+    n_charts = int(face_chart.max()) + 1
+    pending = np.flatnonzero(collapsed).tolist()
+    while pending:
+        left = []
+        for f in pending:
+            source = [source_of(v) for v in faces[f]]
+            spot = [at.get(place[s], {}) for s in source]
+            votes: dict = {}
+            for charts_there in spot:
+                for chart in charts_there:
+                    votes[chart] = votes.get(chart, 0) + 1
+            if not votes:
+                left.append(f)
+                continue
+            host = min(votes, key=lambda c: (-votes[c], c))
+            corners = [None] * 3
+            for j in range(3):
+                if host in spot[j]:
+                    there = spot[j][host]
+                    same = [v for v in there if source_of(v) == source[j]]
+                    corners[j] = same[0] if same else add(source[j], uv_of(there[0]), host,
+                                                          uv_map(there[0]))
+            ref = next(j for j in range(3) if corners[j] is not None)
+            for j in range(3):
+                if corners[j] is None:
+                    jac = uv_map(corners[ref])
+                    where = uv_of(corners[ref]) + jac @ (positions[source[j]]
+                                                         - positions[source[ref]])
+                    corners[j] = add(source[j], where, host, jac)
+            faces[f] = corners
+            face_chart[f] = host
+        if len(left) == len(pending):  # nothing attached: a face with area starts a chart
+            first = next((f for f in left if face_area[f] > 0), None)
+            if first is None:
+                break  # faces of no area, touching no chart: they keep their point
+            source = [source_of(v) for v in faces[first]]
+            flat = _plane_frame(positions[source])
+            corners = [add(s, t, n_charts, None) for s, t in zip(source, flat)]
+            faces[first], face_chart[first] = corners, n_charts
+            for v in corners:
+                faces_at[v] = [first]  # its map, when asked, is the face's own
+            n_charts += 1
+            left.remove(first)
+        pending = left
+    vmapping = np.concatenate([vmapping, np.array(extra_vm, dtype=np.int64)])
+    uv = np.concatenate([uv, np.array(extra_uv, dtype=np.float64).reshape(-1, 2)])
+    used = distinct(faces, len(vmapping))
+    renumber = np.full(len(vmapping), -1, dtype=np.int64)
+    renumber[used] = np.arange(len(used))
+    _, first, inverse = np.unique(face_chart, return_index=True, return_inverse=True)
+    rank = np.empty(len(first), np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(len(first))
+    log.debug("%d faces xatlas charted nowhere placed in a neighbour's chart (%d vertices "
+              "added)", int(np.count_nonzero(collapsed)), len(extra_vm))
+    return vmapping[used], renumber[faces], uv[used], rank[inverse.ravel()]
+
+
 def chart_mesh(positions, faces, max_chart_faces: float = CHART_FACES):
     """Chart the mesh with xatlas; each chart's UVs at one texel per normalised unit.
 
@@ -350,11 +522,18 @@ def chart_mesh(positions, faces, max_chart_faces: float = CHART_FACES):
     uv = np.concatenate(uv_list)
     # xatlas never shares a vertex between charts: its charts are the UV islands.
     face_chart = connected_labels(len(uv), new_faces)
+    # ... but for the faces it charts nowhere, all at UV (0, 0): they join a neighbour's chart
+    face_uv_area = uv_face_areas(uv, new_faces)
+    attached = attach_collapsed(V, face_area, vmapping, new_faces, uv, face_chart, face_uv_area)
+    if attached[1] is not new_faces:
+        vmapping, new_faces, uv, face_chart = attached
+        face_uv_area = uv_face_areas(uv, new_faces)
     n_charts = int(face_chart.max()) + 1
     # Each chart scaled (about the origin; packing moves it) so its UV area is its surface
     # area: the parts' own scales and xatlas's rounding to whole texels leave no trace in
-    # the texel density.  A chart with no UV area keeps its UVs (it covers no texel).
-    uv_area = np.bincount(face_chart, uv_face_areas(uv, new_faces), n_charts)
+    # the texel density.  A chart with no UV area keeps its UVs (it covers no texel: only
+    # faces of no surface area that no chart could take, ``attach_collapsed``).
+    uv_area = np.bincount(face_chart, face_uv_area, n_charts)
     surface = np.bincount(face_chart, face_area, n_charts)
     factor = np.where(uv_area > 0, np.sqrt(surface / np.where(uv_area > 0, uv_area, 1.0)), 1.0)
     uv *= factor[vertex_charts(len(uv), new_faces, face_chart), None]

@@ -15,6 +15,14 @@ face wider or taller than one tile would cover texels twice: such UVs are not wr
 and are rejected as out of range (a new atlas).  After wrapping, overlap is measured as
 for any layout (texel centres covered twice), so tiling UVs (a floor repeating a texture
 ten times) still get a new atlas.
+
+Collapsed faces.  A face with surface area whose own UVs have none (its corners at one
+point, or on one line) gets no texel of its own: it reads the texels at its point.  Such UVs
+are baked all the same (collapsing hidden faces' UVs to a point is a common way to save
+texture space; a warning names the count, ``bake_collapsed``): where the point is on the
+surface's texels the face reads them; where it is off every chart, clear of them, the
+texel at the point is baked with the faces collapsed there (a fallback sample each, at its
+centroid), so its lookups read its own surface rather than a gutter's fill.
 """
 
 from __future__ import annotations
@@ -23,7 +31,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from aobake.targets.texels.raster import TexelSamples, _check_uv_faces, rasterize
+from aobake.targets.texels.raster import (FALLBACK_COVERAGE_FRACTION, TexelSamples,
+                                         _check_uv_faces, rasterize)
 from aobake.vectors import distinct, unique_ints
 
 #: A UV triangle with |area| below this (in uv units, i.e. as a fraction of the
@@ -62,6 +71,9 @@ class UVCheck:
     bakeable : bool
         Valid but for the overlap: wrappable and covering something (``--uv-overlap
         average`` bakes such UVs as they are).
+    collapsed_faces : int | None
+        Degenerate faces (above) that have surface area: their UVs collapse to a point or a
+        line (module docstring); None when the surface was not given.
     """
 
     valid: bool
@@ -74,6 +86,7 @@ class UVCheck:
     split_faces: int = 0
     oversized_faces: int = 0
     bakeable: bool = False
+    collapsed_faces: int | None = None
 
 
 @dataclass(frozen=True)
@@ -208,7 +221,7 @@ def _signed_uv_area(uv: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def check_uvs(uv, faces, width: int, height: int, shared: np.ndarray | None = None,
-              layout: WrappedUVs | None = None) -> UVCheck:
+              layout: WrappedUVs | None = None, has_area: np.ndarray | None = None) -> UVCheck:
     """Check whether a mesh's own UVs can be baked into a width x height image.
 
     uv : (n, 2) float, OBJ convention; faces : (f, 3) int.
@@ -219,6 +232,8 @@ def check_uvs(uv, faces, width: int, height: int, shared: np.ndarray | None = No
         ``layout`` that was already made (any K: the centre counts do not depend
         on it), which saves rasterising again.
     layout : ``wrap_uvs(uv, faces)`` when already made.
+    has_area : (f,) bool the faces with surface area (``seams.degenerate_faces`` negated),
+        or None: ``collapsed_faces`` counts the degenerate ones among them.
     """
     uv, faces = _check_uv_faces(uv, faces, width, height)
     if layout is None:
@@ -262,8 +277,15 @@ def check_uvs(uv, faces, width: int, height: int, shared: np.ndarray | None = No
         parts.append(f"{overlapping} texels are covered by more than one face")
     if mirrored:
         parts.append(f"{mirrored} faces are mirrored in UV")
+    collapsed = None
+    if has_area is not None:
+        has_area = np.asarray(has_area, dtype=bool)
+        if has_area.shape != (len(faces),):
+            raise ValueError(f"has_area must be ({len(faces)},), got {has_area.shape}")
+        collapsed = int(np.count_nonzero(degenerate & has_area))
     if n_degenerate:
-        parts.append(f"{n_degenerate} faces have zero UV area")
+        parts.append(f"{n_degenerate} faces have zero UV area" + (
+            f" ({collapsed} of them with surface area)" if collapsed else ""))
     if empty:
         parts.append(f"the UVs cover {covered} texel centres of {width}x{height}")
     head = "UVs usable for baking" if valid else "UVs not usable for baking"
@@ -279,4 +301,87 @@ def check_uvs(uv, faces, width: int, height: int, shared: np.ndarray | None = No
         split_faces=layout.split_faces,
         oversized_faces=layout.oversized_faces,
         bakeable=wrappable and not empty,
+        collapsed_faces=collapsed,
     )
+
+
+@dataclass(frozen=True)
+class Collapsed:
+    """What ``bake_collapsed`` did with the faces whose UVs collapse (module docstring).
+
+    faces : int        faces with surface area and no UV area (in the layout baked)
+    on_surface : int   of them, at a point on a texel the surface covers: they read it
+    baked : int        at a point off every chart, its texel and the 8 around it uncovered:
+                       that texel baked with their own surface (a fallback sample each)
+    gutter : int       the rest (off every chart but next to one, or outside the image):
+                       they read the gutter's fill there
+    """
+
+    faces: int = 0
+    on_surface: int = 0
+    baked: int = 0
+    gutter: int = 0
+
+    def message(self) -> str:
+        """One line for the warning: the count and what each part reads."""
+        parts = [(self.on_surface, "lie on other faces' texels and read them"),
+                 (self.baked, "off every chart, had the texel at their point baked with "
+                              "their own surface"),
+                 (self.gutter, "read the gutter where they lie, next to a chart or outside "
+                               "the image")]
+        return (f"{self.faces} faces with surface area have UVs collapsed to a point or a line "
+                "(no texel of their own): "
+                + "; ".join(f"{n} {what}" for n, what in parts if n))
+
+
+def bake_collapsed(samples: TexelSamples, uv, faces, has_area) -> tuple[TexelSamples, Collapsed]:
+    """Fallback samples for the collapsed faces off every chart (module docstring).
+
+    samples : a rasterisation of ``uv`` (n, 2), ``faces`` (f, 3) (the layout baked, e.g.
+    ``WrappedUVs.uv`` / ``.faces``, before ``to_faces``); has_area : (f,) bool the faces
+    with surface area.  A face with |UV area| < DEGENERATE_UV_AREA and surface area has its
+    point at its UV centroid; where that point's texel and the 8 around it hold no sample,
+    the texel gets one fallback sample per face there (sample 0, barycentrics 1/3, sorted
+    by face; coverage FALLBACK_COVERAGE_FRACTION / K, as the rasteriser's): no chart's
+    lookup reads that texel, so it can hold their value.  Returns (samples, counts); the
+    samples unchanged when no face is baked.
+    """
+    uv, faces = _check_uv_faces(uv, faces, samples.width, samples.height)
+    has_area = np.asarray(has_area, dtype=bool)
+    area = _signed_uv_area(uv, faces)
+    collapsed = np.flatnonzero(has_area & ~(np.abs(area) >= DEGENERATE_UV_AREA))
+    if not len(collapsed):
+        return samples, Collapsed()
+    width, height = samples.width, samples.height
+    point = uv[faces[collapsed]].mean(axis=1)
+    x, y = point[:, 0] * width, (1.0 - point[:, 1]) * height
+    inside = np.isfinite(x) & np.isfinite(y) & (x >= 0) & (x <= width) & (y >= 0) & (y <= height)
+    col = np.clip(np.floor(np.where(inside, x, 0.0)), 0, width - 1).astype(np.int64)
+    row = np.clip(np.floor(np.where(inside, y, 0.0)), 0, height - 1).astype(np.int64)
+    covered = samples.coverage > 0
+    on_surface = inside & covered[row, col]
+    padded = np.zeros((height + 2, width + 2), dtype=bool)
+    padded[1:-1, 1:-1] = covered
+    near = np.zeros(len(collapsed), dtype=bool)
+    for dr in (0, 1, 2):
+        for dc in (0, 1, 2):
+            near |= padded[row + dr, col + dc]
+    bake = inside & ~near
+    n_surface, n_baked = int(np.count_nonzero(on_surface)), int(np.count_nonzero(bake))
+    counts = Collapsed(len(collapsed), n_surface, n_baked, len(collapsed) - n_surface - n_baked)
+    if not bake.any():
+        return samples, counts
+    new_face, new_texel = collapsed[bake], (row * width + col)[bake]
+    order = np.lexsort((new_face, new_texel))  # by texel, then face
+    new_face, new_texel = new_face[order], new_texel[order]
+    # these texels hold no sample: each goes where a stable sort by texel would put it
+    at = np.searchsorted(samples.texel, new_texel)
+    coverage = samples.coverage.copy()
+    coverage.reshape(-1)[new_texel] = FALLBACK_COVERAGE_FRACTION / samples.texel_samples
+    third = np.full((len(new_face), 3), 1.0 / 3.0)
+    return replace(samples, texel=np.insert(samples.texel, at, new_texel),
+                   face=np.insert(samples.face, at, new_face),
+                   bary=np.insert(samples.bary, at, third, axis=0),
+                   sample=np.insert(samples.sample, at, 0),
+                   is_fallback=np.insert(samples.is_fallback, at, True),
+                   coverage=coverage), counts
