@@ -27,8 +27,8 @@ _WHERE = {
     "AobakeError": "aobake.errors", "InputError": "aobake.errors",
     "OutputError": "aobake.errors", "UsageError": "aobake.errors",
     "write": "aobake.outputs",
-    "BakeResult": "aobake.results", "TexelResult": "aobake.results",
-    "ViewResult": "aobake.results",
+    "BakeResult": "aobake.records", "TexelResult": "aobake.records",
+    "ViewResult": "aobake.records",
     "Scene": "aobake.scene", "load_scene": "aobake.scene",
 }
 

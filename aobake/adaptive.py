@@ -43,7 +43,7 @@ from statistics import NormalDist
 import numpy as np
 
 from aobake import stats
-from aobake.estimates import Estimates
+from aobake.records import Estimates
 from aobake.samplers import REPLICATES, sample_set
 
 log = logging.getLogger(__name__)

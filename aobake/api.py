@@ -27,7 +27,7 @@ from aobake.config import BakeConfig
 from aobake.errors import InputError
 from aobake.executors import EXECUTORS, Job
 from aobake.methods import METHODS
-from aobake.results import BakeResult, TexelResult, ViewResult
+from aobake.records import BakeResult, TexelResult, ViewResult
 from aobake.scene import load_scene
 from aobake.targets import TARGETS
 from aobake.trace import DEFAULT_CHUNK_RAYS, default_threads
@@ -346,7 +346,7 @@ def bake_view(mesh, config: BakeConfig | None = None, *, camera=None, look=None,
               chunk_rays: int = DEFAULT_CHUNK_RAYS,
               progress: Callable[[int, int], None] | None = None, **options) -> ViewResult:
     """A camera view of ``mesh``: the G-buffer and the method's values at every pixel's first
-    hit (``aobake view``; see ``aobake.targets.camera``).
+    hit (``aobake view``; see ``aobake.targets.view``).
 
     camera : ``aobake.camera.Camera``, or look : dict(look_from, look_at, up, fov), or gltf :
     (path, camera name | None); none of them: a three-quarter view framing the scene.

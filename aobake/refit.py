@@ -32,7 +32,7 @@ from aobake.config import BakeConfig, parse_distance
 from aobake.errors import InputError
 from aobake.outputs.npz import RAY_MISS, decode_ray_distances
 from aobake.quantities import QUANTITIES, Traced
-from aobake.results import BakeResult
+from aobake.records import BakeResult
 from aobake.samplers import sample_set
 
 log = logging.getLogger(__name__)

@@ -57,7 +57,7 @@ def error_summary(quantities, values: dict, rays: np.ndarray) -> dict:
 def build(target: str, scene, config, record: dict, method, done, *, wall: float, threads: int,
           chunk_rays: int, warnings: list, kernels: dict, executor: dict) -> dict:
     """The report dict of one bake, from the method's record (``method.record(estimates)``:
-    its ``parameters``) and the target's (``done``: a ``targets.base.Finished``);
+    its ``parameters``) and the target's (``done``: a ``records.Finished``);
     ``kernels``: stage -> compiled? (``_native.used``)."""
     parameters = dict(record["parameters"])
     parameters["kernels"] = _native.used(kernels)

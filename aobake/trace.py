@@ -26,7 +26,7 @@ from aobake.offsets import point_offsets  # noqa: F401  (aobake.trace.point_offs
 from aobake.paths import STREAM_BOUNCE, path_values
 from aobake.rng import hash_key
 from aobake.samplers.base import inward_key, replicate_keys, sample_hashes
-from aobake.estimates import Estimates
+from aobake.records import Estimates
 from aobake.quantities import QUANTITIES, Traced
 from aobake.rays import RayGenerator
 from aobake.samplers import sample_set

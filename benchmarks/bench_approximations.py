@@ -72,7 +72,7 @@ from aobake.config import BakeConfig  # noqa: E402
 from aobake.methods import METHODS  # noqa: E402
 from aobake.methods.discs import DiscsMethod, DiscsOptions  # noqa: E402
 from aobake.scene import load_scene  # noqa: E402
-from aobake.targets.base import SamplePoints  # noqa: E402
+from aobake.records import SamplePoints  # noqa: E402
 from aobake.trace import DEFAULT_CHUNK_RAYS  # noqa: E402
 from aobake.vectors import defined  # noqa: E402
 

@@ -38,7 +38,7 @@ import aobake  # noqa: E402
 from aobake.config import BakeConfig  # noqa: E402
 from aobake.methods.discs import DiscsMethod, DiscsOptions, elements  # noqa: E402
 from aobake.scene import load_scene  # noqa: E402
-from aobake.targets.base import SamplePoints  # noqa: E402
+from aobake.records import SamplePoints  # noqa: E402
 from aobake.targets.vertices import VertexTarget  # noqa: E402
 from aobake.vectors import defined  # noqa: E402
 

@@ -65,7 +65,7 @@ def sweep(low, high, threads: int) -> list:
 def render(scene, shade, size=(480, 480), up_axis="y"):
     """(H, W, 3) float image of ``scene`` from the default three-quarter camera, white where
     no surface: ``shade(prim (k,), bary (k, 3), normal (k, 3)) -> (k, 3)`` colours the hits."""
-    from aobake.targets.camera import _on_triangle
+    from aobake.hits import on_triangle
 
     lo, hi = scene.bounds
     from aobake import camera as cameras
@@ -77,7 +77,7 @@ def render(scene, shade, size=(480, 480), up_axis="y"):
     hit = prim >= 0
     image = np.ones((len(t), 3))
     points = origins[hit] + t[hit, None] * directions[hit]
-    _, bary = _on_triangle(scene, prim[hit], points)
+    _, bary = on_triangle(scene, prim[hit], points)
     normal = scene.face_normals[prim[hit]]
     image[hit] = shade(prim[hit], bary, normal)
     return image.reshape(cam.height, cam.width, 3)

@@ -134,7 +134,7 @@ def test_cut_items_are_base_items():
     from dataclasses import fields
 
     from aobake.executors.base import Job, items
-    from aobake.targets.base import SamplePoints
+    from aobake.records import SamplePoints
 
     n = 10
     plan = SamplePoints(np.random.default_rng(0).random((n, 3)), np.ones((n, 3)),

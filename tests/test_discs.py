@@ -22,7 +22,7 @@ from aobake.methods import METHODS
 from aobake.methods.discs import (HIERARCHY_RMSE, NO_INFORMATION_AO, DiscsMethod, DiscsOptions,
                                   chapter_shadow, elements, lecture_shadow)
 from aobake.scene import Scene, load_scene
-from aobake.targets.base import SamplePoints
+from aobake.records import SamplePoints
 from aobake.vectors import normalize
 
 EPS = np.finfo(np.float64).eps
@@ -398,7 +398,7 @@ def test_pass_two_is_never_darker_than_pass_one():
     from aobake.config import BakeConfig
     from aobake.methods.discs import DiscsMethod
     from aobake.scene import load_scene
-    from aobake.targets.base import SamplePoints
+    from aobake.records import SamplePoints
 
     scene = load_scene(_small_mesh())
     config = BakeConfig(discs_passes=3)

@@ -26,7 +26,7 @@ from aobake.methods.discs import (DEFAULT_INDIRECT_PASSES, DEFAULT_INDIRECT_WEIG
                                   NO_INFORMATION_AO, DiscsMethod, DiscsOptions, elements,
                                   form_factor)
 from aobake.scene import load_scene
-from aobake.targets.base import SamplePoints
+from aobake.records import SamplePoints
 
 EPS = np.finfo(np.float64).eps
 

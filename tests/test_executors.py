@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import aobake
-from aobake.estimates import Estimates, merge
+from aobake.records import Estimates, merge
 from aobake.executors import EXECUTORS
 from aobake.methods import METHODS
 

@@ -33,7 +33,7 @@ from aobake.methods import METHODS, hemicube_cells
 from aobake.methods.hemicube import (NO_INFORMATION_AO, HemicubeError, HemicubeMethod,
                                      HemicubeOptions, available)
 from aobake.scene import load_scene
-from aobake.targets.base import SamplePoints
+from aobake.records import SamplePoints
 from aobake.warp import frames
 
 from analytic import (floor_and_ceiling, floor_points, polygon, polygon_form_factor,
@@ -315,7 +315,7 @@ def test_any_split_gives_the_same_bits_and_zero_normals_say_nothing(gl):
     tiles), reversed (every point in another tile), in two children (threads=2) and split
     in parts, merged by index, are the same bits; a zero normal gets the no-information
     0.5 and is not drawn.  A max distance exercises the per-pixel distance test too."""
-    from aobake.estimates import merge
+    from aobake.records import merge
 
     mesh = trimesh.creation.torus(1.0, 0.4, major_sections=24, minor_sections=12)
     scene = load_scene(mesh)

@@ -198,7 +198,7 @@ def test_lazy_registries_resolve_every_plugin_and_a_vertex_bake_imports_none_it_
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                             check=True).stdout.split()
     for module in ("aobake.targets.texels.target", "aobake.targets.texels.atlas",
-                   "aobake.targets.projected", "aobake.targets.camera", "aobake.methods.ssao",
+                   "aobake.targets.projected", "aobake.targets.view", "aobake.methods.ssao",
                    "aobake.methods.discs", "aobake.methods.hemicube", "aobake.screen.gbuffer",
                    "aobake.camera", "aobake.executors.dask", "aobake.executors.processes",
                    "aobake.compare"):

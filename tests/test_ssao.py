@@ -25,7 +25,7 @@ from aobake.scene import load_scene
 from aobake.screen import crytek, gtao, kernels, refine, shanmugam
 from aobake.screen.gbuffer import CHANNELS, GBuffer, depth_step
 from aobake.screen.options import GtaoOptions, SsaoOptions
-from aobake.targets.camera import CameraTarget
+from aobake.targets.view import ViewTarget
 
 from analytic import combine, quad
 
@@ -66,7 +66,7 @@ def test_gbuffer_handed_to_methods_equals_the_views_channels_bit_for_bit():
     scene = load_scene(mesh)
     config = BakeConfig(rays=8)
     built = occluders.build(scene, config)
-    plan = CameraTarget(cam).sample(scene, config, lambda: built, 1, {}, [])
+    plan = ViewTarget(cam).sample(scene, config, lambda: built, 1, {}, [])
     result = aobake.bake_view(mesh, camera=cam, rays=8)
     assert plan.image is not None and set(plan.image.channels) == set(CHANNELS)
     for name in CHANNELS:

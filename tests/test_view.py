@@ -19,7 +19,7 @@ from aobake import camera as cameras
 from aobake import occluders
 from aobake.config import BakeConfig
 from aobake.scene import load_scene
-from aobake.targets.camera import CameraTarget
+from aobake.targets.view import ViewTarget
 
 from analytic import combine, floor_and_ceiling, polygon_form_factors, quad
 from conftest import run_cli
@@ -100,7 +100,7 @@ def test_pixel_ao_equals_bake_points_at_the_hit_point_with_the_pixel_id():
 
     mesh = combine(trimesh.creation.icosphere(2, 0.5), quad([0, 0, -0.5], 2.0, 2.0))
     config = BakeConfig(rays=32, seed=11, quantities=("ao", "obscurance"))
-    target = CameraTarget(size=(48, 36))
+    target = ViewTarget(size=(48, 36))
     view = aobake.bake_view(mesh, config, size=(48, 36))
     plan = _plan(mesh, target, config)
     points = aobake.bake_points(mesh, plan.points, plan.normals, config, point_ids=plan.ids,

@@ -4,7 +4,7 @@ An executor takes the bake's :class:`Job` (everything a worker needs to rebuild 
 method: the scene, the configuration, the method's name, the rays per point and whether
 the compiled kernels run; all picklable) and the sample points, cuts the points into
 :class:`WorkItem` ranges, has each estimated and merges the results by point index
-(``aobake.estimates.merge``).  Every point's estimate depends on that point alone, so
+(``aobake.records.merge``).  Every point's estimate depends on that point alone, so
 every executor, worker count and split gives the same bits.
 """
 
@@ -53,7 +53,7 @@ class WorkItem:
 
     def sample_points(self):
         """The item's points as ``SamplePoints``."""
-        from aobake.targets.base import SamplePoints
+        from aobake.records import SamplePoints
 
         return SamplePoints(self.points, self.normals, self.ids, sizes=self.sizes,
                             faces=self.faces, bary=self.bary, image=self.image)

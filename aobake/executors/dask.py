@@ -49,7 +49,7 @@ from dataclasses import replace
 import numpy as np
 
 from aobake.errors import AobakeError, InputError
-from aobake.estimates import merge
+from aobake.records import merge
 from aobake.executors import worker
 from aobake.executors.base import items
 

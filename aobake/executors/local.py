@@ -8,7 +8,7 @@ import os
 
 import numpy as np
 
-from aobake.estimates import merge
+from aobake.records import merge
 from aobake.executors.base import items
 
 

@@ -9,7 +9,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
 import numpy as np
 
-from aobake.estimates import merge
+from aobake.records import merge
 from aobake.executors import worker
 from aobake.executors.base import items
 

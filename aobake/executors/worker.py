@@ -11,7 +11,7 @@ from __future__ import annotations
 import contextlib
 
 from aobake import _native
-from aobake.estimates import Estimates
+from aobake.records import Estimates
 
 #: job key -> (Job, prepared method); a worker holds the jobs it was given
 _CACHE: dict = {}

@@ -15,7 +15,7 @@ from __future__ import annotations
 from typing import Callable, Protocol
 
 from aobake.errors import InputError
-from aobake.estimates import Estimates, merge  # noqa: F401  (the type every method returns)
+from aobake.records import Estimates, merge  # noqa: F401  (the type every method returns)
 
 
 def refuse_ray_settings(name: str, config) -> None:

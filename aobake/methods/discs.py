@@ -72,7 +72,7 @@ from dataclasses import asdict
 import numpy as np
 
 from aobake.errors import InputError
-from aobake.estimates import Estimates
+from aobake.records import Estimates
 from aobake.methods import discs_tree
 from aobake.methods.base import refuse_ray_settings
 # the settings record and its constants live apart (read by every config), re-exported here

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from aobake.errors import InputError
-from aobake.estimates import Estimates
+from aobake.records import Estimates
 from aobake.options import setting
 from aobake.vectors import defined
 

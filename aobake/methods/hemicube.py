@@ -47,7 +47,7 @@ import numpy as np
 from aobake import child
 from aobake.constants import OFFSET_ULPS
 from aobake.errors import AobakeError, InputError
-from aobake.estimates import Estimates
+from aobake.records import Estimates
 from aobake.methods.base import refuse_ray_settings
 # the settings record and its limits live apart (read by every config), re-exported here
 from aobake.methods.hemicube_options import (DEFAULT_RESOLUTION, MAX_RESOLUTION,  # noqa: F401

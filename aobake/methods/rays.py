@@ -14,7 +14,7 @@ import numpy as np
 
 from aobake import adaptive
 from aobake.errors import InputError
-from aobake.estimates import Estimates
+from aobake.records import Estimates
 from aobake.trace import Tracer
 
 #: the most bytes of kept ray distances a bake may hold (float32: 4 bytes per ray)

@@ -20,7 +20,7 @@ import numpy as np
 
 from aobake.errors import InputError
 from aobake.methods.base import refuse_ray_settings
-from aobake.estimates import Estimates
+from aobake.records import Estimates
 from aobake.screen import crytek, gbuffer, gtao, heightfield, refine, shanmugam
 from aobake.screen.options import CrytekOptions, GtaoOptions, HeightfieldOptions, SsaoOptions
 

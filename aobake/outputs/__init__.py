@@ -203,7 +203,7 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
 def _check_write_arguments(result, out, mesh_out, report, half, bit_depth, r_only) -> None:
     """InputError naming the argument for anything ``write`` cannot take."""
     from aobake.errors import InputError
-    from aobake.results import BakeResult, ImageResult
+    from aobake.records import BakeResult, ImageResult
 
     if not isinstance(result, (BakeResult, ImageResult)):
         raise InputError(f"write: result must be a bake's result (BakeResult, TexelResult or "

@@ -1,7 +1,7 @@
 """Output formats: (result kind, file extension) -> writer, the one table the CLI,
 ``aobake.write`` and the README's output table read.
 
-Two kinds of result (``aobake.results``): ``points`` (BakeResult: per vertex or query
+Two kinds of result (``aobake.records``): ``points`` (BakeResult: per vertex or query
 point) and ``image`` (ImageResult: lightmap texels, TexelResult, and camera pixels,
 ViewResult, share it).  A writer serves one kind, and the targets listed in its
 ``targets`` (a lightmap GLB needs the atlas a view does not have).

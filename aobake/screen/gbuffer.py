@@ -1,7 +1,7 @@
 """The G-buffer a screen-space method reads, as a renderer would hand it over.
 
 ``GBuffer`` holds exactly the camera target's G-buffer channels (float32 (H, W), row 0 =
-top; ``aobake.targets.camera.GBUFFER``, docs/conventions.md "Camera views") that a
+top; ``aobake.targets.view.GBUFFER``, docs/conventions.md "Camera views") that a
 screen-space method may read: ``coverage``, the linear view ``depth``, the three hardware
 depths (``hwdepth_gl``, ``hwdepth_d3d``, ``hwdepth_reversed``), the view-space geometric
 normal ``Ng`` and shading normal ``N``, and the camera (``aobake.camera.Camera``, with
@@ -110,7 +110,7 @@ class GBuffer:
                   ng: np.ndarray, ns: np.ndarray) -> "GBuffer":
         """The G-buffer of a view whose covered pixels ``index`` (k,) int64 (r * W + c) hit
         world ``points`` (k, 3) float64 with geometric and shading normals ``ng``, ``ns``
-        (k, 3) float64 facing the eye: the arithmetic of ``CameraTarget.finish``, so every
+        (k, 3) float64 facing the eye: the arithmetic of ``ViewTarget.finish``, so every
         channel equals the view's output bit for bit."""
         h, w = cam.height, cam.width
         n = h * w

@@ -14,13 +14,13 @@ TARGETS = LazyRegistry({
     "vertices": "aobake.targets.vertices:VertexTarget",
     "texels": "aobake.targets.texels.target:TexelTarget",
     "points": "aobake.targets.points:PointsTarget",
-    "view": "aobake.targets.camera:CameraTarget",
+    "view": "aobake.targets.view:ViewTarget",
     "projected_texels": "aobake.targets.projected:ProjectedTexelTarget",
     "projected_vertices": "aobake.targets.projected:ProjectedVertexTarget"})
 CLI_TARGETS = ("vertices", "texels")
 
 __getattr__ = lazy_attributes(__name__, {
     "VertexTarget": "aobake.targets.vertices", "TexelTarget": "aobake.targets.texels.target",
-    "PointsTarget": "aobake.targets.points", "CameraTarget": "aobake.targets.camera",
+    "PointsTarget": "aobake.targets.points", "ViewTarget": "aobake.targets.view",
     "ProjectedTexelTarget": "aobake.targets.projected",
     "ProjectedVertexTarget": "aobake.targets.projected"})

@@ -6,8 +6,7 @@ import numpy as np
 
 from aobake.errors import InputError
 
-from aobake.results import BakeResult
-from aobake.targets.base import Finished, SamplePoints
+from aobake.records import BakeResult, Finished, SamplePoints
 from aobake.vectors import check_rows, normalize
 
 

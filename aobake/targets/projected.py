@@ -36,9 +36,9 @@ import numpy as np
 from aobake import _native
 from aobake.errors import InputError
 from aobake.groups import dark_warning
-from aobake.results import BakeResult, TexelResult
+from aobake.records import BakeResult, TexelResult
 from aobake.scene import ExtraOccluder, Scene, load_scene
-from aobake.targets.base import Finished, SamplePoints
+from aobake.records import Finished, SamplePoints
 from aobake.targets.projected_cage import (Cage, Projection, mesh_cage, offset_cage,
                                            parse_offset, project)
 from aobake.targets.texels import TexelTarget

@@ -166,7 +166,7 @@ def project(occluders, high, low_points: np.ndarray, cage_points: np.ndarray,
     the faces that may receive), or None.  threads : chunks traced at once (the result does
     not depend on it).
     """
-    from aobake.targets.camera import _on_triangle, _shading
+    from aobake.hits import on_triangle, shading_normals
 
     built = receivers if receivers is not None else occluders
     faces_of = getattr(built, "faces", None)  # a backend over a subset of the faces
@@ -217,11 +217,11 @@ def project(occluders, high, low_points: np.ndarray, cage_points: np.ndarray,
         # Embree's hit (float32, in the local frame) put back on its triangle in float64, as
         # the camera target does with its first hits.
         rough = c + (t.astype(np.float64) / built.scale)[:, None] * u
-        on, b = _on_triangle(high, found, rough)
+        on, b = on_triangle(high, found, rough)
         points[index], bary[index] = on, b
         ng = high.face_normals[found]
         back[index] = np.einsum("ij,ij->i", ng, u) > 0
-        normals[index] = _shading(high, found, b, ng)
+        normals[index] = shading_normals(high, found, b, ng)
         # The height above the low surface: L minus how far along the ray the point lies.
         distance[index] = length[where] - np.einsum("ij,ij->i", on - c, u)
 

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aobake.results import BakeResult
-from aobake.targets.base import Finished, SamplePoints
+from aobake.records import BakeResult, Finished, SamplePoints
 from aobake.vectors import defined
 
 

@@ -10,8 +10,7 @@ import numpy as np
 
 from aobake import _native
 from aobake.errors import InputError
-from aobake.results import TexelResult
-from aobake.targets.base import Finished, SamplePoints
+from aobake.records import Finished, SamplePoints, TexelResult
 from aobake.targets.texels.atlas import check_texture_budget, make_atlas, split_corners
 from aobake.targets.texels.charts import chart_texel_density
 from aobake.targets.texels.denoise import CREASE_ANGLE, RANGE_K, SIGMA_TEXELS

@@ -24,8 +24,8 @@ from aobake import camera as cameras
 from aobake.constants import AXES
 from aobake.errors import InputError
 from aobake.quantities import FIELDS
-from aobake.results import ViewResult
-from aobake.targets.base import Finished, SamplePoints
+from aobake.hits import on_triangle, shading_normals
+from aobake.records import Finished, SamplePoints, ViewResult
 
 #: the G-buffer channels, in the EXR's order (the method's fields follow)
 GBUFFER = ("coverage", "depth", "distance", "hwdepth_gl", "hwdepth_d3d", "hwdepth_reversed",
@@ -40,7 +40,7 @@ EXACT_IDS = 1 << 24
 INSIDE_FRACTION = 0.5
 
 
-class CameraTarget:
+class ViewTarget:
     """The pixels of one camera.
 
     camera : ``aobake.camera.Camera`` | None (None: ``default_camera`` framing the scene),
@@ -107,7 +107,7 @@ class CameraTarget:
         points = origins[index] + t[index, None] * directions[index]
         bary = None
         if mesh.any():
-            points[mesh], bary = _on_triangle(scene, prim[index][mesh], points[mesh])
+            points[mesh], bary = on_triangle(scene, prim[index][mesh], points[mesh])
         if (~mesh).any():
             points[~mesh, AXES.index(config.up_axis)] = built.ground["height"]
         # Geometric normal: the hit triangle's (the ground plane's up axis), turned to the eye.
@@ -121,7 +121,7 @@ class CameraTarget:
         # Shading normal: the vertex normals interpolated at the hit, on the side the eye sees.
         ns = ng.copy()
         if mesh.any():
-            ns[mesh] = _shading(scene, prim[index][mesh], bary, ng[mesh])
+            ns[mesh] = shading_normals(scene, prim[index][mesh], bary, ng[mesh])
         back_seen = int(np.count_nonzero(back & mesh))
         if back_seen > INSIDE_FRACTION * len(index):
             warnings.append(f"{scene.source}: {back_seen} of {len(index)} covered pixels see the "
@@ -213,39 +213,6 @@ def _up(config) -> tuple:
     return tuple(up)
 
 
-def _on_triangle(scene, prim: np.ndarray, points: np.ndarray):
-    """The points (k, 3) float64 near triangles ``prim`` (k,) moved onto them: (surface points
-    (k, 3) float64, barycentric coordinates (k, 3) float64), the closest point of each
-    triangle's plane clamped into the triangle (float64 throughout)."""
-    tri = scene.vertices[scene.faces[prim]]  # (k, 3, 3)
-    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    q = points - tri[:, 0]
-    d11, d12, d22 = (np.einsum("ij,ij->i", a, b) for a, b in ((e1, e1), (e1, e2), (e2, e2)))
-    q1, q2 = np.einsum("ij,ij->i", q, e1), np.einsum("ij,ij->i", q, e2)
-    det = d11 * d22 - d12 * d12
-    safe = np.where(det > 0, det, 1.0)
-    b1 = np.clip((d22 * q1 - d12 * q2) / safe, 0.0, 1.0)
-    b2 = np.clip((d11 * q2 - d12 * q1) / safe, 0.0, 1.0 - b1)
-    bary = np.stack([1.0 - b1 - b2, b1, b2], axis=1)
-    bary[det <= 0] = 1.0 / 3.0  # a degenerate triangle Embree hit: its centroid
-    return np.einsum("kc,kcd->kd", bary, tri), bary
-
-
-def _shading(scene, prim: np.ndarray, bary: np.ndarray, ng: np.ndarray) -> np.ndarray:
-    """(k, 3) unit shading normals on triangles ``prim`` at barycentric ``bary`` (k, 3): the
-    vertex normals interpolated, on the side of ``ng``; the geometric normal where the
-    vertex normals cancel or are undefined."""
-    n = np.einsum("kc,kcd->kd", bary, scene.vertex_normals[scene.faces[prim]])
-    length = np.linalg.norm(n, axis=1)
-    good = length > 1e-12
-    out = ng.copy()
-    out[good] = n[good] / length[good, None]
-    flip = np.einsum("ij,ij->i", out, ng) < 0
-    out[flip] = -out[flip]
-    return out
-
-
-#: the keys of a ``look`` dict: the two points are needed, up and fov have defaults
 LOOK_KEYS = ("look_from", "look_at", "up", "fov")
 
 

@@ -1,0 +1,226 @@
+"""The records every stage passes, in one module: a target's sample points
+(:class:`SamplePoints`), a method's estimates at them (:class:`Estimates`, merged by index
+with :func:`merge`), what a target makes of them (:class:`Finished`) and what a bake
+returns (:class:`BakeResult`, :class:`TexelResult`, :class:`ViewResult`).
+
+Stages import these records and nothing of each other: an executor splits
+``SamplePoints`` and merges ``Estimates`` without knowing any target or method.
+
+Each point's estimate depends on that point alone (its position, normal, size and
+sample-stream id), so :func:`merge` of the estimates of any split of the points gives
+the same arrays as one call on all of them: that is what lets an executor split a
+bake over threads, processes or machines.
+
+Results come in two kinds: per-point results (``points``: vertices, query points) and
+images (``image``: lightmap texels and camera pixels).  Writers are chosen by (kind,
+extension) (``aobake.outputs.registry``); each result says its kind and the target that
+made it, so nothing is guessed from its attributes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from aobake.quantities import FIELDS
+
+
+@dataclass
+class SamplePoints:
+    """Where to trace.
+
+    points : (n, 3) float64 scene units, normals : (n, 3) float64 unit (zero = not
+    traced: 0 rays, no-information values), ids : (n,) int64 sample-stream ids (a
+    point's rays are a pure function of (seed, id, sample id): equal ids get equal
+    rays), sizes : (n,) float64 the size of each point's own triangles (sqrt of twice their
+    mean area; sets the ray offset) or None when unknown, kernels : stage -> compiled? for
+    the compiled stages the target ran, state : whatever ``finish`` needs back, faces :
+    (n,) int64 the triangle each point lies on (-1: none) and bary : (n, 3) float64 its
+    barycentric coordinates there, or None when the target does not know them (vertices,
+    query points): a method that interpolates on the surface (``file``) needs them;
+    image : the view's G-buffer (``aobake.screen.gbuffer.GBuffer``: depth, hardware depths,
+    view-space normals, coverage, the camera) when the points are a camera's pixels (their
+    ids are then the pixel indices r * W + c), else None: what a screen-space method reads.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    ids: np.ndarray
+    sizes: np.ndarray | None = None
+    kernels: dict = field(default_factory=dict)
+    state: object = None
+    faces: np.ndarray | None = None
+    bary: np.ndarray | None = None
+    image: object = None
+
+
+@dataclass
+class Finished:
+    """A target's result before the report, and what the report needs from it.
+
+    result : BakeResult | TexelResult (``report`` filled in by ``run``),
+    values, rays : the per-point fields and rays (n,) the error summary is taken over,
+    points : how many points the report counts, cast : rays traced (None = sum of rays),
+    report : extra report sections (e.g. ``texture``),
+    rays_key : the report's name for the rays each point cast.
+    """
+
+    result: object
+    values: dict
+    rays: np.ndarray
+    points: int
+    cast: int | None = None
+    report: dict = field(default_factory=dict)
+    rays_key: str = "rays_per_point"
+
+
+@dataclass
+class Estimates:
+    """What a method says at n sample points.
+
+    fields : name -> (n,) / (n, 3) float64 (names of ``aobake.quantities.FIELDS``),
+    rays : (n,) int32 rays cast per point, or None for a method that casts none (it then
+    reports no ``rays`` field and no stderr: it is deterministic),
+    extras : name -> (n, ...) per-point arrays the method's record is made from (the ray
+    offset used, kept ray distances, ``--tolerance``'s final counts); merged by index like
+    the fields,
+    dof : the degrees of freedom of a point's stderr (the fewest any point has: a target
+    that pools points' errors, a lightmap's texel, needs it), or None without a stderr.
+    """
+
+    fields: dict
+    rays: np.ndarray | None
+    extras: dict = field(default_factory=dict)
+    dof: int | None = None
+
+    def __len__(self) -> int:
+        first = next(iter(self.fields.values()), None)
+        if first is not None:
+            return len(first)
+        return 0 if self.rays is None else len(self.rays)
+
+    @property
+    def rays_cast(self) -> int | None:
+        """Rays traced in all (None for a method that casts none)."""
+        return None if self.rays is None else int(self.rays.astype(np.int64).sum())
+
+
+def merge(parts, n: int) -> Estimates:
+    """One Estimates of n points from ``parts``: (index (k,) int64, Estimates of k points)
+    pairs that cover 0..n-1 once.  Rows land by index, so the split and the order of the
+    parts change nothing."""
+    parts = list(parts)
+    if not parts:
+        raise ValueError("merge needs at least one part")
+    first = parts[0][1]
+
+    def like(array):
+        return np.empty((n,) + array.shape[1:], dtype=array.dtype)
+
+    fields = {name: like(a) for name, a in first.fields.items()}
+    extras = {name: like(a) for name, a in first.extras.items()}
+    rays = None if first.rays is None else like(first.rays)
+    seen = np.zeros(n, dtype=np.int64)
+    for index, part in parts:
+        seen[index] += 1
+        for name, array in part.fields.items():
+            fields[name][index] = array
+        for name, array in part.extras.items():
+            extras[name][index] = array
+        if rays is not None:
+            rays[index] = part.rays
+    if not (seen == 1).all():
+        raise ValueError("merge: the parts must cover every point exactly once")
+    dofs = {part.dof for _, part in parts}
+    if len(dofs) != 1:  # a property of the method's settings, not of the points
+        raise ValueError(f"merge: the parts disagree on their degrees of freedom {dofs}")
+    return Estimates(fields, rays, extras, first.dof)
+
+
+@dataclass
+class BakeResult:
+    """Per-point results.
+
+    positions : (n, 3) float64, faces : (f, 3) int64 | None (None for query points),
+    normals : (n, 3) float64 (the normals the hemispheres were built on),
+    rays : (n,) int32 rays cast per point,
+    values : field name -> (n,) / (n, 3) float64 for the quantities baked (see
+    ``aobake.quantities.FIELDS``); each is also an attribute (``result.ao``,
+    ``result.ao_stderr``, ``result.bent_normal`` ...), None when not baked,
+    report : dict (configuration, parameters used, statistics, versions),
+    kept : with ``keep_distances``, {"ray_distances": (p, R m) float32 every traced point's
+    hit distances in the tracer's local units (inf on a miss; ``parameters.trace_scale``
+    converts), "ray_point": (n,) int32 the row of each result point}, else {}.
+    """
+
+    positions: np.ndarray
+    faces: np.ndarray | None
+    normals: np.ndarray
+    rays: np.ndarray
+    values: dict = field(default_factory=dict)
+    report: dict = field(default_factory=dict)
+    kept: dict = field(default_factory=dict)
+
+    #: the result kind (writers are chosen by kind and extension) and the target writers
+    #: check formats against (query points write the same formats as vertices)
+    kind = "points"
+    target = "vertices"
+
+    def __getattr__(self, name):
+        if name in FIELDS and name != "values":
+            return self.__dict__.get("values", {}).get(name)
+        raise AttributeError(f"{type(self).__name__} has no attribute {name!r}")
+
+    def fields(self) -> dict:
+        """Per-point arrays that were computed, keyed and ordered as in the NPZ/PLY/GLB outputs."""
+        known = {"normals": self.normals, "rays": self.rays, **self.values}
+        return {name: known[name] for name in FIELDS if known.get(name) is not None}
+
+
+@dataclass
+class ImageResult:
+    """An image of per-pixel values (the ``image`` kind).
+
+    channels : name -> (H, W) float32 (EXR channel names of ``aobake.quantities.FIELDS``,
+    plus ``coverage``), row 0 = top of the image; covered : (H, W) bool pixels with values;
+    report : dict.
+    """
+
+    channels: dict
+    covered: np.ndarray
+    report: dict
+
+    kind = "image"
+
+
+@dataclass
+class TexelResult(ImageResult):
+    """A baked lightmap.
+
+    channels : name -> (H, W) float32 images after gutter dilation ('ao', 'ao_stderr',
+    'obscurance', 'obscurance_stderr', 'bent_normal.X/.Y/.Z', 'bent_normal_stderr', 'rays',
+    'coverage'; the EXR names of ``aobake.quantities.FIELDS``),
+    row 0 = top of the image (v near 1), texel centres at u = (c + 0.5) / W,
+    v = 1 - (r + 0.5) / H; covered : (H, W) bool texels with surface samples;
+    atlas : ``aobake.targets.texels.atlas.Atlas``; report : dict.
+    """
+
+    atlas: object = None
+
+    target = "texels"
+
+
+@dataclass
+class ViewResult(ImageResult):
+    """A camera view (``aobake view``): the G-buffer and per-pixel values.
+
+    channels : name -> (H, W) float32 (``aobake.targets.view.GBUFFER`` and the method's
+    fields; docs/conventions.md), covered : (H, W) bool pixels that see the scene,
+    camera : ``aobake.camera.Camera``; report : dict (its ``camera`` section re-projects a
+    pixel exactly).
+    """
+
+    camera: object = None
+
+    target = "view"
