@@ -16,10 +16,8 @@ terabytes is refused, not attempted.  JSON nested beyond any real metadata is re
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import os
-import re
 import struct
 import sys
 import tempfile
@@ -30,6 +28,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from aobake.outputs import gltf
+from aobake.outputs.table import Unreadable, parse_json
+
 log = logging.getLogger(__name__)
 
 PLY_TYPES = {
@@ -37,51 +38,6 @@ PLY_TYPES = {
     "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
     "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 }  # fmt: skip
-_GLTF_WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
-
-
-class Unreadable(ValueError):
-    """A reader's reason a file is malformed (compare: ``InputError('FILE: cannot read ...')``)."""
-
-
-#: JSON deeper than this is not metadata (aobake's is 4 levels deep); Python's parser
-#: would otherwise recurse until RecursionError
-_JSON_DEPTH = 64
-
-
-def parse_json(text, what: str = "JSON"):
-    """``json.loads(text)``, refused (``Unreadable``) when it is not JSON or nests deeper
-    than ``_JSON_DEPTH`` (checked on the text before parsing, so the parser never recurses
-    that far)."""
-    if isinstance(text, (bytes, bytearray)):
-        try:
-            text = text.decode("utf-8")
-        except UnicodeDecodeError:
-            raise Unreadable(f"{what} is not UTF-8 text") from None
-    depth = _json_depth(text)
-    if depth > _JSON_DEPTH:
-        raise Unreadable(f"{what} nests {depth} levels deep (more than {_JSON_DEPTH}: not "
-                         "metadata)")
-    try:
-        return json.loads(text)
-    except RecursionError:  # pragma: no cover - bounded above
-        raise Unreadable(f"{what} nests too deeply") from None
-    except ValueError as exc:
-        raise Unreadable(f"{what} is not valid JSON ({exc})") from None
-
-
-def _json_depth(text: str) -> int:
-    """The deepest nesting of [ and { outside strings (strings are blanked first; an
-    unterminated one leaves an upper bound, which is all the check needs)."""
-    if "[" not in text and "{" not in text:
-        return 0
-    codes = np.frombuffer(_JSON_STRING.sub('""', text).encode("utf-8", "replace"), np.uint8)
-    step = np.isin(codes, _OPEN).astype(np.int64) - np.isin(codes, _CLOSE)
-    return int(np.max(np.cumsum(step), initial=0))
-
-
-_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"', re.S)
-_OPEN, _CLOSE = np.frombuffer(b"[{", np.uint8), np.frombuffer(b"]}", np.uint8)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -375,119 +331,20 @@ def _ascii_column(name: str, values: np.ndarray, dtype: str) -> np.ndarray:
 
 
 def parse_glb(data: bytes, *, strict: bool = False) -> tuple[dict, bytes]:
-    """The GLB container: (gltf, the JSON chunk parsed; binary, the BIN chunk's bytes with their
-    padding, b"" without one).  strict: bytes after the last chunk, too few for a chunk
-    header, are refused (else ignored)."""
-    from aobake.outputs.glb import _CHUNK_BIN, _CHUNK_JSON, _MAGIC, _VERSION
-
-    if len(data) < 20:
-        raise Unreadable("too short to be a GLB file")
-    magic, version, length = struct.unpack_from("<4sII", data, 0)
-    if magic != _MAGIC or version != _VERSION:
-        raise Unreadable("not a glTF 2.0 binary file")
-    if length != len(data):
-        raise Unreadable(f"header says {length} bytes, the file has {len(data)}")
-    chunks, offset = [], 12
-    while offset + 8 <= length:
-        size, kind = struct.unpack_from("<II", data, offset)
-        if offset + 8 + size > length:
-            raise Unreadable(f"chunk at byte {offset} runs past the end of the file")
-        chunks.append((kind, data[offset + 8:offset + 8 + size]))
-        offset += 8 + size
-    if strict and offset < length:
-        raise Unreadable(f"truncated chunk header at byte {offset}")
-    if not chunks or chunks[0][0] != _CHUNK_JSON:
-        raise Unreadable("the first chunk is not JSON")
-    gltf = parse_json(chunks[0][1], "its JSON chunk")
-    if not isinstance(gltf, dict):
-        raise Unreadable("its JSON chunk is not an object")
-    binary = chunks[1][1] if len(chunks) > 1 and chunks[1][0] == _CHUNK_BIN else b""
-    return gltf, binary
+    """The GLB container (``aobake.outputs.gltf.parse_glb``), b"" for no BIN chunk."""
+    document, binary = gltf.parse_glb(data, strict=strict)
+    return document, b"" if binary is None else binary
 
 
-def glb_view(gltf: dict, binary: bytes, index: int) -> bytes:
-    """Bytes of bufferView ``index`` (e.g. an embedded image) of the GLB's own buffer (0)."""
-    view = gltf["bufferViews"][index]
-    if view.get("buffer", 0) != 0:
-        raise Unreadable("only the GLB's own buffer (0) can be read")
-    start = view.get("byteOffset", 0)
-    end = start + view["byteLength"]
-    if end > len(binary):
-        raise Unreadable(f"bufferView {index} ends at byte {end}, past the buffer ({len(binary)})")
-    return binary[start:end]
+def glb_view(gltf_json: dict, binary: bytes, index: int) -> bytes:
+    """Bytes of bufferView ``index`` (``aobake.outputs.gltf.view_bytes``)."""
+    return gltf.view_bytes(gltf_json, binary, index)
 
 
-def glb_accessor(gltf: dict, binary: bytes, index: int, *, strict: bool = False,
+def glb_accessor(gltf_json: dict, binary: bytes, index: int, *, strict: bool = False,
                  max_bytes: int | None = None) -> np.ndarray:
-    """Accessor ``index`` as stored: (count,) for SCALAR, else (count, k), in its component
-    dtype (normalised integers not rescaled), interleaved or not; a copy.  Not sparse ones.
-
-    An accessor without a bufferView is all zeros (the spec); it may take at most
-    ``max_bytes`` (default: the BIN chunk's size), an accessor with one is bounded by the
-    bytes of its view.  strict: the accessor must lie within its bufferView, itself within
-    the GLB's own buffer (``glb_view``); else only within the BIN chunk.
-    """
-    from aobake.outputs.glb import _COMPONENT_DTYPES
-
-    accessors = gltf.get("accessors")
-    if not isinstance(accessors, list) or not _whole(index) or not 0 <= index < len(accessors) \
-            or not isinstance(accessors[index], dict):
-        raise Unreadable(f"no accessor {index}")
-    accessor = accessors[index]
-    if "sparse" in accessor:
-        raise Unreadable(f"accessor {index} is sparse (not supported)")
-    width = _GLTF_WIDTHS.get(accessor.get("type")) if isinstance(accessor.get("type"), str) \
-        else None
-    if width is None:
-        raise Unreadable(f"accessor {index} has type {accessor.get('type')} (not supported)")
-    component = accessor.get("componentType")
-    if not _whole(component) or component not in _COMPONENT_DTYPES:
-        raise Unreadable(f"accessor {index} has componentType {component} (not a glTF one)")
-    dtype = _COMPONENT_DTYPES[component]
-    count = accessor.get("count")
-    if not _whole(count) or count < 0:
-        raise Unreadable(f"accessor {index} has count {count!r}")
-    size = dtype.itemsize * width  # bytes of one element
-    if "bufferView" not in accessor:
-        limit = len(binary) if max_bytes is None else max_bytes
-        if count * size > limit:
-            raise Unreadable(f"accessor {index} claims {count} zero elements ({count * size} "
-                             f"bytes), more than the file holds ({limit})")
-        values = np.zeros((count, width), dtype=dtype)
-    else:
-        views = gltf.get("bufferViews")
-        at = accessor["bufferView"]
-        if not isinstance(views, list) or not _whole(at) or not 0 <= at < len(views) \
-                or not isinstance(views[at], dict):
-            raise Unreadable(f"accessor {index} names bufferView {at!r}, which does not exist")
-        view = views[at]
-        start = accessor.get("byteOffset", 0)
-        stride = view.get("byteStride", size)
-        for label, number in (("byteOffset", start), ("bufferView byteOffset",
-                                                      view.get("byteOffset", 0))):
-            if not _whole(number) or number < 0:
-                raise Unreadable(f"accessor {index} has {label} {number!r}")
-        if not _whole(stride) or stride < size:
-            raise Unreadable(f"accessor {index}: byteStride {stride!r} is less than its "
-                             f"{size}-byte elements")
-        if max_bytes is not None and count * size > max_bytes:
-            raise Unreadable(f"accessor {index} claims {count * size} bytes, more than the file "
-                             f"holds ({max_bytes})")
-        if strict:
-            buffer, within = glb_view(gltf, binary, accessor["bufferView"]), "bufferView"
-        else:
-            buffer, within = binary, "buffer"
-            start += view.get("byteOffset", 0)
-        if count and start + stride * (count - 1) + dtype.itemsize * width > len(buffer):
-            raise Unreadable(f"accessor {index} runs past the end of the {within}")
-        values = np.ndarray((count, width), dtype=dtype, buffer=buffer, offset=start,
-                            strides=(stride, dtype.itemsize)).copy()
-    return values[:, 0] if width == 1 else values
-
-
-def _whole(value) -> bool:
-    """A JSON integer (not a bool, which Python counts as one)."""
-    return isinstance(value, int) and not isinstance(value, bool)
+    """Accessor ``index`` as stored (``aobake.outputs.gltf.accessor_array``)."""
+    return gltf.accessor_array(gltf_json, binary, index, strict=strict, max_bytes=max_bytes)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,4 +1,5 @@
-"""Bake results as binary glTF 2.0 (``.glb``), written by hand, and a small reader.
+"""Bake results as binary glTF 2.0 (``.glb``), written by hand (the container itself is
+``aobake.outputs.gltf``'s, which also reads it back).
 
 Two writers:
 
@@ -22,23 +23,22 @@ Conventions:
 - UVs are taken in the OBJ convention (v = 0 at the *bottom* of the image) and
   written as (u, 1 - v), since glTF's UV origin is the top-left corner.
 - Bake metadata goes in ``asset.extras``; ``asset.generator`` is "aobake".
-  (trimesh does not load ``asset.extras``; read it with ``read_glb``.)
+  (trimesh does not load ``asset.extras``; ``aobake.outputs.gltf.parse_glb`` does.)
 - Indices are uint32 (componentType 5125); every bufferView starts on a 4-byte
   boundary and both chunks are padded to 4 bytes, as the GLB container requires.
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
-import struct
 from collections.abc import Mapping, Sequence
 
 import numpy as np
 
 from aobake.outputs.atomic import atomic_path
+from aobake.outputs.gltf import COMPONENT_DTYPES, write_glb
 from aobake.outputs.npz import check_vertex_data
 from aobake.outputs.report import check_metadata, to_jsonable
 from aobake.quantities import FIELDS
@@ -50,12 +50,6 @@ GENERATOR = "aobake"
 #: bake field -> glTF application-specific vertex attribute (names must start with "_"),
 #: from the registry (normals go to the standard NORMAL attribute)
 CUSTOM_ATTRIBUTES = {f.name: f.gltf for f in FIELDS.values() if f.gltf}
-
-# GLB container
-_MAGIC = b"glTF"
-_VERSION = 2
-_CHUNK_JSON = 0x4E4F534A  # "JSON"
-_CHUNK_BIN = 0x004E4942  # "BIN\0"
 
 # glTF enums
 _MODE_TRIANGLES = 4
@@ -69,14 +63,6 @@ _REPEAT = 10497
 #: Atlas.wrap -> glTF sampler wrapS / wrapT
 _WRAPS = {"clamp": _CLAMP_TO_EDGE, "repeat": _REPEAT}
 
-_COMPONENT_DTYPES = {
-    5120: np.dtype("i1"),
-    5121: np.dtype("u1"),
-    5122: np.dtype("<i2"),
-    5123: np.dtype("<u2"),
-    5125: np.dtype("<u4"),
-    5126: np.dtype("<f4"),
-}
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
@@ -372,7 +358,7 @@ def _add_accessor(
     ``bounds`` adds min/max, computed on the stored values so they match
     exactly what a validator reads back.
     """
-    stored = np.ascontiguousarray(values, dtype=_COMPONENT_DTYPES[component])
+    stored = np.ascontiguousarray(values, dtype=COMPONENT_DTYPES[component])
     width = 1 if stored.ndim == 1 else stored.shape[1]
     accessor = {
         "bufferView": _add_view(gltf, blob, stored.tobytes(), target),
@@ -424,13 +410,7 @@ def _write_glb(path: str | os.PathLike, gltf: dict, blob: bytearray) -> None:
     """Pack the JSON and BIN chunks into a GLB container and write it atomically."""
     blob.extend(b"\0" * (-len(blob) % 4))  # BIN chunk padding is zeros
     gltf["buffers"] = [{"byteLength": len(blob)}]
-    text = json.dumps(gltf, allow_nan=False, separators=(",", ":")).encode("utf-8")
-    text += b" " * (-len(text) % 4)  # JSON chunk padding is spaces
-    total = 12 + 8 + len(text) + 8 + len(blob)
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as handle:
-            handle.write(struct.pack("<4sII", _MAGIC, _VERSION, total))
-            handle.write(struct.pack("<II", len(text), _CHUNK_JSON))
-            handle.write(text)
-            handle.write(struct.pack("<II", len(blob), _CHUNK_BIN))
-            handle.write(bytes(blob))
+            write_glb(handle, gltf, blob)
+
