@@ -1,8 +1,8 @@
 """Readers of aobake's own output files, for the tests (the package only writes them).
 
-The parsing is ``aobake.compare.parsing``'s (the readers of ``aobake compare``), so it
-exists once; these adapters keep the tests' stricter checks (only what aobake's writers
-lay out) and their return values.
+The parsing is ``aobake.outputs``' (each format's reader beside its writer; the glTF
+container is ``aobake.outputs.gltf``), so it exists once; these adapters keep the tests'
+stricter checks (only what aobake's writers lay out) and their return values.
 
 ``read_glb`` / ``read_view`` / ``read_accessor``: the GLB container and its accessors;
 ``read_ply``: the binary PLY layout ``aobake.outputs.ply`` writes; ``read_image``:
@@ -17,9 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from aobake.compare.parsing import (Unreadable, glb_accessor, glb_view, parse_glb, parse_ply,
-                                    read_pixels)
 from aobake.errors import InputError, OutputError
+from aobake.outputs.gltf import accessor_array, parse_glb, view_bytes
+from aobake.outputs.image import read_pixels
+from aobake.outputs.ply import parse_ply
+from aobake.outputs.table import Unreadable
 
 
 def read_glb(path: str | os.PathLike) -> tuple[dict, bytes]:
@@ -33,7 +35,8 @@ def read_glb(path: str | os.PathLike) -> tuple[dict, bytes]:
     Raises ``InputError`` if the container is malformed (bytes after the last chunk included).
     """
     try:
-        return parse_glb(Path(path).read_bytes(), strict=True)
+        gltf, binary = parse_glb(Path(path).read_bytes(), strict=True)
+        return gltf, b"" if binary is None else binary
     except Unreadable as exc:
         raise InputError(f"{path}: {exc}") from None
 
@@ -41,9 +44,9 @@ def read_glb(path: str | os.PathLike) -> tuple[dict, bytes]:
 def read_view(gltf: dict, binary: bytes, index: int) -> bytes:
     """Bytes of bufferView ``index`` (e.g. an embedded image) of a GLB's BIN chunk.
 
-    Raises ValueError for another buffer than the GLB's own (0) or a view past its end.
+    Raises ValueError for a buffer outside the file or a view past its end.
     """
-    return glb_view(gltf, binary, index)
+    return view_bytes(gltf, binary, index)
 
 
 def read_accessor(gltf: dict, binary: bytes, index: int) -> np.ndarray:
@@ -57,7 +60,7 @@ def read_accessor(gltf: dict, binary: bytes, index: int) -> np.ndarray:
     values : (count,) for SCALAR, else (count, k), with the accessor's component
       dtype (float32, uint32 ...); a copy, safe to modify
     """
-    return glb_accessor(gltf, binary, index, strict=True)
+    return accessor_array(gltf, binary, index, strict=True)
 
 
 def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, dict]:

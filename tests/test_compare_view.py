@@ -14,8 +14,8 @@ import aobake
 from aobake.api import UNBOUNDED
 from aobake.compare import compare
 from aobake.compare.screen import camera_of
-from aobake.compare.values import Values
 from aobake.errors import InputError
+from aobake.outputs import Values
 from aobake.outputs.image import write_ldr
 from aobake.screen import score
 from aobake.screen.gbuffer import GBuffer

@@ -28,7 +28,7 @@ from click.testing import CliRunner
 
 import aobake
 from aobake.compare import compare, main, match_vertices, metrics, position_tolerance
-from aobake.compare.parsing import check_png, quiet_stderr
+from aobake.outputs.image import check_png, quiet_stderr
 from aobake.outputs import write_vertices
 from aobake.outputs.atomic import atomic_path
 from aobake.outputs.image import write_ldr

@@ -156,7 +156,7 @@ def test_oiio_failure_inside_the_temp_file_is_cleaned_up(tmp_path, maps, monkeyp
         write_ldr(tmp_path / "ao.xyz", np.zeros((2, 2)), np.zeros((2, 2)))
     pixels = np.zeros((2, 2, 9), np.uint8)
     with pytest.raises(OutputError, match="channel"):
-        image._write(tmp_path / "nine.png", pixels, "uint8", [f"c{i}" for i in range(9)], {})
+        image.write_pixels(tmp_path / "nine.png", pixels, "uint8", [f"c{i}" for i in range(9)], {})
     assert leftovers(tmp_path) == []
 
 

@@ -674,7 +674,7 @@ def test_query_points_write_as_point_sets(tmp_path):
     import trimesh
 
     import aobake
-    from aobake.compare import read
+    from aobake.outputs import read
 
     points = np.array([[0.0, 0.0, 0.6], [0.1, 0.0, 0.6], [0.0, 0.2, 0.6]])
     normals = np.tile([0.0, 0.0, 1.0], (3, 1))

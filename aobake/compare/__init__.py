@@ -29,10 +29,11 @@ band, SSIM, stderr units, raw and after the best gain); None for other files.
 Values the metrics cannot have (no stderr in the reference, an infinite PSNR) are None, so
 the record is strict JSON.  The library logs and never prints; ``main`` is the command.
 
-The package: ``readers`` (files -> tables, on ``parsing``'s byte-level readers), ``values``
-(a table -> one quantity's ``Values``), ``settings`` (same quantity?), ``align`` and
-``matching`` (lining the files up), ``heatmap`` (the error as a picture); this module is the
-library entry point and the command.
+The package: each file is read by ``aobake.outputs.read`` (the reader its format registers
+beside its writer; ``read`` is re-exported here), ``values`` (how messages name what a file
+holds), ``settings`` (same quantity?), ``align`` and ``matching`` (lining the files up),
+``heatmap`` (the error as a picture); this module is the library entry point and the
+command.
 """
 
 from __future__ import annotations
@@ -40,10 +41,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
-import struct
-import zipfile
-import zlib
 from pathlib import Path
 
 import click
@@ -53,13 +50,12 @@ from aobake.compare.align import align_texels, align_vertices
 from aobake.compare.heatmap import check_path, diverging, write_heatmap
 from aobake.compare.matching import (POSITION_TOLERANCE, match_vertices, position_tolerance,
                                      tie_features)
-from aobake.compare.parsing import Unreadable
-from aobake.compare.readers import read_table
 from aobake.compare.screen import format_screen, is_view, score_view
 from aobake.compare.settings import check_same_quantity
-from aobake.compare.values import (IMAGE_KINDS, TEXEL_SUFFIXES, VERTEX_SUFFIXES, Values,
-                                   image_kind, kind, pick, target_of)
+from aobake.compare.values import IMAGE_KINDS, image_kind, kind
 from aobake.errors import InputError
+from aobake.outputs.values import (TEXEL_SUFFIXES, VERTEX_SUFFIXES, Values, file_path, read,
+                                   target_of)
 from aobake.quantities import QUANTITIES
 
 __all__ = ["COMPARABLE", "CONVENTIONS", "POSITION_TOLERANCE", "TEXEL_SUFFIXES", "VERTEX_SUFFIXES",
@@ -99,8 +95,8 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
     if not isinstance(candidate_convention, str) or candidate_convention not in CONVENTIONS:
         raise InputError(f"candidate_convention must be one of {tuple(CONVENTIONS)}, "
                          f"got {candidate_convention!r}")
-    reference_path = _file(reference_path, "reference")
-    candidate_path = _file(candidate_path, "candidate")
+    reference_path = file_path(reference_path, "reference", "compare")
+    candidate_path = file_path(candidate_path, "candidate", "compare")
     target = target_of(reference_path)
     heatmap = None if heatmap is None else Path(heatmap)
     if heatmap is not None:
@@ -252,59 +248,6 @@ def _mean(values: np.ndarray, largest: float) -> float:
     if math.isfinite(mean) or largest == 0:
         return mean
     return largest * float(np.mean(values / largest))
-
-
-def _file(path, role: str) -> Path:
-    """``path`` as a Path; InputError naming ``role`` for what is no file path (None, a
-    number, a dict, bytes, a result object: compare reads files)."""
-    if isinstance(path, (str, os.PathLike)) and not isinstance(path, bytes):
-        path = os.fspath(path)
-        if isinstance(path, str) and path:
-            return Path(path)
-    hint = (" (write it with aobake.write first)"
-            if type(path).__name__.endswith("Result") else "")
-    raise InputError(f"compare: the {role} must be a file path, got "
-                     f"{type(path).__name__}{hint}")
-
-
-def read(path, quantity: str = "ao", *, key: str | None = None, role: str = "reference") -> Values:
-    """Read ``quantity`` (and its stderr, positions, coverage where the file has them) from an
-    NPZ, PLY, GLB, EXR, PNG or TIFF file.
-
-    key : the name of the array / property / attribute / channel holding it (default:
-    aobake's name for it); role : 'reference' | 'candidate' (for the messages).
-    Raises InputError('FILE: problem').
-    """
-    path = _file(path, role)
-    target = target_of(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    if path.is_dir():
-        raise InputError(f"{path}: is a directory, not a {path.suffix} file")
-    if not os.access(path, os.R_OK):
-        raise InputError(f"{path}: permission denied")
-    suffix = path.suffix.lower()
-    try:
-        table = read_table(path)
-    except InputError:
-        raise
-    except MemoryError:  # the readers bound what they make by the file; this is the last net
-        raise InputError(f"{path}: cannot read as {suffix[1:].upper()}: it needs more memory "
-                         "than this machine has") from None
-    except (Unreadable, ValueError, LookupError, TypeError, AttributeError, ArithmeticError,
-            EOFError, OSError, struct.error, zipfile.BadZipFile, zlib.error,
-            RecursionError) as exc:
-        reason = f"no {exc}" if isinstance(exc, KeyError) else \
-            " ".join(str(exc).split()) or type(exc).__name__
-        raise InputError(f"{path}: cannot read as {suffix[1:].upper()}: {reason}") from None
-    values = pick(path, table, quantity, key, role, target)
-    values.warnings = [f"{path}: {text}" for text in table.warnings]
-    for text in values.warnings:
-        log.warning("%s", text)
-    for text in values.notes:
-        log.info("%s", text)
-    log.debug("%s: %s from %r, %s", path, quantity, values.key, values.value.shape)
-    return values
 
 
 def format_table(result: dict) -> str:

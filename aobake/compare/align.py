@@ -13,8 +13,8 @@ import numpy as np
 
 from aobake.compare.matching import (POSITION_TOLERANCE, match_vertices, position_tolerance,
                                      tie_features)
-from aobake.compare.values import Values
 from aobake.errors import InputError
+from aobake.outputs.values import Values
 
 log = logging.getLogger(__name__)
 

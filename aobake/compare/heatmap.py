@@ -8,10 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from aobake.compare.values import Values, kind
+from aobake.compare.values import kind
 from aobake.errors import OutputError
 from aobake.outputs.atomic import atomic_path
 from aobake.outputs.report import metadata_json
+from aobake.outputs.values import Values
 
 #: heatmap colours (sRGB bytes): e = -scale, 0, +scale
 _BLUE, _WHITE, _RED = np.array([59, 76, 192]), np.array([255, 255, 255]), np.array([180, 4, 38])
@@ -102,12 +103,12 @@ def _write_png(path: Path, error: np.ndarray, mask: np.ndarray, scale: float,
     ``error`` (n,) (in mask order), opaque; the others transparent black."""
     import OpenImageIO as oiio
 
-    from aobake.outputs.image import _write
+    from aobake.outputs.image import write_pixels
 
     pixels = np.zeros((*mask.shape, 4), dtype=np.uint8)
     pixels[mask, :3] = diverging(error / scale)
     pixels[mask, 3] = 255
     attrs = {"oiio:UnassociatedAlpha": 1, "Software": "aobake",
              "aobake:metadata": json.dumps(_heatmap_metadata(quantity, scale), allow_nan=False)}
-    _write(path, pixels, oiio.UINT8, ("R", "G", "B", "A"), attrs)
+    write_pixels(path, pixels, oiio.UINT8, ("R", "G", "B", "A"), attrs)
 

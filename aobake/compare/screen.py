@@ -16,8 +16,8 @@ import math
 
 import numpy as np
 
-from aobake.compare.values import Values
 from aobake.errors import InputError
+from aobake.outputs.values import Values
 from aobake.screen import score as scoring
 from aobake.screen.gbuffer import CHANNELS, GBuffer, camera_from_record
 

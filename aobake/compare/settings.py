@@ -6,8 +6,8 @@ from __future__ import annotations
 import logging
 import math
 
-from aobake.compare.values import Values
 from aobake.errors import InputError
+from aobake.outputs.values import Values
 
 log = logging.getLogger(__name__)
 

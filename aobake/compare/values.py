@@ -1,54 +1,9 @@
-"""One file's values of one quantity: which file kind a suffix is, and from a reader's
-``Table`` the quantity's column, its stderr, positions or coverage (``pick``)."""
+"""How compare's messages name what a file holds (per-vertex values, a lightmap, a camera
+view).  A file's values themselves are read by ``aobake.outputs.read`` (``Values``)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from pathlib import Path
-
-import numpy as np
-
-from aobake.compare.readers import Table
-from aobake.errors import InputError
-from aobake.outputs.registry import suffixes
-from aobake.quantities import QUANTITIES
-
-VERTEX_SUFFIXES = suffixes("vertices")  # .npz .ply .glb
-TEXEL_SUFFIXES = tuple(s for s in suffixes("texels") if s not in VERTEX_SUFFIXES)  # .exr .png .tif
-
-
-@dataclass
-class Values:
-    """One file's values of a quantity.
-
-    target : 'vertices' | 'texels'
-    value : (n,) float64 per vertex | (H, W) float64 per texel
-    stderr : same shape, the file's standard error of ``value``, or None
-    positions, normals : (n, 3) float64 or None (texels: None)
-    faces : (f, 3) int64 or None
-    mask : (H, W) bool texels the file covers, or None (no coverage: per vertex, or an image
-      without a coverage channel)
-    metadata : the aobake metadata the file carries ({} for another tool's file)
-    key : the array / property / attribute / channel the value was read from
-    warnings : what the reader could not honour (e.g. a GLB's node transforms)
-    notes : what was assumed to read it (grey vertex colours taken as the quantity)
-    columns : every channel of a camera view's image (name -> (H, W)), its G-buffer; None
-      for other files
-    """
-
-    path: Path
-    target: str
-    value: np.ndarray
-    stderr: np.ndarray | None = None
-    positions: np.ndarray | None = None
-    normals: np.ndarray | None = None
-    faces: np.ndarray | None = None
-    mask: np.ndarray | None = None
-    metadata: dict = field(default_factory=dict)
-    key: str = ""
-    warnings: list = field(default_factory=list)
-    notes: list = field(default_factory=list)
-    columns: dict | None = None
+from aobake.outputs.values import Values
 
 
 def kind(target: str) -> str:
@@ -56,7 +11,7 @@ def kind(target: str) -> str:
     return "per-vertex values" if target == "vertices" else "a lightmap (per texel)"
 
 
-def image_kind(values: "Values") -> str | None:
+def image_kind(values: Values) -> str | None:
     """What an image file holds by its aobake metadata: "view" (an ``aobake view``: a camera
     record), "lightmap" (any other aobake image: texels of a UV atlas), None (another tool's
     image: it says nothing, and is compared as the reference's kind)."""
@@ -67,145 +22,3 @@ def image_kind(values: "Values") -> str | None:
 
 #: how a message names each kind of image
 IMAGE_KINDS = {"view": "a camera view (per pixel)", "lightmap": "a lightmap (per texel)"}
-
-
-def target_of(path: Path) -> str:
-    """'vertices' | 'texels' by the suffix; InputError for a format compare does not read."""
-    suffix = path.suffix.lower()
-    if suffix in VERTEX_SUFFIXES:
-        return "vertices"
-    if suffix in TEXEL_SUFFIXES:
-        return "texels"
-    raise InputError(f"{path}: unsupported format {suffix or '(none)'!r}; compare reads "
-                     f"{', '.join(VERTEX_SUFFIXES)} (per vertex) and {', '.join(TEXEL_SUFFIXES)} "
-                     "(per texel)")
-
-
-def pick(path: Path, table: Table, quantity: str, key, role: str, target: str) -> Values:
-    """The quantity's column (``key``, else its aobake name) and, with aobake's names, its stderr."""
-    q = QUANTITIES[quantity]
-    standard = getattr(q.value, table.naming)
-    standard = standard[0] if isinstance(standard, tuple) else standard
-    columns = table.columns
-    mask, notes = None, []
-    name = key if key is not None else standard
-    if key is None and standard not in columns and target == "texels":
-        name = _image_channel(path, table, quantity)
-    grey = None
-    if key is None and standard not in columns and target == "vertices" and role == "candidate":
-        grey = _grey_colour(columns, table.naming)
-        if grey is not None and grey[1]:
-            name = grey[0]
-            notes.append(f"{path}: has no {standard!r}: its grey vertex colours "
-                         f"({_COLOUR_NAMES[table.naming]}, equal) are read as {quantity} "
-                         "(white = 1)")
-    if name not in columns:
-        have = ", ".join(sorted(columns)) or "nothing"
-        hint = "; name the candidate's with --candidate-key NAME" if role == "candidate" else ""
-        what = {"name": "array", "ply": "vertex property", "gltf": "vertex attribute",
-                "exr": "channel"}[table.naming]
-        extra = ""
-        if table.naming == "gltf" and "TEXCOORD_0" in columns:
-            extra = " (a lightmap GLB's AO is a texture: compare its .exr or .png)"
-        if grey is not None:
-            extra += " (its vertex colours are not grey: R, G and B differ)"
-        raise InputError(f"{path}: no {what} {name!r} (it has {have}){extra}{hint}")
-    value = _scalar(path, name, columns[name], target)
-    stderr = None
-    if name == standard:  # aobake's own names: its stderr sits beside it
-        error_name = getattr(q.error, table.naming)
-        error_name = error_name[0] if isinstance(error_name, tuple) else error_name
-    else:  # another channel of aobake's (a view's ao_unbounded): NAME_stderr beside it
-        error_name = f"{name}_stderr" if table.metadata else None
-    if error_name is not None:
-        if error_name in columns:
-            stderr = _scalar(path, error_name, columns[error_name], target)
-            if stderr.shape != value.shape:
-                raise InputError(f"{path}: {error_name!r} is {stderr.shape}, {name!r} "
-                                 f"{value.shape}: one standard error per value")
-    if target == "texels":
-        mask = _coverage(table)
-    else:
-        n = len(value)
-        for label, array in (("positions", table.positions), ("normals", table.normals)):
-            if array is not None and array.shape != (n, 3):
-                raise InputError(f"{path}: {label} are {array.shape}, expected ({n}, 3)")
-            if array is not None and not np.isfinite(array).all():
-                bad = int(np.count_nonzero(~np.isfinite(array).all(axis=1)))
-                raise InputError(f"{path}: {bad} of its {n} vertex {label} are not finite")
-        if table.faces is not None and len(table.faces) and \
-                (table.faces.min() < 0 or table.faces.max() >= n):
-            raise InputError(f"{path}: faces index vertices {table.faces.min()}.."
-                             f"{table.faces.max()}, but there are {n}")
-    view = target == "texels" and isinstance(table.metadata.get("camera"), dict)
-    return Values(path, target, value, stderr, table.positions, table.normals, table.faces, mask,
-                  table.metadata, name, notes=notes, columns=columns if view else None)
-
-
-#: each format's names of a vertex colour (PLY properties, the glTF attribute)
-_COLOUR_NAMES = {"ply": "red, green, blue", "gltf": "COLOR_0"}
-
-
-def _grey_colour(columns, naming: str):
-    """(column, grey) of a per-vertex colour another tool wrote (trimesh's PLY red/green/
-    blue, a glTF COLOR_0): grey when R, G and B agree at every vertex.  None without one."""
-    if naming == "ply" and {"red", "green", "blue"} <= set(columns):
-        grey = np.array_equal(columns["red"], columns["green"]) and \
-            np.array_equal(columns["red"], columns["blue"])
-        return "red", grey
-    if naming == "gltf" and "COLOR_0" in columns:
-        colour = np.asarray(columns["COLOR_0"])
-        grey = colour.ndim == 2 and colour.shape[1] in (3, 4) and \
-            np.array_equal(colour[:, 0], colour[:, 1]) and \
-            np.array_equal(colour[:, 0], colour[:, 2])
-        return "COLOR_0", grey
-    return None
-
-
-def _image_channel(path: Path, table: Table, quantity: str) -> str:
-    """The channel of an image without one named after the quantity: an aobake PNG/TIFF's R
-    (its metadata says which map it is), else the only channel, else R of a grey image."""
-    columns, meta = table.columns, table.metadata
-    if "map" in meta:
-        if meta["map"] != quantity:
-            raise InputError(f"{path}: holds {meta['map']}, not {quantity}")
-        return "R"
-    names = list(columns)
-    if len(names) == 1:
-        return names[0]
-    if {"R", "G", "B"} <= set(names) and np.array_equal(columns["R"], columns["G"]) \
-            and np.array_equal(columns["R"], columns["B"]):
-        return "R"
-    return QUANTITIES[quantity].value.exr[0]  # not there: pick names what there is
-
-
-def _coverage(table: Table) -> np.ndarray | None:
-    """(H, W) bool texels an aobake image covers: its coverage channel (> 0), else ray counts
-    (> 0), else an aobake PNG/TIFF's alpha (the coverage, quantised); None for other files."""
-    columns = table.columns
-    if "coverage" in columns:
-        return columns["coverage"] > 0
-    if "rays" in columns:
-        return columns["rays"] > 0
-    if "map" in table.metadata and "A" in columns:
-        return columns["A"] > 0
-    return None
-
-
-def _scalar(path: Path, name: str, array, target: str) -> np.ndarray:
-    """(H, W) float64 from a channel, (n,) float64 from a per-vertex column: (n, 1) squeezed,
-    an RGB(A) colour whose R, G, B agree gives R (aobake's grey COLOR_0), other vectors refused."""
-    array = np.asarray(array)
-    if array.dtype.kind not in "biuf":
-        raise InputError(f"{path}: {name!r} holds {array.dtype} values, not numbers")
-    if target == "vertices" and array.ndim == 2:
-        grey = array.shape[1] in (3, 4) and np.array_equal(array[:, 0], array[:, 1]) \
-            and np.array_equal(array[:, 0], array[:, 2])
-        if array.shape[1] != 1 and not grey:
-            raise InputError(f"{path}: {name!r} has {array.shape[1]} components per vertex; "
-                             "compare needs one number per vertex")
-        array = array[:, 0]
-    if array.ndim != (2 if target == "texels" else 1):
-        raise InputError(f"{path}: {name!r} is {array.shape}, not one number per "
-                         f"{'texel' if target == 'texels' else 'vertex'}")
-    return array.astype(np.float64)

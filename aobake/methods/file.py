@@ -55,7 +55,7 @@ class FileMethod:
     @classmethod
     def prepare(cls, scene, config, occluders, rays_per_point: int,
                 compiled: bool | None = None) -> "FileMethod":
-        from aobake.compare import read
+        from aobake.outputs import read
 
         if config.ao_from is None:
             raise InputError("--method file needs --ao-from FILE (a per-vertex bake of the "

@@ -1,9 +1,11 @@
-"""Writing a bake's files: ``write(result, path, ...)`` gives a Python user exactly the
-files the CLI writes (the CLI calls it for every output).
+"""Writing a bake's files, and reading them: ``write(result, path, ...)`` gives a Python user
+exactly the files the CLI writes (the CLI calls it for every output); ``read(path,
+quantity)`` is the one way to read one quantity back from a bake file (aobake's or another
+tool's: ``aobake compare`` and ``--method file`` read through it).
 
-The format is chosen by extension from ``aobake.outputs.registry.WRITERS``.
-Every output carries the conventions and configuration in its metadata, and is
-written atomically (temporary file + rename).
+The format is chosen by extension from ``aobake.outputs.registry.WRITERS``, which lists each
+format's reader beside its writer.  Every output carries the conventions and configuration
+in its metadata, and is written atomically (temporary file + rename).
 """
 
 from __future__ import annotations
@@ -19,9 +21,10 @@ import numpy as np
 from aobake.errors import OutputError, UsageError
 from aobake.outputs.registry import (MESH_OUTPUTS, WRITERS, WriteOptions, default_target,
                                      suffixes, writer_for)
+from aobake.outputs.values import Values, read
 
-__all__ = ["MESH_OUTPUTS", "Outputs", "WRITERS", "WriteOptions", "default_target", "metadata",
-           "plan", "write", "write_vertices"]
+__all__ = ["MESH_OUTPUTS", "Outputs", "Values", "WRITERS", "WriteOptions", "default_target",
+           "metadata", "plan", "read", "write", "write_vertices"]
 
 
 @dataclass(frozen=True)

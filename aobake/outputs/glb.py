@@ -1,7 +1,8 @@
-"""Bake results as binary glTF 2.0 (``.glb``), written by hand (the container itself is
-``aobake.outputs.gltf``'s, which also reads it back).
+"""Bake results as binary glTF 2.0 (``.glb``), written by hand, and their reader.
 
-Two writers:
+Two writers, and ``read`` (any GLB's triangle meshes as a ``Table``, what
+``aobake.outputs.read`` picks a quantity from); the container itself is
+``aobake.outputs.gltf``'s, for the writers and the reader alike:
 
 - ``write``: a vertex bake.  One mesh, one triangle primitive with
   ``POSITION`` (float32, with the min/max the spec requires), ``NORMAL`` (unit
@@ -23,7 +24,7 @@ Conventions:
 - UVs are taken in the OBJ convention (v = 0 at the *bottom* of the image) and
   written as (u, 1 - v), since glTF's UV origin is the top-left corner.
 - Bake metadata goes in ``asset.extras``; ``asset.generator`` is "aobake".
-  (trimesh does not load ``asset.extras``; ``aobake.outputs.gltf.parse_glb`` does.)
+  (trimesh does not load ``asset.extras``; ``read`` returns it as the metadata.)
 - Indices are uint32 (componentType 5125); every bufferView starts on a 4-byte
   boundary and both chunks are padded to 4 bytes, as the GLB container requires.
 """
@@ -34,13 +35,15 @@ import logging
 import math
 import os
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 
 from aobake.outputs.atomic import atomic_path
-from aobake.outputs.gltf import COMPONENT_DTYPES, write_glb
+from aobake.outputs.gltf import COMPONENT_DTYPES, accessor_array, parse_glb, write_glb
 from aobake.outputs.npz import check_vertex_data
 from aobake.outputs.report import check_metadata, to_jsonable
+from aobake.outputs.table import Table, Unreadable, float64
 from aobake.quantities import FIELDS
 
 log = logging.getLogger(__name__)
@@ -414,3 +417,84 @@ def _write_glb(path: str | os.PathLike, gltf: dict, blob: bytearray) -> None:
         with open(tmp, "wb") as handle:
             write_glb(handle, gltf, blob)
 
+
+# ---------------------------------------------------------------------------------------------
+# reading
+
+
+def read(path) -> Table:
+    """Every vertex attribute of a GLB's triangle primitives as a ``Table`` (columns by
+    attribute name, ``naming`` 'gltf'), aobake's or another tool's.
+
+    Primitives sharing a POSITION accessor share their vertices, as in aobake's files;
+    positions are as stored (node transforms are not applied: a warning says so), NORMAL
+    the normals, ``asset.extras`` the metadata when aobake wrote the file.  Normalised
+    integer attributes are scaled to [0, 1] ([-1, 1] signed).  Raises ``Unreadable``.
+    """
+    data = Path(path).read_bytes()
+    gltf, binary = parse_glb(data)
+    # Every accessor read takes from one budget, a few times the file's size: accessors
+    # sharing bytes (or all zeros, without a bufferView) cannot multiply what is allocated.
+    budget = [4 * len(data) + (1 << 20)]
+
+    def accessor(index):
+        values = _scaled(gltf, binary, index, budget[0])
+        budget[0] -= values.nbytes
+        return values
+
+    groups: dict = {}  # POSITION accessor -> (attributes, [index arrays])
+    for mesh in _list(gltf.get("meshes", [])):
+        for prim in _list(mesh.get("primitives", []) if isinstance(mesh, dict) else None):
+            attributes = prim.get("attributes", {}) if isinstance(prim, dict) else None
+            if not isinstance(attributes, dict):
+                raise Unreadable("a primitive without an attributes object")
+            if prim.get("mode", 4) != 4 or "POSITION" not in attributes:
+                continue
+            if not all(isinstance(a, int) for a in attributes.values()):
+                raise Unreadable("a primitive's attributes are not accessor numbers")
+            group = groups.setdefault(attributes["POSITION"], (attributes, []))
+            if "indices" in prim:
+                indices = accessor(prim["indices"])
+                if indices.dtype.kind != "u":
+                    raise Unreadable(f"indices of {indices.dtype} (glTF indices are unsigned "
+                                     "integers)")
+                group[1].append(indices.astype(np.int64))
+    if not groups:
+        raise Unreadable("no triangle mesh with POSITION")
+    names = set.intersection(*(set(a) for a, _ in groups.values()))
+    parts: dict = {name: [] for name in names}
+    faces, base = [], 0
+    for attributes, indices in groups.values():
+        for name in names:
+            parts[name].append(accessor(attributes[name]))
+        count = len(parts["POSITION"][-1])
+        flat = np.concatenate(indices) if indices else np.arange(count)
+        faces.append(flat.reshape(-1, 3) + base)
+        base += count
+    columns = {name: np.concatenate(arrays) for name, arrays in parts.items()}
+    asset = gltf.get("asset", {})
+    asset = asset if isinstance(asset, dict) else {}
+    metadata = asset.get("extras", {}) if asset.get("generator") == GENERATOR else {}
+    warnings = []
+    if any(isinstance(node, dict) and k in node for node in _list(gltf.get("nodes", []))
+           for k in ("matrix", "translation", "rotation", "scale")):
+        warnings.append("node transforms are not applied: positions are matched as stored")
+    positions = columns.pop("POSITION").astype(np.float64)
+    normals = columns.get("NORMAL")
+    return Table(columns, "gltf", positions, float64(normals), np.concatenate(faces),
+                 metadata if isinstance(metadata, dict) else {}, warnings)
+
+
+def _list(value) -> list:
+    if not isinstance(value, list):
+        raise Unreadable(f"{type(value).__name__} where the glTF JSON has a list")
+    return value
+
+
+def _scaled(gltf: dict, binary: bytes | None, index: int, max_bytes: int) -> np.ndarray:
+    """Accessor ``index`` as (count,) or (count, k); normalised integers scaled to [0, 1]."""
+    values = accessor_array(gltf, binary, index, max_bytes=max_bytes)
+    accessor = gltf["accessors"][index]
+    if accessor.get("normalized") and values.dtype.kind in "iu":
+        values = np.maximum(values / float(np.iinfo(values.dtype).max), -1.0)
+    return values

@@ -28,14 +28,24 @@ OIIO 3.2):
   ``aobake:channels`` attribute (JSON list).
 - Custom attributes: PNG (text chunks) and EXR keep ``aobake:*`` attributes;
   TIFF drops them, so the metadata JSON also goes into ``ImageDescription``.
+
+The reader beside the writers: ``read`` (any image's channels as a ``Table``), on
+``read_pixels`` / ``read_size``, which check a PNG's bytes before libpng sees them, bound
+the pixels by the file's size and keep the image library's own complaints off the terminal
+(``quiet_stderr``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
+import os
+import struct
+import sys
 import tempfile
 import threading
+import zlib
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -44,6 +54,7 @@ import numpy as np
 from aobake.errors import OutputError
 from aobake.outputs.atomic import atomic_path, outside_transaction
 from aobake.outputs.report import to_jsonable
+from aobake.outputs.table import Table, Unreadable, parse_json
 
 log = logging.getLogger(__name__)
 
@@ -103,9 +114,12 @@ def _failure(path, tmp, message: str, nbytes: int) -> str:
     return f"{path}: no space left on device ({message})" if full else f"{path}: {message}"
 
 
-def _write(path, pixels: np.ndarray, fmt, channel_names, attributes: Mapping[str, Any],
-           channel_formats=None) -> None:
-    """Write (H, W, C) pixels to path via a temp file; raise OutputError on failure."""
+def write_pixels(path, pixels: np.ndarray, fmt, channel_names, attributes: Mapping[str, Any],
+                 channel_formats=None) -> None:
+    """Write (H, W, C) ``pixels`` to ``path`` as they are, atomically: ``fmt`` the
+    OpenImageIO pixel type (e.g. ``oiio.UINT8``), ``channel_names`` one per channel,
+    ``attributes`` the file's (name -> value), ``channel_formats`` per-channel types or None.
+    OutputError naming ``path`` on failure.  (The other writers here are built on it.)"""
     oiio = _oiio()
     height, width, n_channels = pixels.shape
     with atomic_path(path) as tmp:
@@ -178,7 +192,7 @@ def write_exr(path, channels: Mapping[str, np.ndarray], metadata: Mapping[str, A
             attrs["aobake:float_channels"] = json.dumps(beyond)
         full = set(FULL_PRECISION) | set(beyond)
         formats = [oiio.FLOAT if name in full else oiio.HALF for name in names]
-    _write(path, np.stack(arrays, axis=-1), oiio.HALF if half else oiio.FLOAT, names, attrs,
+    write_pixels(path, np.stack(arrays, axis=-1), oiio.HALF if half else oiio.FLOAT, names, attrs,
            formats)
 
 
@@ -277,7 +291,7 @@ def _write_ldr_pixels(path, pixels: np.ndarray, bit_depth: int,
     meta = _metadata_attributes(metadata)
     attrs.update(meta)
     attrs["ImageDescription"] = meta["aobake:metadata"]
-    _write(path, pixels, oiio.UINT8 if bit_depth == 8 else oiio.UINT16,
+    write_pixels(path, pixels, oiio.UINT8 if bit_depth == 8 else oiio.UINT16,
            ("R", "G", "B", "A")[:pixels.shape[2]], attrs)
 
 
@@ -291,3 +305,199 @@ def png_bytes(value, coverage, bit_depth: int = 8, r_only: bool = True,
         return path.read_bytes()
 
 
+# ---------------------------------------------------------------------------------------------
+# reading
+
+
+def read(path) -> Table:
+    """An image (EXR, PNG, TIFF) as a ``Table`` (``naming`` 'exr'): every channel as (H, W)
+    float (integer files scaled to [0, 1]), alpha unassociated (coverage is not opacity),
+    the first subimage; aobake's metadata attribute (TIFF: its ImageDescription) as the
+    metadata.  Raises ``Unreadable``."""
+    pixels, names, attrs = read_pixels(path)
+    columns = {name: pixels[:, :, i] for i, name in enumerate(names)}
+    metadata = {}
+    for attr in ("aobake:metadata", "ImageDescription"):  # TIFF keeps only the description
+        text = attrs.get(attr)
+        if not isinstance(text, str):
+            continue
+        try:
+            candidate = parse_json(text)
+        except Unreadable:  # a description that is not aobake's metadata
+            continue
+        if isinstance(candidate, dict) and "config" in candidate:
+            metadata = candidate
+            break
+    return Table(columns, "exr", metadata=metadata)
+
+
+def read_size(path) -> tuple[int, int, int]:
+    """(width, height, channels) of an image from its header, as :func:`read_pixels` would
+    read it: a PNG checked first (libpng would write its own complaint on stderr), whatever
+    the image library says kept off the terminal; ``Unreadable`` for a broken file."""
+    import OpenImageIO as oiio
+
+    with open(path, "rb") as handle:
+        if handle.read(len(_PNG_SIGNATURE)) == _PNG_SIGNATURE:
+            handle.seek(0)
+            check_png(handle.read())
+    with quiet_stderr() as said:
+        inp = oiio.ImageInput.open(str(path))
+        if inp is None:
+            raise Unreadable(oiio.geterror() or "OpenImageIO cannot open it")
+        try:
+            spec = inp.spec()
+            size = (spec.width, spec.height, spec.nchannels)
+        finally:
+            inp.close()
+    if said:
+        log.debug("%s: the image library said: %s", path, " ".join(said))
+    return size
+
+
+def read_pixels(path) -> tuple[np.ndarray, list[str], dict]:
+    """The first subimage through OpenImageIO, alpha unassociated (colour is not multiplied by
+    alpha; in aobake's files alpha is coverage, not opacity).
+
+    Returns (pixels (H, W, C) float32, channel names, attributes).  Float files come back as
+    stored; integer files in OIIO's normalised scale, x / (2**bits - 1).  The attributes are
+    the file's, plus 'oiio:format' (e.g. 'uint8', 'half') and 'oiio:channelformats' (the
+    per-channel formats of a mixed file; [] when uniform).
+    """
+    import OpenImageIO as oiio
+
+    with open(path, "rb") as handle:
+        head = handle.read(len(_PNG_SIGNATURE))
+        size = os.fstat(handle.fileno()).st_size
+        if head == _PNG_SIGNATURE:  # libpng reports a broken file on stderr itself: check first
+            handle.seek(0)
+            check_png(handle.read())
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    with quiet_stderr() as said:
+        inp = oiio.ImageInput.open(str(path), config)
+        if inp is None:
+            raise Unreadable(oiio.geterror() or "OpenImageIO cannot open it")
+        try:
+            spec = inp.spec()
+            need = spec.width * spec.height * max(spec.nchannels, 1) * 4
+            if need > max(_IMAGE_FLOOR, _IMAGE_RATIO * size):
+                raise Unreadable(f"its header claims {spec.width}x{spec.height} pixels of "
+                                 f"{spec.nchannels} channels ({need} bytes as float) from "
+                                 f"{size} bytes")
+            pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+            if pixels is None:
+                raise Unreadable(inp.geterror() or "cannot read its pixels")
+            attrs = {p.name: p.value for p in spec.extra_attribs}
+            attrs["oiio:format"] = str(spec.format)
+            attrs["oiio:channelformats"] = [str(f) for f in spec.channelformats]
+            names = list(spec.channelnames)
+        finally:
+            inp.close()
+    if said:
+        log.debug("%s: the image library said: %s", path, " ".join(said))
+    pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
+    return pixels, names, attrs
+
+
+#: an image's pixels (as float32) may take this many times its file's size (compressed
+#: formats of smooth maps reach a few hundred), or _IMAGE_FLOOR bytes whatever the size
+_IMAGE_RATIO, _IMAGE_FLOOR = 4096, 256 << 20
+
+
+@contextlib.contextmanager
+def quiet_stderr():
+    """Keep what C libraries write to the process's stderr (libpng's ``libpng error: ...``)
+    off the terminal: file descriptor 2 points at a temporary file for the block, and the
+    list yielded receives its text (stripped lines) afterwards.  Python's own sys.stderr is
+    flushed first, so nothing of ours is caught."""
+    said: list = []
+    fd = 2  # where C's stderr writes, whatever Python's sys.stderr is at the moment
+    try:
+        saved = os.dup(fd)
+    except OSError:  # no stderr at all: nothing to keep quiet
+        yield said
+        return
+    try:
+        if sys.stderr is not None:
+            sys.stderr.flush()
+        with tempfile.TemporaryFile() as caught:
+            os.dup2(caught.fileno(), fd)
+            try:
+                yield said
+            finally:
+                os.dup2(saved, fd)
+                caught.seek(0)
+                text = caught.read(1 << 16).decode("utf-8", errors="replace")
+                said.extend(line.strip() for line in text.splitlines() if line.strip())
+    finally:
+        os.close(saved)
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: colour type -> channels, and the bit depths allowed for it (the PNG specification, 11.2.2)
+_PNG_COLOUR = {0: (1, (1, 2, 4, 8, 16)), 2: (3, (8, 16)), 3: (1, (1, 2, 4, 8)),
+               4: (2, (8, 16)), 6: (4, (8, 16))}
+
+
+def check_png(data: bytes) -> None:
+    """Refuse (``Unreadable``) a PNG that libpng would fail on: a bad signature, a chunk
+    running past the end or failing its CRC, no IHDR first, no IEND, or image data that
+    does not inflate to exactly the rows the header describes.  Inflating is bounded by
+    that size."""
+    if not data.startswith(_PNG_SIGNATURE):
+        raise Unreadable("not a PNG file")
+    at, chunks, idat = len(_PNG_SIGNATURE), [], []
+    while True:
+        if at + 12 > len(data):
+            raise Unreadable(f"truncated: a chunk header at byte {at} runs past the end")
+        length, kind = struct.unpack_from(">I4s", data, at)
+        if at + 12 + length > len(data):
+            raise Unreadable(f"truncated: chunk {kind.decode('latin-1')!r} at byte {at} runs "
+                             "past the end")
+        body = data[at + 8:at + 8 + length]
+        (crc,) = struct.unpack_from(">I", data, at + 8 + length)
+        if zlib.crc32(kind + body) != crc:
+            raise Unreadable(f"chunk {kind.decode('latin-1')!r} at byte {at} fails its CRC")
+        chunks.append(kind)
+        if kind == b"IDAT":
+            idat.append(body)
+        elif kind == b"IHDR":
+            if len(chunks) != 1 or length != 13:
+                raise Unreadable("malformed IHDR chunk")
+            width, height, depth, colour, method, filtering, interlace = \
+                struct.unpack(">IIBBBBB", body)
+        at += 12 + length
+        if kind == b"IEND":
+            break
+    if chunks[0] != b"IHDR":
+        raise Unreadable("the first chunk is not IHDR")
+    if colour not in _PNG_COLOUR or depth not in _PNG_COLOUR[colour][1] or method or filtering \
+            or interlace > 1 or not width or not height:
+        raise Unreadable(f"unsupported IHDR ({width}x{height}, colour type {colour}, depth "
+                         f"{depth}, interlace {interlace})")
+    if not idat:
+        raise Unreadable("no image data (IDAT)")
+    bits = _PNG_COLOUR[colour][0] * depth
+    passes = [(0, 0, 1, 1)] if not interlace else \
+        [(0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2),
+         (0, 1, 1, 2)]
+    expected = 0
+    for x0, y0, dx, dy in passes:
+        w, h = (width - x0 + dx - 1) // dx, (height - y0 + dy - 1) // dy
+        if w > 0 and h > 0:
+            expected += h * (1 + (w * bits + 7) // 8)
+    inflate, got = zlib.decompressobj(), 0
+    try:
+        for piece in idat:
+            while piece:
+                got += len(inflate.decompress(piece, 1 << 20))
+                piece = inflate.unconsumed_tail
+                if got > expected:
+                    raise Unreadable(f"its image data inflates to more than the {expected} "
+                                     "bytes its header describes")
+        got += len(inflate.flush())
+    except zlib.error as exc:
+        raise Unreadable(f"corrupt image data ({exc})") from None
+    if got != expected or not inflate.eof:
+        raise Unreadable(f"truncated image data: {got} of {expected} bytes")

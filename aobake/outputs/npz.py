@@ -35,19 +35,30 @@ Only the fields that were computed are present (the table lists today's
 estimates are float32, which is far finer than their standard errors.
 
 This module also holds the table of per-vertex fields (``VERTEX_FIELDS``) and
-their validation (``check_vertex_data``) that the PLY and GLB writers share.
+their validation (``check_vertex_data``) that the PLY and GLB writers share, and the
+reader beside the writer: ``read`` (an archive as a ``Table``, its arrays loaded when
+asked for), on ``read_npz`` / ``npz_names``, which never unpickle and check each array's
+size against the bytes the archive holds for it before allocating it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import struct
+import tokenize
+import zipfile
+import zlib
 from collections.abc import Mapping
+from pathlib import Path
 
 import numpy as np
 
+from aobake.errors import InputError
 from aobake.outputs.atomic import atomic_path
 from aobake.outputs.report import metadata_json
+from aobake.outputs.table import Table, Unreadable, float64, parse_json, triangles
 from aobake.quantities import FIELDS
 
 log = logging.getLogger(__name__)
@@ -150,8 +161,6 @@ def _savez(handle, arrays: dict) -> None:
     machine) for a 3% larger file.  Stored float64 (positions, normals): deflate shrinks
     their mantissas only to 0.75-0.93 of their size for 47 of the archive's 69 ms (bunny;
     the file grows by 0.28 MB, 14%)."""
-    import zipfile
-
     with zipfile.ZipFile(handle, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1,
                          allowZip64=True) as archive:
         for name, value in arrays.items():
@@ -196,3 +205,140 @@ def write(
         with open(tmp, "wb") as handle:
             _savez(handle, arrays)
     log.debug("wrote %s: %d vertices, %d faces, %s", path, len(positions), len(faces), list(fields))
+
+
+# ---------------------------------------------------------------------------------------------
+# reading
+
+
+def read(path) -> Table:
+    """The archive as a ``Table`` (``naming`` 'name'): its arrays as columns, each loaded when
+    first looked up (an archive may also hold every ray's distance, which a reader of values
+    seldom needs), positions, normals, faces and the metadata.  Raises ``Unreadable``."""
+    path = Path(path)
+    arrays = read_npz(path, ("positions", "normals", "faces", "metadata"))
+    names = set(npz_names(path)) - {"metadata", "positions", "faces"}
+    metadata = {}
+    if "metadata" in arrays:
+        text = arrays["metadata"]
+        if text.shape != () or text.dtype.kind != "U":
+            raise Unreadable(f"its metadata is a {text.dtype} array of shape {text.shape}, "
+                             "not a JSON string")
+        metadata = parse_json(str(text[()]), "its metadata")
+    return Table(_LazyArchive(path, names), "name", float64(arrays.get("positions")),
+                 float64(arrays.get("normals")), triangles(arrays.get("faces")),
+                 metadata if isinstance(metadata, dict) else {})
+
+
+class _LazyArchive(Mapping):
+    """name -> array of an NPZ archive, each read from the file when first looked up."""
+
+    def __init__(self, path: Path, names):
+        self.path, self.names, self.loaded = path, sorted(names), {}
+
+    def __iter__(self):
+        return iter(self.names)
+
+    def __len__(self):
+        return len(self.names)
+
+    def __getitem__(self, name):
+        if name not in self.names:
+            raise KeyError(name)
+        if name not in self.loaded:
+            try:
+                self.loaded[name] = read_npz(self.path, [name])[name]
+            except (Unreadable, OSError) as exc:
+                reason = " ".join(str(exc).split()) or type(exc).__name__
+                raise InputError(f"{self.path}: cannot read array {name!r}: {reason}") from None
+        return self.loaded[name]
+
+
+#: the most bytes one byte of deflate data can expand to (deflate's limit is 1032)
+_DEFLATE_RATIO = 1040
+
+
+def read_npz(path, names=None) -> dict:
+    """Arrays of an NPZ archive (``np.savez``'s format): {name: array} for ``names`` (None:
+    all; names it does not hold are left out), never unpickled.  Each array's size is
+    checked against the bytes the archive holds for it before it is allocated.  Raises
+    ``Unreadable`` for anything malformed (OSError for a file that cannot be opened)."""
+    with _npz_errors():
+        with zipfile.ZipFile(path) as archive:
+            members = npz_members(archive)
+            wanted = members if names is None else [n for n in names if n in members]
+            return {name: npz_array(archive, name) for name in wanted}
+
+
+def npz_names(path) -> list:
+    """The array names of an NPZ archive.  Raises ``Unreadable`` (OSError: cannot open)."""
+    with _npz_errors():
+        with zipfile.ZipFile(path) as archive:
+            return npz_members(archive)
+
+
+@contextlib.contextmanager
+def _npz_errors():
+    """What zipfile and zlib raise on a malformed archive, as ``Unreadable``."""
+    try:
+        yield
+    except zipfile.BadZipFile as exc:
+        raise Unreadable(f"not an NPZ archive ({exc})") from None
+    except zlib.error as exc:
+        raise Unreadable(f"corrupt compressed data ({exc})") from None
+    except NotImplementedError as exc:  # zipfile: an unknown version or feature
+        raise Unreadable(f"not an NPZ archive np.savez writes ({exc})") from None
+    except (EOFError, struct.error):
+        raise Unreadable("truncated archive") from None
+
+
+def npz_members(archive: zipfile.ZipFile) -> list:
+    """The array names of an open NPZ archive (its ``.npy`` members, without the suffix)."""
+    return [info.filename[:-4] for info in archive.infolist() if info.filename.endswith(".npy")]
+
+
+def npz_array(archive: zipfile.ZipFile, name: str) -> np.ndarray:
+    """Array ``name`` of an open NPZ archive, its header checked first: no Python objects,
+    and no more bytes than the member holds (itself at most what its compressed bytes can
+    expand to)."""
+    info = archive.getinfo(name + ".npy")
+    if info.flag_bits & 0x1:
+        raise Unreadable(f"array {name!r} is encrypted (np.savez never encrypts)")
+    if info.compress_type == zipfile.ZIP_STORED:
+        if info.file_size != info.compress_size:
+            raise Unreadable(f"array {name!r}: the archive's sizes disagree")
+    elif info.compress_type == zipfile.ZIP_DEFLATED:
+        if info.file_size > info.compress_size * _DEFLATE_RATIO + 1024:
+            raise Unreadable(f"array {name!r}: claims {info.file_size} bytes from "
+                             f"{info.compress_size} compressed ones (more than deflate makes)")
+    else:
+        raise Unreadable(f"array {name!r}: compression method {info.compress_type} "
+                         "(np.savez writes stored or deflated members)")
+    with archive.open(info) as member:
+        try:
+            version = np.lib.format.read_magic(member)
+            if version == (1, 0):
+                shape, _, dtype = np.lib.format.read_array_header_1_0(member)
+            elif version == (2, 0):
+                shape, _, dtype = np.lib.format.read_array_header_2_0(member)
+            else:
+                raise Unreadable(f"array {name!r}: .npy format version {version} not read")
+        except (ValueError, SyntaxError, RecursionError, tokenize.TokenError) as exc:
+            if isinstance(exc, Unreadable):
+                raise
+            raise Unreadable(f"array {name!r}: malformed .npy header ({' '.join(str(exc).split())})"
+                             ) from None
+        if dtype.hasobject:
+            raise Unreadable(f"array {name!r} holds Python objects (never unpickled)")
+        count = 1
+        for extent in shape:
+            count *= int(extent)
+        if count * dtype.itemsize > info.file_size:
+            raise Unreadable(f"array {name!r}: its header claims {shape} of {dtype}, "
+                             f"{count * dtype.itemsize} bytes, but the archive holds "
+                             f"{info.file_size} for it")
+    with archive.open(info) as member:
+        try:
+            return np.lib.format.read_array(member, allow_pickle=False)
+        except ValueError as exc:  # e.g. "EOF: reading array data"
+            raise Unreadable(f"array {name!r}: {' '.join(str(exc).split())}") from None

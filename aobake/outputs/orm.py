@@ -62,7 +62,8 @@ def pack(result, value: np.ndarray, orm_from=None) -> tuple[np.ndarray, str]:
 def check_source(path, resolution) -> None:
     """Refuse an ``orm_from`` texture whose size is not ``resolution`` (width, height) before
     a bake (the header alone is read); OutputError naming it."""
-    from aobake.compare.parsing import Unreadable, read_size
+    from aobake.outputs.image import read_size
+    from aobake.outputs.table import Unreadable
 
     try:  # the image library's own complaints (libpng's) stay off the terminal
         width, height, channels = read_size(path)
@@ -80,7 +81,8 @@ def check_source(path, resolution) -> None:
 
 def _read(path, width: int, height: int) -> np.ndarray:
     """(H, W, 2) G and B of a texture file, checked against the lightmap's size."""
-    from aobake.compare.parsing import Unreadable, read_pixels
+    from aobake.outputs.image import read_pixels
+    from aobake.outputs.table import Unreadable
 
     try:
         pixels, _, _ = read_pixels(path)
@@ -123,7 +125,8 @@ def _own(result, width: int, height: int) -> tuple[np.ndarray | None, str | None
     import tempfile
     from pathlib import Path
 
-    from aobake.compare.parsing import Unreadable, read_pixels
+    from aobake.outputs.image import read_pixels
+    from aobake.outputs.table import Unreadable
 
     try:
         with tempfile.TemporaryDirectory(prefix="aobake-orm-") as tmp:

@@ -33,6 +33,9 @@ a linear display would.  With neither AO nor obscurance the colour is white
 Metadata is one header line, ``comment aobake-metadata <json>``, whose JSON has
 no whitespace (spaces inside strings are written ``\\u0020``) so that PLY
 readers which split header lines on whitespace see it as one token.
+
+The reader beside the writer: ``read`` (any PLY's vertex properties as a ``Table``, aobake's
+or another tool's), on ``parse_ply``, which reads all three PLY formats.
 """
 
 from __future__ import annotations
@@ -40,12 +43,15 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from aobake.outputs.atomic import atomic_path
 from aobake.outputs.npz import check_vertex_data
 from aobake.outputs.report import metadata_json
+from aobake.outputs.table import Table, Unreadable, parse_json
 from aobake.quantities import FIELDS
 
 log = logging.getLogger(__name__)
@@ -54,8 +60,8 @@ METADATA_COMMENT = "aobake-metadata"
 
 # field name -> PLY property names (from the registry); float32 ("float") except integers
 _PROPERTIES = {f.name: f.ply for f in FIELDS.values()}
-_PLY_TYPES = {"<f8": "double", "<f4": "float", "<i4": "int", "|u1": "uchar"}
-
+#: stored dtype -> the PLY type written for it
+_WRITTEN_TYPES = {"<f8": "double", "<f4": "float", "<i4": "int", "|u1": "uchar"}
 
 
 def vertex_colors(fields: Mapping[str, np.ndarray], n: int) -> np.ndarray:
@@ -120,7 +126,7 @@ def write(
         "format binary_little_endian 1.0",
         f"comment {METADATA_COMMENT} {metadata_json(metadata, compact=True)}",
         f"element vertex {n}",
-        *(f"property {_PLY_TYPES[dtype]} {prop}" for prop, dtype, _ in columns),
+        *(f"property {_WRITTEN_TYPES[dtype]} {prop}" for prop, dtype, _ in columns),
         f"element face {len(faces)}",
         "property list uchar int vertex_indices",
         "end_header",
@@ -131,5 +137,223 @@ def write(
             handle.write(vertex.tobytes())
             handle.write(face.tobytes())
     log.debug("wrote %s: %d vertices, %d faces, %s", path, n, len(faces), list(fields))
+
+
+# ---------------------------------------------------------------------------------------------
+# reading
+
+
+def read(path) -> Table:
+    """A PLY in any of its three formats as a ``Table`` (``naming`` 'ply'): every scalar
+    vertex property (colour bytes, and other 8/16-bit unsigned properties, scaled to [0, 1]),
+    triangle faces when the face element is a list of 3 (else None), the ``aobake-metadata``
+    comment.  Raises ``Unreadable``."""
+    ply = parse_ply(Path(path).read_bytes())
+    vertex, metadata = ply.vertex, ply.metadata
+    columns = {name: vertex[name] for name in vertex.dtype.names}
+    for name, array in columns.items():  # colour bytes mean [0, 1]
+        if array.dtype.kind == "u" and array.dtype.itemsize <= 2:
+            columns[name] = array / float(np.iinfo(array.dtype).max)
+    positions = normals = None
+    if {"x", "y", "z"} <= set(columns):
+        positions = np.column_stack([columns.pop(a) for a in "xyz"]).astype(np.float64)
+    if {"nx", "ny", "nz"} <= set(columns):
+        normals = np.column_stack([columns[a] for a in ("nx", "ny", "nz")]).astype(np.float64)
+    return Table(columns, "ply", positions, normals, ply.faces,
+                 metadata if isinstance(metadata, dict) else {})
+
+
+PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}  # fmt: skip
+
+
+@dataclass
+class Ply:
+    """A PLY file as stored.
+
+    format : 'ascii' | 'binary_little_endian' | 'binary_big_endian'
+    elements : the header's (name, count, props) in file order; a prop is (name, dtype) for a
+      scalar, (name, count dtype, item dtype) for a list (dtypes as in ``PLY_TYPES``)
+    vertex : (n,) structured array, one field per vertex property in file order (binary: in
+      the file's byte order)
+    faces : (f, 3) int64 of the face element's first list, or None (no face element, not all
+      triangles, or truncated after the vertices)
+    metadata : the ``comment aobake-metadata`` line's JSON as parsed (not checked to be a
+      dict), {} without one
+    """
+
+    format: str
+    elements: list
+    vertex: np.ndarray
+    faces: np.ndarray | None = None
+    metadata: object = field(default_factory=dict)
+
+
+def parse_ply(data: bytes) -> Ply:
+    """PLY in any of its three formats: the header, every vertex property, the triangles."""
+    if not data.startswith(b"ply"):
+        raise Unreadable("not a PLY file (no 'ply' line)")
+    end = data.find(b"end_header")
+    if end < 0:
+        raise Unreadable("no end_header")
+    newline = data.find(b"\n", end)
+    if newline < 0:
+        raise Unreadable("truncated after end_header")
+    body = newline + 1
+    fmt, metadata, elements = None, {}, []
+    for line in data[:end].decode("ascii", errors="replace").splitlines()[1:]:
+        words = line.split()
+        if not words:
+            continue
+        if words[0] == "format":
+            fmt = words[1] if len(words) > 1 else None
+        elif words[0] == "comment" and words[1:2] == [METADATA_COMMENT]:
+            text = line.split(None, 2)[2] if len(words) > 2 else ""
+            metadata = parse_json(text, f"its {METADATA_COMMENT} comment")
+        elif words[0] == "element":
+            if len(words) != 3:
+                raise Unreadable(f"malformed header line {line.strip()!r}")
+            elements.append((words[1], _ply_count(words[1], words[2], len(data)), []))
+        elif words[0] == "property":
+            if not elements:
+                raise Unreadable("a property before any element")
+            if len(words) != (5 if words[1:2] == ["list"] else 3):
+                raise Unreadable(f"malformed header line {line.strip()!r}")
+            if words[1] == "list":
+                elements[-1][2].append((words[4], _ply_type(words[2]), _ply_type(words[3])))
+            else:
+                elements[-1][2].append((words[2], _ply_type(words[1])))
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise Unreadable(f"unknown format {fmt!r}")
+    parsed = _ply_ascii(data[body:], elements) if fmt == "ascii" else \
+        _ply_binary(data, body, elements, "<" if fmt == "binary_little_endian" else ">")
+    if "vertex" not in parsed:
+        raise Unreadable("no vertex element")
+    return Ply(fmt, elements, parsed["vertex"], parsed.get("face"), metadata)
+
+
+def _ply_count(name: str, text: str, size: int) -> int:
+    """An element's count: a whole number, at most the file's size in bytes (every item
+    takes at least one byte), so nothing is allocated beyond what the file holds."""
+    try:
+        count = int(text)
+    except ValueError:
+        raise Unreadable(f"element {name!r} has count {text!r}, not a number") from None
+    if count < 0 or count > size:
+        raise Unreadable(f"element {name!r} claims {count} items in a file of {size} bytes")
+    return count
+
+
+def _ply_type(name: str) -> str:
+    if name not in PLY_TYPES:
+        raise Unreadable(f"unknown property type {name!r}")
+    return PLY_TYPES[name]
+
+
+def _ply_binary(data: bytes, offset: int, elements, order: str) -> dict:
+    """{'vertex': structured (n,), 'face': (f, 3) int64} as far as they can be read (a face
+    list that is not all triangles ends the reading: later elements cannot be located)."""
+    out = {}
+    for name, count, props in elements:
+        dtype = []
+        for prop in props:
+            if len(prop) == 2:
+                dtype.append((prop[0], order + prop[1]))
+            else:  # a list, read as if of 3, then checked
+                dtype += [(prop[0] + "#count", order + prop[1]), (prop[0], order + prop[2], (3,))]
+        dtype = np.dtype(dtype)
+        if offset + dtype.itemsize * count > len(data):
+            lists = [p[0] for p in props if len(p) == 3]
+            whole = max(len(data) - offset, 0) // dtype.itemsize  # the items the bytes hold
+            head = np.frombuffer(data, dtype=dtype, count=whole, offset=offset) if whole \
+                else None
+            if lists and (head is None or any((head[p + "#count"] != 3).any() for p in lists)):
+                break  # not all triangles: read as 3-lists, its true size is unknown here
+            # the vertex element, or a triangle list, that ends before its count: a file cut
+            # short (the faces cannot be dropped: the values would be read without them)
+            raise Unreadable(f"truncated: element {name!r} runs past the end of the file "
+                             f"({count} items declared, {whole} there)")
+        array = np.frombuffer(data, dtype=dtype, count=count, offset=offset)
+        lists = [p[0] for p in props if len(p) == 3]
+        if any((array[p + "#count"] != 3).any() for p in lists):
+            break  # not all triangles: stop (the vertices were read first, or are not here)
+        offset += array.nbytes
+        if name == "vertex":
+            out["vertex"] = array
+        elif name == "face" and lists:
+            out["face"] = array[lists[0]].astype(np.int64)
+        if "vertex" in out and "face" in out:
+            break
+    return out
+
+
+def _ply_ascii(body: bytes, elements) -> dict:
+    """The ASCII layout, read as one stream of tokens (line breaks do not matter)."""
+    tokens = body.decode("ascii").split()
+    out, at = {}, 0
+    for name, count, props in elements:
+        lists = [i for i, p in enumerate(props) if len(p) == 3]
+        width = len(props) + 3 * len(lists)  # every list assumed to hold 3 (checked)
+        chunk = tokens[at:at + width * count]
+        if len(chunk) < width * count:
+            whole = len(chunk) // width
+            counts = np.array(chunk[:whole * width], dtype=object).reshape(whole, width)
+            counts = counts[:, _lists_at(props)].astype(np.float64)
+            if (counts != 3).any():
+                break  # not all triangles: read as 3-lists, its true length is unknown here
+            raise Unreadable(f"truncated: element {name!r} runs past the end of the file "
+                             f"({count} items declared, {whole} there)")
+        table = np.array(chunk, dtype=np.float64).reshape(count, width)
+        columns, col = {}, 0
+        for prop in props:
+            if len(prop) == 2:
+                columns[prop[0]] = _ascii_column(prop[0], table[:, col], prop[1])
+                col += 1
+            else:
+                if (table[:, col] != 3).any():
+                    return out  # not all triangles
+                columns[prop[0]] = table[:, col + 1:col + 4].astype(np.int64)
+                col += 4
+        at += width * count
+        if name == "vertex":
+            vertex = np.empty(count, dtype=[(p[0], p[1]) for p in props if len(p) == 2])
+            for key in vertex.dtype.names:
+                vertex[key] = columns[key]
+            out["vertex"] = vertex
+        elif name == "face" and lists:
+            out["face"] = columns[props[lists[0]][0]]
+        if "vertex" in out and "face" in out:
+            break
+    return out
+
+
+def _lists_at(props) -> list:
+    """The token offsets of the list counts in one row of ``props``, every list read as
+    holding 3 (``_ply_ascii``'s layout)."""
+    at, out = 0, []
+    for prop in props:
+        if len(prop) == 3:
+            out.append(at)
+            at += 4
+        else:
+            at += 1
+    return out
+
+
+def _ascii_column(name: str, values: np.ndarray, dtype: str) -> np.ndarray:
+    """A text column in its declared type: an integer type's values must be whole numbers
+    within its range (a cast would wrap them silently)."""
+    dtype = np.dtype(dtype)
+    if dtype.kind in "iu":
+        info = np.iinfo(dtype)
+        bad = ~((values >= info.min) & (values <= info.max) & (values == np.floor(values)))
+        if bad.any():
+            raise Unreadable(f"property {name!r}: {values[bad][0]:g} is not a {dtype} value")
+        return values.astype(dtype)
+    with np.errstate(over="ignore"):  # a float32 property beyond its range is inf, refused later
+        return values.astype(dtype)
 
 

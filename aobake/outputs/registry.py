@@ -1,5 +1,5 @@
-"""Output formats: (result kind, file extension) -> writer, the one table the CLI,
-``aobake.write`` and the README's output table read.
+"""Output formats: (file extension, result kind) -> writer and reader, the one table the
+CLI, ``aobake.write``, ``aobake.outputs.read`` and the README's output table read.
 
 Two kinds of result (``aobake.records``): ``points`` (BakeResult: per vertex or query
 point) and ``image`` (ImageResult: lightmap texels, TexelResult, and camera pixels,
@@ -7,8 +7,13 @@ ViewResult, share it).  A writer serves one kind, and the targets listed in its
 ``targets`` (a lightmap GLB needs the atlas a view does not have).
 A writer is ``write(path, result, metadata, options)`` with ``metadata`` the JSON dict
 every output carries and ``options`` the :class:`WriteOptions`; it writes
-atomically (nothing, complete or partial, is left at ``path`` on failure).  A
-new format is one module with such a function plus one line in ``WRITERS``.
+atomically (nothing, complete or partial, is left at ``path`` on failure).
+
+Beside each writer, its reader (meshio's ``register_format(name, extensions, reader,
+writers)``): ``read(path) -> aobake.outputs.table.Table``, the format module's own ``read``,
+so a format aobake writes is one it reads, and no other package reaches into a format
+module to read a file.  A new format is one module with both functions plus one line in
+``WRITERS``.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ from typing import Callable
 
 import numpy as np
 
-from aobake.errors import OutputError
+from aobake.errors import InputError, OutputError
 from aobake.outputs.texture import ORM_CHANNELS, write_texture
 from aobake.quantities import FIELDS
 
@@ -40,13 +45,14 @@ class WriteOptions:
 @dataclass(frozen=True)
 class Writer:
     """suffix : lower-case extension, kind : 'points' | 'image' (the result kind it writes),
-    write : the function, what / contents : the README's output table row, targets : the
-    targets whose results it writes ('vertices' and 'points' make points; 'texels' and
-    'view' make images)."""
+    write : the function, read : its reader (path -> ``Table``), what / contents : the
+    README's output table row, targets : the targets whose results it writes ('vertices'
+    and 'points' make points; 'texels' and 'view' make images)."""
 
     suffix: str
     kind: str
     write: Callable
+    read: Callable
     what: str
     contents: Callable[[], str]
     targets: tuple = ()
@@ -73,6 +79,17 @@ def _vertex(module_name: str):
         else:
             module.write(path, result.positions, faces, result.fields(), metadata)
     return write
+
+
+def _reader(module_name: str):
+    """The ``read`` of ``aobake.outputs.<module_name>``, imported when first called (as the
+    vertex writers are: a bake that writes one format loads no other)."""
+    def read(path):
+        import importlib
+
+        return importlib.import_module(f"aobake.outputs.{module_name}").read(path)
+    read.__qualname__ = f"{module_name}.read"
+    return read
 
 
 def _texture(path, result, metadata, options):
@@ -115,18 +132,24 @@ def _exr_contents() -> str:
 _POINTS = ("vertices", "points")
 _IMAGES = ("texels", "view")
 
+_IMAGE = _reader("image")
+
 WRITERS = (
-    Writer(".npz", "points", _vertex("npz"), "per vertex", _npz_contents, _POINTS),
-    Writer(".ply", "points", _vertex("ply"), "per vertex", _ply_contents, _POINTS),
-    Writer(".glb", "points", _vertex("glb"), "per vertex", _glb_contents, _POINTS),
-    Writer(".exr", "image", _texture, "lightmap", _exr_contents, _IMAGES),
-    Writer(".png", "image", _texture, "lightmap",
+    Writer(".npz", "points", _vertex("npz"), _reader("npz"), "per vertex", _npz_contents,
+           _POINTS),
+    Writer(".ply", "points", _vertex("ply"), _reader("ply"), "per vertex", _ply_contents,
+           _POINTS),
+    Writer(".glb", "points", _vertex("glb"), _reader("glb"), "per vertex", _glb_contents,
+           _POINTS),
+    Writer(".exr", "image", _texture, _IMAGE, "lightmap", _exr_contents, _IMAGES),
+    Writer(".png", "image", _texture, _IMAGE, "lightmap",
            lambda: "AO in RGB (`--r-only`: R), coverage in alpha, 8/16 bit (`--bit-depth`); "
                    "`--orm`: RGB = AO, roughness, metalness",
            _IMAGES),
-    Writer(".tif", "image", _texture, "lightmap", lambda: "as `.png`", _IMAGES),
-    Writer(".tiff", "image", _texture, "lightmap", lambda: "as `.png`", _IMAGES),
-    Writer(".glb", "image", _texture, "lightmap",
+    Writer(".tif", "image", _texture, _IMAGE, "lightmap", lambda: "as `.png`", _IMAGES),
+    Writer(".tiff", "image", _texture, _IMAGE, "lightmap", lambda: "as `.png`", _IMAGES),
+    # read as what its vertices carry (the occlusion texture is the same map as the .png)
+    Writer(".glb", "image", _texture, _reader("glb"), "lightmap",
            lambda: "the atlas mesh with the AO map as `occlusionTexture` of every input "
                    "material (each keeps its base colour; one primitive per material); "
                    "`--uv-set N`: on `TEXCOORD_N`, the other sets kept; `--orm`: one ORM "
@@ -163,6 +186,17 @@ def writer_for(path, target: str) -> Writer:
                       f"(--target {target}); use one of {', '.join(suffixes(target))}; "
                       f"formats: per vertex {', '.join(suffixes('vertices'))}, lightmap "
                       f"{', '.join(suffixes('texels'))} (.glb lightmap with --target texels)")
+
+
+def reader_for(path) -> Callable:
+    """The reader of ``path``'s (case-insensitive) extension (path -> ``Table``): the first
+    format listed with it; InputError if none."""
+    suffix = Path(path).suffix.lower()
+    for writer in WRITERS:
+        if writer.suffix == suffix:
+            return writer.read
+    raise InputError(f"{path}: unsupported format {suffix or '(none)'!r}; aobake reads "
+                     f"{', '.join(dict.fromkeys(w.suffix for w in WRITERS))}")
 
 
 def markdown_table() -> str:
