@@ -155,6 +155,7 @@ def _xatlas_default_coverage(mesh, resolution, padding):
     return np.unique(s.texel).size / resolution ** 2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["icosphere", "torus", "capsule"])
 def test_coverage_beats_xatlas_default_packing(atlases, name):
     """At the default padding the new atlas covers at least what xatlas's default charts
@@ -167,6 +168,7 @@ def test_coverage_beats_xatlas_default_packing(atlases, name):
     assert ours >= _xatlas_default_coverage(mesh, res, pad)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["icosphere", "torus", "capsule"])
 @pytest.mark.parametrize("res, pad", [(128, 1), (128, 4), (128, 8), (256, 1), (256, 4),
                                       (256, 8)])

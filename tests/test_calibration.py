@@ -18,6 +18,9 @@ import aobake
 from aobake.samplers.base import REPLICATES
 from analytic import combine, polygon, quad, up
 
+#: statistical: many seeds per case (the fast tier, pytest -m "not slow", skips them)
+pytestmark = pytest.mark.slow
+
 K = 150
 
 

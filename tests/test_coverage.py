@@ -38,6 +38,9 @@ from analytic import (ceiling_obscurance, combine, floor_and_ceiling, polygon,
                       polygon_form_factors, quad, up)
 from conftest import run_cli
 
+#: statistical: many seeds per case (the fast tier, pytest -m "not slow", skips them)
+pytestmark = pytest.mark.slow
+
 #: family-wise false-failure rate of each test function (all its parametrisations)
 FWER = 1e-4
 #: the level the library promises its 95% intervals keep in the worst case
