@@ -280,6 +280,23 @@ def bake_texels(mesh, config: BakeConfig | None = None, *, threads: int | None =
                chunk_rays=chunk_rays, progress=progress, **run_kw)
 
 
+def bake_projected(low, source, config: BakeConfig | None = None, *, per: str = "texels",
+                   cage_offset=None, cage=None, low_occludes: bool = False,
+                   threads: int | None = None, progress=None, **options):
+    """Bake the AO of ``source`` (the high-poly mesh: a path, trimesh mesh or Scene) onto
+    ``low``'s UVs (``per="texels"``) or vertices (``per="vertices"``) through a cage
+    (``cage_offset`` or ``cage``, see ``aobake.targets.projected``); ``low_occludes``: the
+    low mesh occludes too.  ``options`` are BakeConfig fields and ``run``'s keywords
+    (method, executor, ...).  ``bake(low, source=HIGH)`` is the same bake from settings."""
+    if per not in ("texels", "vertices"):
+        raise InputError(f"per must be one of ['texels', 'vertices'], got {per!r}")
+    options, run_kw = _split(options)
+    target = TARGETS[f"projected_{per}"](low, cage_offset=cage_offset, cage=cage,
+                                         low_occludes=low_occludes)
+    return run(_config(config, options), source, target, threads=threads,
+               progress=progress, **run_kw)
+
+
 #: what ``bake_view_truths`` adds to a view: the unbounded truth's channels under these names
 UNBOUNDED = {"ao": "ao_unbounded", "ao_stderr": "ao_unbounded_stderr",
              "ao_ci_low": "ao_unbounded_ci_low", "ao_ci_high": "ao_unbounded_ci_high",

@@ -20,10 +20,8 @@ Conventions (written into every output's metadata through ``Camera.record``):
 
 from __future__ import annotations
 
-import json
 import math
 import re
-import struct
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -75,7 +73,7 @@ def _vector(name: str, value) -> np.ndarray:
     return array
 
 
-def _size(size) -> tuple[int, int]:
+def check_size(size) -> tuple[int, int]:
     """(width, height) as positive ints within MAX_SIDE and MAX_PIXELS; InputError otherwise."""
     try:
         width, height = size
@@ -159,7 +157,7 @@ class Camera:
         fov = float(fov)
         if not (math.isfinite(fov) and 0.0 < fov < 180.0):
             raise InputError(f"camera: fov_y must be in (0, 180) degrees, got {fov}")
-        width, height = _size((self.width, self.height))
+        width, height = check_size((self.width, self.height))
         near, far = _clip_plane("near", self.near), _clip_plane("far", self.far)
         if near is not None and far is not None and not near < far:
             raise InputError(f"camera: near ({near}) must be less than far ({far})")
@@ -312,7 +310,7 @@ def look_at(look_from, look_at, up, fov_y, size=DEFAULT_SIZE, near=None, far=Non
     parallel up, non-finite numbers, fov outside (0, 180), a size that is not two positive
     ints of at most MAX_SIDE each and MAX_PIXELS in all, bad clip planes.
     """
-    width, height = _size(size)
+    width, height = check_size(size)
     return Camera(eye=look_from, target=look_at, up=up, fov_y=fov_y, width=width,
                   height=height, near=near, far=far, name=name)
 
@@ -374,7 +372,7 @@ def default_camera(lo, hi, size=DEFAULT_SIZE, fov_y: float = 40.0, up_axis: str 
     if up_axis not in UP_AXES:
         raise InputError(f"camera: up axis must be one of {sorted(UP_AXES)}, got {up_axis!r}")
     corners = _corners(lo, hi)
-    width, height = _size(size)
+    width, height = check_size(size)
     lo, hi = corners[0], corners[7]
     centre = 0.5 * (lo + hi)
     radius = 0.5 * float(np.linalg.norm(hi - lo)) or 1.0
@@ -500,55 +498,25 @@ def parse_size(text: str) -> tuple[int, int]:
     if match is None:
         raise InputError(f"size must be WxH (two positive integers, e.g. 1920x1080), "
                          f"got {text!r}")
-    return _size((int(match.group(1)), int(match.group(2))))
+    return check_size((int(match.group(1)), int(match.group(2))))
 
 
 # ---- glTF cameras ------------------------------------------------------------------------
 
-_GLB_MAGIC = b"glTF"
-_GLB_JSON = 0x4E4F534A  # "JSON" as a little-endian uint32
-
-
 def _gltf_json(path: Path) -> dict:
     """The JSON document of a .gltf file or a GLB container (detected by its magic)."""
+    from aobake.outputs.gltf import MAGIC, read_gltf
+
     try:
-        data = path.read_bytes()
+        with open(path, "rb") as handle:
+            magic = handle.read(4)
     except OSError as error:
         raise InputError(f"{path}: cannot read: {error.strerror or error}") from None
-    if data[:4] != _GLB_MAGIC and path.suffix.lower() not in (".gltf", ".glb"):
+    if magic != MAGIC and path.suffix.lower() not in (".gltf", ".glb"):
         raise InputError(f"{path}: a camera is read from a glTF file (.gltf or .glb); this "
                          f"is a {path.suffix or 'file without extension'}, which has no "
                          "cameras (--camera needs a glTF)")
-    if data[:4] == _GLB_MAGIC or path.suffix.lower() == ".glb":
-        # GLB: 12-byte header (magic, version, total length), then chunk 0: length, type, JSON.
-        if len(data) < 12:
-            raise InputError(f"{path}: truncated GLB ({len(data)} bytes, header needs 12)")
-        magic, version, length = struct.unpack_from("<4sII", data, 0)
-        if magic != _GLB_MAGIC:
-            raise InputError(f"{path}: not a GLB file (magic {magic!r}, expected b'glTF')")
-        if version != 2:
-            raise InputError(f"{path}: GLB version {version} is not supported (only 2)")
-        if length > len(data):
-            raise InputError(f"{path}: truncated GLB (header says {length} bytes, "
-                             f"file has {len(data)})")
-        if length < 20:
-            raise InputError(f"{path}: GLB has no JSON chunk (length {length})")
-        chunk_length, chunk_type = struct.unpack_from("<II", data, 12)
-        if chunk_type != _GLB_JSON:
-            raise InputError(f"{path}: GLB's first chunk is not JSON (type 0x{chunk_type:08x})")
-        if 20 + chunk_length > length:
-            raise InputError(f"{path}: truncated GLB (JSON chunk of {chunk_length} bytes "
-                             f"overruns the file's {length})")
-        text = data[20:20 + chunk_length]
-    else:
-        text = data
-    try:
-        document = json.loads(text.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise InputError(f"{path}: invalid glTF JSON: {error}") from None
-    if not isinstance(document, dict):
-        raise InputError(f"{path}: invalid glTF: the JSON is not an object")
-    return document
+    return read_gltf(path)[0]
 
 
 def _numbers(path, what, value, count) -> np.ndarray:

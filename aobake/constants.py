@@ -9,3 +9,7 @@ AXES = ("x", "y", "z")
 OFFSET_ULPS = 64
 #: hardware depth-buffer conventions (``aobake.camera.hardware_depth`` / ``linearize_depth``)
 DEPTH_CONVENTIONS = ("opengl", "d3d", "reversed")
+#: the farthest hit distance a ray is traced to, in the tracer's local frame (float32): a
+#: finite stand-in for infinity (Embree's tfar must be finite and below float32's max), far
+#: beyond the scene, which the local frame scales into [-1, 1)
+RAY_FAR = 1e37

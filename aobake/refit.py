@@ -26,8 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from aobake import _native
-from aobake.backends.embree import _FAR
-from aobake.compare.parsing import Unreadable, parse_json, read_npz
+from aobake.constants import RAY_FAR
+from aobake.outputs.npz import read_npz
+from aobake.outputs.table import Unreadable, parse_json
 from aobake.config import BakeConfig, parse_distance
 from aobake.errors import InputError
 from aobake.outputs.npz import RAY_MISS, decode_ray_distances
@@ -146,7 +147,7 @@ def refit(bake, *, tau=None, max_distance=None, quantities=None, source: str = "
     out = {}
     for q in qs:
         out.update(q.no_information(normals))
-    tfar = np.minimum(np.float32(min(distance * scale, 3.0e38)), _FAR)
+    tfar = np.minimum(np.float32(min(distance * scale, 3.0e38)), np.float32(RAY_FAR))
     kernels = _native.kernels()
     index = np.flatnonzero(traced_rows)
     block = max(1, _BLOCK_RAYS // (groups * m))
@@ -291,7 +292,7 @@ def _check(bake: BakeResult, source: str):
         refuse(f"{int(np.count_nonzero(bad))} kept distances are NaN or negative (a hit's "
                f"distance is >= 0; a miss is stored as {RAY_MISS:g})")
     # a hit was found below the baked search distance (float32, as the tracer's tfar)
-    reach = np.minimum(np.float32(min(baked * scale, 3.0e38)), _FAR)
+    reach = np.minimum(np.float32(min(baked * scale, 3.0e38)), np.float32(RAY_FAR))
     beyond = np.isfinite(rows) & (rows > reach * np.float32(1 + 2 ** -20))
     if beyond.any():
         refuse(f"{int(np.count_nonzero(beyond))} kept distances are beyond the baked max "

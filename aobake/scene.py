@@ -563,32 +563,6 @@ def _image_name(header: dict, index) -> str:
     return f"images[{index}] (embedded)"
 
 
-def _image_bytes(path: Path, header: dict, binary: bytes | None, index) -> bytes:
-    """The bytes of glTF ``images[index]``; OSError / ValueError / KeyError / IndexError /
-    TypeError where the file does not hold them."""
-    import base64
-    from urllib.parse import unquote
-
-    def uri_bytes(uri: str) -> bytes:
-        if uri.startswith("data:"):
-            return base64.b64decode(uri.split(",", 1)[1], validate=False)
-        return (path.parent / unquote(uri)).read_bytes()
-
-    image = header["images"][index]
-    if "uri" in image:
-        return uri_bytes(str(image["uri"]))
-    view = header["bufferViews"][image["bufferView"]]
-    buffer = header["buffers"][view["buffer"]]
-    data = uri_bytes(str(buffer["uri"])) if "uri" in buffer else binary
-    if data is None:
-        raise ValueError("the GLB has no binary chunk")
-    start = int(view.get("byteOffset", 0))
-    end = start + int(view["byteLength"])
-    if end > len(data):
-        raise ValueError(f"bufferView {image['bufferView']} ends past its buffer")
-    return data[start:end]
-
-
 def _gltf_broken_textures(path: Path) -> dict:
     """glTF material name (None: unnamed) -> "texture X: problem" for every alphaMode MASK
     material whose declared baseColorTexture cannot be read or decoded.
@@ -600,10 +574,10 @@ def _gltf_broken_textures(path: Path) -> dict:
 
     from PIL import Image
 
-    from aobake import uvsets
+    from aobake.outputs.gltf import image_bytes, read_gltf
 
     try:
-        header, binary = uvsets.read_json(path)
+        header, binary = read_gltf(path)
     except InputError:
         return {}  # trimesh has read it: let its result stand
     broken = {}
@@ -619,7 +593,7 @@ def _gltf_broken_textures(path: Path) -> dict:
         try:
             source = header["textures"][texture["index"]]["source"]
             what = f"texture {_image_name(header, source)}"
-            data = _image_bytes(path, header, binary, source)
+            data = image_bytes(header, binary, source, path.parent)
         except FileNotFoundError:
             broken[name] = f"{what}: no such file"
             continue

@@ -57,15 +57,15 @@ def cg(matrix: Csr, diag: np.ndarray, rhs: np.ndarray, x0: np.ndarray, tolerance
 def cg_numpy(matrix: Csr, diag, rhs, x0, tolerance, max_iterations
              ) -> tuple[np.ndarray, int, float]:
     """``cg`` in numpy, the reference: (x (n,), iterations, the last max |r / diag|)."""
-    ranks = _ranks(matrix)
+    ranks = ranks_of(matrix)
     x = x0.copy()
-    r = rhs - _apply(matrix, x, ranks)
+    r = rhs - apply(matrix, x, ranks)
     z = r / diag
     p = z.copy()
     rz = _dot(r, z)
     it = 0
     while np.max(np.abs(z), initial=0.0) > tolerance and it < max_iterations:
-        q = _apply(matrix, p, ranks)
+        q = apply(matrix, p, ranks)
         alpha = rz / _dot(p, q)
         x += alpha * p
         r -= alpha * q
@@ -76,16 +76,16 @@ def cg_numpy(matrix: Csr, diag, rhs, x0, tolerance, max_iterations
     return x, it, float(np.max(np.abs(z), initial=0.0))
 
 
-def _apply(matrix: Csr, x: np.ndarray, ranks: list) -> np.ndarray:
+def apply(matrix: Csr, x: np.ndarray, ranks: list) -> np.ndarray:
     """(n,) A x, each row summed in column order from 0.0 (the kernel's order): ``ranks``
-    from ``_ranks``."""
+    from ``ranks_of``."""
     out = np.zeros(len(matrix.indptr) - 1)
     for rows, at in ranks:
         out[rows] += matrix.data[at] * x[matrix.indices[at]]
     return out
 
 
-def _ranks(matrix: Csr) -> list:
+def ranks_of(matrix: Csr) -> list:
     """Per rank r, (the rows with more than r entries, the position of their r-th)."""
     length = np.diff(matrix.indptr)
     out = []

@@ -17,12 +17,13 @@ from __future__ import annotations
 import io
 import json
 import re
-import struct
 from pathlib import Path
 
 import numpy as np
 
 from aobake.errors import InputError
+from aobake.outputs.gltf import MAGIC, write_glb
+from aobake.outputs.gltf import read_gltf as read_json
 
 #: the alias prefix of a UV set in the attributes handed to trimesh
 ALIAS = "_AOBAKE_TEXCOORD_"
@@ -30,29 +31,6 @@ _SET = re.compile(r"^TEXCOORD_(\d+)$")
 _TRIANGLES = (4, 5)  # TRIANGLES, TRIANGLE_STRIP: what trimesh loads as meshes
 #: normalised integer component types -> their largest value (glTF 2.0, 3.11)
 _NORMALISED = {5121: 255.0, 5123: 65535.0}
-
-
-def read_json(path: Path) -> tuple[dict, bytes | None]:
-    """(the glTF JSON, the GLB's BIN chunk or None) of a .gltf or .glb file."""
-    data = path.read_bytes()
-    if data[:4] == b"glTF":
-        try:
-            length, kind = struct.unpack_from("<II", data, 12)
-            if kind != 0x4E4F534A:
-                raise ValueError("first chunk is not JSON")
-            header = json.loads(data[20:20 + length])
-            rest = data[20 + length:]
-            binary = None
-            if len(rest) >= 8:
-                blen, bkind = struct.unpack_from("<II", rest, 0)
-                binary = rest[8:8 + blen] if bkind == 0x004E4942 else None
-        except (struct.error, ValueError, UnicodeDecodeError) as exc:
-            raise InputError(f"{path}: cannot read GLB ({exc})") from None
-        return header, binary
-    try:
-        return json.loads(data), None
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read glTF JSON ({exc})") from None
 
 
 def _primitives(header, path=None):
@@ -100,16 +78,12 @@ def aliased(path: Path) -> tuple[io.BytesIO, str, list[int]]:
             match = _SET.match(name)
             if match:
                 attributes[ALIAS + match.group(1)] = attributes[name]
-    text = json.dumps(header).encode("utf-8")
-    if binary is None and path.read_bytes()[:4] != b"glTF":
-        return io.BytesIO(text), "gltf", every
-    text += b" " * (-len(text) % 4)
-    chunks = struct.pack("<II", len(text), 0x4E4F534A) + text
-    if binary is not None:
-        binary = binary + b"\0" * (-len(binary) % 4)
-        chunks += struct.pack("<II", len(binary), 0x004E4942) + binary
-    head = struct.pack("<4sII", b"glTF", 2, 12 + len(chunks))
-    return io.BytesIO(head + chunks), "glb", every
+    if binary is None and path.read_bytes()[:4] != MAGIC:
+        return io.BytesIO(json.dumps(header).encode("utf-8")), "gltf", every
+    packed = io.BytesIO()
+    write_glb(packed, header, binary, allow_nan=True)
+    packed.seek(0)
+    return packed, "glb", every
 
 
 def mesh_uv(mesh, k: int) -> np.ndarray | None:

@@ -22,7 +22,7 @@ import aobake
 from aobake.config import BakeConfig
 from aobake.occluders import build
 from aobake.scene import load_scene, make_scene
-from aobake.targets.projected import bake_projected
+from aobake.api import bake_projected
 
 MESHES = Path(__file__).resolve().parents[2] / "shared" / "meshes"
 #: cage offsets swept, in percent of the low mesh's diagonal

@@ -393,7 +393,7 @@ def test_gltf_bad_files(tmp_path):
         "magic.glb": (b"glTX" + good[4:], "not a GLB"),
         "version.glb": (good[:4] + struct.pack("<I", 1) + good[8:], "version 1"),
         "chunk.glb": (good[:16] + b"BIN\x00" + good[20:], "not JSON"),
-        "json.gltf": (b"{not json", "invalid glTF JSON"),
+        "json.gltf": (b"{not json", "glTF JSON is not valid JSON"),
         "empty.gltf": (json.dumps({"asset": {"version": "2.0"}}).encode(), "no cameras"),
     }
     for name, (data, message) in cases.items():

@@ -29,7 +29,8 @@ from scipy import stats
 import aobake
 from aobake.errors import InputError
 from aobake.scene import make_scene
-from aobake.targets.projected import CHANNELS, bake_projected
+from aobake.api import bake_projected
+from aobake.targets.projected import CHANNELS
 
 FWER = 1e-4
 PROMISED = 0.93

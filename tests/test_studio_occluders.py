@@ -20,7 +20,7 @@ import pytest
 
 import aobake
 from aobake.scene import make_scene
-from aobake.targets.projected import bake_projected
+from aobake.api import bake_projected
 from analytic import dof_for, polygon_form_factors, z_bound
 
 THREADS = 2

@@ -19,10 +19,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from aobake.constants import RAY_FAR
 from aobake.backends.base import TriangleBackend
 
 # embreex reports a miss as tfar unchanged; 1e37 is its own "infinite" default.
-_FAR = np.float32(1e37)
+_FAR = np.float32(RAY_FAR)
 
 
 class EmbreeBackend(TriangleBackend):

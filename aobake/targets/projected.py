@@ -287,24 +287,6 @@ class ProjectedVertexTarget(_Projecting):
                         report={"projection": record})
 
 
-def bake_projected(low, source, config=None, *, per: str = "texels", cage_offset=None,
-                   cage=None, low_occludes: bool = False, threads: int | None = None, progress=None, **options):
-    """Bake the AO of ``source`` (the high-poly mesh: a path, trimesh mesh or Scene) onto
-    ``low``'s UVs (``per="texels"``) or vertices (``per="vertices"``) through a cage
-    (``cage_offset`` or ``cage``, see :class:`ProjectedTexelTarget`); ``low_occludes``: the
-    low mesh occludes too.  ``options`` are
-    BakeConfig fields and ``aobake.api.run``'s keywords (method, executor, ...)."""
-    from aobake.api import _config, _split, run
-
-    targets = {"texels": ProjectedTexelTarget, "vertices": ProjectedVertexTarget}
-    if per not in targets:
-        raise InputError(f"per must be one of {sorted(targets)}, got {per!r}")
-    options, run_kw = _split(options)
-    target = targets[per](low, cage_offset=cage_offset, cage=cage, low_occludes=low_occludes)
-    return run(_config(config, options), source, target, threads=threads,
-               progress=progress, **run_kw)
-
-
 def projection_fields(projection: Projection) -> dict:
     """The per-vertex outputs' projection fields (``quantities.PROJECTION_FIELDS``): missed
     (n,) uint8 1 where nothing was projected, back_hit (n,) uint8, projection_distance (n,)

@@ -61,7 +61,7 @@ class ViewTarget:
             raise InputError(f"view: camera must be an aobake.camera.Camera (made by "
                              f"aobake.camera.look_at), got {_shown(camera)}")
         self.camera, self.look, self.gltf = camera, _look(look), _gltf(gltf)
-        self.size, self.fov = cameras._size(size), fov
+        self.size, self.fov = cameras.check_size(size), fov
 
     def rays_per_point(self, config) -> int:
         return config.rays

@@ -77,8 +77,8 @@ import numpy as np
 
 from aobake import _native
 from aobake.sparse import Csr, cg
-from aobake.sparse import _apply as _sparse_apply
-from aobake.sparse import _ranks as _sparse_ranks
+from aobake.sparse import apply as _sparse_apply
+from aobake.sparse import ranks_of as _sparse_ranks
 from aobake.vectors import distinct, weld
 
 log = logging.getLogger(__name__)
