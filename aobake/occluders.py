@@ -42,7 +42,7 @@ class Occluders:
     extras : the report's record of ``Scene.extra_occluders`` (members of ``union`` only:
     primary and cage rays never see them); cutout : the ``CutoutOccluder`` of the
     alpha-tested faces (``--alpha-cutout``: then not in ``backend``), or None;
-    traversal : ``embree_mode`` (robust | fast) of an Embree backend, None for the reference.
+    traversal : ``embree_mode`` (robust | fast) of an Embree backend, None for the others.
     """
 
     center: np.ndarray
@@ -111,6 +111,9 @@ class Occluders:
             params["embree_mode"] = self.traversal
             # which binding traced (aobake.backends.native): the same answers, not the same speed
             params["embree_binding"] = getattr(self.backend, "binding", "embreex")
+        described = getattr(self.backend, "described", None)
+        if described is not None:  # what the backend says ran (warp: its device and version)
+            params.update(described())
         if self.ground is not None:
             params["ground_plane"] = dict(self.ground)
         if self.faces is not None:
