@@ -23,7 +23,7 @@ _WHERE = {
     "bake": "aobake.api", "bake_points": "aobake.api", "bake_texels": "aobake.api",
     "bake_view": "aobake.api", "bake_view_truths": "aobake.api", "run": "aobake.api",
     "bake_file": "aobake.job",
-    "BakeConfig": "aobake.config",
+    "BakeConfig": "aobake.settings",
     "AobakeError": "aobake.errors", "InputError": "aobake.errors",
     "OutputError": "aobake.errors", "UsageError": "aobake.errors",
     "write": "aobake.outputs",

@@ -23,7 +23,7 @@ from aobake import _native, capabilities, groups
 from aobake import occluders as occluder_stage
 from aobake import report as reports
 from aobake.backends.cutout import cutout_faces
-from aobake.config import BakeConfig
+from aobake.settings import BakeConfig
 from aobake.errors import InputError
 from aobake.executors import EXECUTORS, Job
 from aobake.methods import METHODS
@@ -98,7 +98,7 @@ def run(
     timings["load_s"] = time.perf_counter() - clock
 
     warnings: list = []
-    selection = config.selection()
+    selection = groups.Selection(config.exclude, config.receive_only, config.occluder_only)
     if selection:  # what occludes what: faces left out, or only casting, or only baked
         applied = groups.apply(scene, selection)
         scene, target = applied.scene, groups.GroupedTarget(target, applied)
@@ -193,7 +193,15 @@ def _projected(config: BakeConfig, mesh, per: str):
     (as ``aobake MESH --from HIGH``); else ``mesh`` and the plain target."""
     if config.source is None:
         return mesh, TARGETS[per]()
-    return config.source, config.target(per, mesh)
+    return config.source, projected_target(config, per, mesh)
+
+
+def projected_target(config: BakeConfig, per: str, low):
+    """The high-to-low target storing values per ``per`` ("texels" | "vertices") of the
+    low mesh ``low``, shaped by the config's cage settings (``config.source`` is the scene
+    it bakes)."""
+    return TARGETS[f"projected_{per}"](low, cage_offset=config.cage_offset, cage=config.cage,
+                                       low_occludes=config.low_occludes)
 
 
 def _config(config: BakeConfig | None, options: dict) -> BakeConfig:

@@ -285,11 +285,11 @@ def _row(row: dict, where: Path, suffix, target, source: str) -> Asset:
 def parse_setting(name: str, value):
     """(field name, value) of a manifest's setting: ``max-distance``, ``max_distance`` or
     a long flag (``from`` for ``source``); a text value (a CSV cell) is read as the command
-    line reads it (``aobake.options.from_text``; a list separated by ``;``, ``,`` or spaces
+    line reads it (``aobake.settings.spec.from_text``; a list separated by ``;``, ``,`` or spaces
     for a repeatable one).  InputError for an unknown
     setting or a bad value."""
-    from aobake.config import SPECS
-    from aobake.options import from_text
+    from aobake.settings import SPECS
+    from aobake.settings.spec import from_text
 
     key = str(name).strip().lstrip("-").replace("-", "_")
     # a setting by its field name or its long flag (``from`` for ``source``)
@@ -486,7 +486,7 @@ def check_summary(path, assets, out_dir, settings: dict) -> None:
     """OutputError when the summary at ``path`` would replace a file the batch reads (an
     asset's mesh, --from, --cage or --ao-from) or writes (an asset's output or report):
     checked before any asset is baked."""
-    from aobake.config import INPUT_FILES
+    from aobake.settings import INPUT_FILES
 
     where = Path(path).resolve()
     for asset in assets:

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from aobake import capabilities
-from aobake.config import INPUT_FILES, BakeConfig
+from aobake.settings import INPUT_FILES, BakeConfig
 from aobake.errors import InputError
 
 
@@ -53,7 +53,9 @@ class Job:
                                    size=self.view.get("size", (960, 540)),
                                    fov=self.view.get("fov", 40.0))
         if self.config.source is not None:  # high-to-low: MESH is the low mesh
-            return self.config.target(self.outputs.target, self.mesh)
+            from aobake.api import projected_target
+
+            return projected_target(self.config, self.outputs.target, self.mesh)
         return TARGETS[self.target]()
 
     def bake(self, progress=None):

@@ -29,7 +29,7 @@ from aobake import _native
 from aobake.constants import RAY_FAR
 from aobake.outputs.npz import read_npz
 from aobake.outputs.table import Unreadable, parse_json
-from aobake.config import BakeConfig, parse_distance
+from aobake.settings import BakeConfig, parse_distance
 from aobake.errors import InputError
 from aobake.outputs.npz import RAY_MISS, decode_ray_distances
 from aobake.quantities import QUANTITIES, Traced

@@ -68,7 +68,7 @@ sys.path.insert(0, str(ROOT))
 
 import aobake  # noqa: E402
 from aobake.compare import compare  # noqa: E402
-from aobake.config import BakeConfig  # noqa: E402
+from aobake.settings import BakeConfig  # noqa: E402
 from aobake.methods import METHODS  # noqa: E402
 from aobake.methods.discs import DiscsMethod, DiscsOptions  # noqa: E402
 from aobake.scene import load_scene  # noqa: E402

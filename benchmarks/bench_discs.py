@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import aobake  # noqa: E402
-from aobake.config import BakeConfig  # noqa: E402
+from aobake.settings import BakeConfig  # noqa: E402
 from aobake.methods.discs import DiscsMethod, DiscsOptions, elements  # noqa: E402
 from aobake.scene import load_scene  # noqa: E402
 from aobake.records import SamplePoints  # noqa: E402

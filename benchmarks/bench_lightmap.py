@@ -40,7 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_throughput import bare_loop  # noqa: E402
 
 from aobake.api import bake_texels  # noqa: E402
-from aobake.config import DEFAULTS, BakeConfig  # noqa: E402
+from aobake.settings import DEFAULTS, BakeConfig  # noqa: E402
 from aobake.outputs.texture import write_texture  # noqa: E402
 from aobake.scene import load_scene  # noqa: E402
 from aobake.targets.texels.raster import rasterize  # noqa: E402

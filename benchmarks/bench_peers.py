@@ -99,7 +99,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import aobake  # noqa: E402
-from aobake.config import DEFAULT_RAY_OFFSET, BakeConfig  # noqa: E402
+from aobake.settings import DEFAULT_RAY_OFFSET, BakeConfig  # noqa: E402
 from aobake.scene import load_scene  # noqa: E402
 from aobake.targets.vertices import vertex_sizes  # noqa: E402
 from aobake.occluders import build as build_occluders  # noqa: E402

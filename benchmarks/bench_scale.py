@@ -148,7 +148,7 @@ class _Null:
 
 
 def run_large(path: Path, rays: int) -> list:
-    from aobake.config import BakeConfig
+    from aobake.settings import BakeConfig
     from aobake.executors.base import Job
     from aobake.scene import load_scene
 

@@ -38,7 +38,7 @@ from aobake.methods.ssao import (CrytekMethod, GtaoMethod, HeightfieldMethod,  #
 from aobake.scene import load_scene  # noqa: E402
 from aobake.screen import score  # noqa: E402
 from aobake.screen.gbuffer import GBuffer  # noqa: E402
-from aobake.screen.options import CrytekOptions, GtaoOptions, SsaoOptions  # noqa: E402
+from aobake.settings.screen import CrytekOptions, GtaoOptions, SsaoOptions  # noqa: E402
 
 STILL_LIFE = ROOT / "assets" / "still_life.obj"
 BUNNY = ROOT.parent / "shared" / "meshes" / "stanford-bunny.obj"

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 import aobake
-from aobake.config import BakeConfig
+from aobake.settings import BakeConfig
 from aobake.occluders import build
 from aobake.scene import load_scene, make_scene
 from aobake.api import bake_projected

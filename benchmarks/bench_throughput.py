@@ -38,7 +38,7 @@ import aobake  # noqa: E402
 from aobake.targets.vertices import vertex_sizes  # noqa: E402
 from aobake.occluders import build as build_occluders  # noqa: E402
 from aobake.trace import DEFAULT_CHUNK_RAYS, Tracer, morton_order, point_offsets  # noqa: E402
-from aobake.config import BakeConfig  # noqa: E402
+from aobake.settings import BakeConfig  # noqa: E402
 from aobake.scene import load_scene, make_scene  # noqa: E402
 
 DEFAULT_MESH = Path(__file__).resolve().parents[2] / "shared" / "meshes" / "stanford-bunny.obj"

@@ -84,7 +84,7 @@ def atlas_figure(out: Path, mesh: str) -> None:
     scene = load_scene(SHARED / mesh)
     size = 1024
     old = _old_unwrap()(scene.vertices, scene.faces, size, 8, isolate=False)
-    new = unwrap(scene.vertices, scene.faces, size, aobake.config.DEFAULTS["padding"],
+    new = unwrap(scene.vertices, scene.faces, size, aobake.settings.DEFAULTS["padding"],
                  isolate=False)
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(12, 6.3))
@@ -220,7 +220,7 @@ def _mip(image, levels):
 
 def mip_figure(out: Path, threads: int) -> None:
     path = SHARED / "stanford-bunny.obj"
-    padding = aobake.config.DEFAULTS["padding"]
+    padding = aobake.settings.DEFAULTS["padding"]
     result = aobake.bake_texels(path, resolution=1024, rays=64, threads=threads,
                                 unwrap="always")
     now = result.channels["ao"].astype(np.float64)

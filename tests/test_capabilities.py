@@ -14,7 +14,7 @@ import trimesh
 
 import aobake
 from aobake import capabilities
-from aobake.config import SECTIONS, BakeConfig
+from aobake.settings import SECTIONS, BakeConfig
 from aobake.errors import UsageError
 from aobake.methods import METHODS
 from aobake.targets import TARGETS

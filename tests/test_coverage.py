@@ -30,7 +30,7 @@ import trimesh
 from scipy import stats
 
 import aobake
-from aobake.config import OFFSET_ULPS, BakeConfig
+from aobake.settings import OFFSET_ULPS, BakeConfig
 from aobake.samplers import SAMPLERS, sample_set
 from aobake.samplers.base import REPLICATES
 from aobake.targets.texels.raster import rasterize

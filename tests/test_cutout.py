@@ -169,7 +169,7 @@ def test_cage_rays_land_on_opaque_texels_only(tmp_path):
     checker's squares) and passes to the floor where it is cut out; without the option it
     lands on the plate everywhere.  Rays straight down through each texel's centre, from
     above the plate to a low point between plate and floor."""
-    from aobake.config import BakeConfig
+    from aobake.settings import BakeConfig
     from aobake.occluders import build
     from aobake.scene import load_scene
     from aobake.targets.projected_cage import project
@@ -198,7 +198,7 @@ def test_compiled_march_is_the_numpy_march(tmp_path, front):
     numpy march's bits: the same t and face for every ray, through up to three stacked
     plates (checkers of different sizes, one facing up, a noise alpha with factor 0.8 and
     cutoff 0.3), on rays in every direction, some ending inside the stack."""
-    from aobake.config import BakeConfig
+    from aobake.settings import BakeConfig
     from aobake.occluders import build
     from aobake.scene import load_scene
 

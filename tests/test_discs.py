@@ -16,7 +16,7 @@ import pytest
 import trimesh
 
 import aobake
-from aobake.config import BakeConfig
+from aobake.settings import BakeConfig
 from aobake.errors import InputError
 from aobake.methods import METHODS
 from aobake.methods.discs import (HIERARCHY_RMSE, NO_INFORMATION_AO, DiscsMethod, DiscsOptions,
@@ -395,7 +395,7 @@ def test_pass_two_is_never_darker_than_pass_one():
     correction of pass 1's over-darkening), and pass 1 alone is darker on average."""
     result = aobake.bake(_small_mesh(), method="discs", discs_passes=3, threads=1)
     from aobake import occluders
-    from aobake.config import BakeConfig
+    from aobake.settings import BakeConfig
     from aobake.methods.discs import DiscsMethod
     from aobake.scene import load_scene
     from aobake.records import SamplePoints

@@ -19,7 +19,7 @@ import pytest
 import trimesh
 
 import aobake
-from aobake.config import BakeConfig
+from aobake.settings import BakeConfig
 from aobake.errors import InputError
 from aobake.methods import discs_tree
 from aobake.methods.discs import (DEFAULT_INDIRECT_PASSES, DEFAULT_INDIRECT_WEIGHT,

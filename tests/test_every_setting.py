@@ -3,7 +3,7 @@ valid non-default value through that command's flag, through the library
 (``aobake.bake_file``, which every command uses), through a batch manifest, and read back
 from the bake's report, whose config re-makes it (``BakeConfig.from_dict``).
 
-The cases are generated from the settings themselves (``aobake.config.SPECS``) and from
+The cases are generated from the settings themselves (``aobake.settings.SPECS``) and from
 each command's own options: a new int, float, choice or flag setting is covered the day it
 is added; a new parsed setting (a path, a distance, a pattern) must add its example to
 ``PARSED`` (``test_every_parsed_setting_has_an_example`` fails until it does).  This is the
@@ -23,7 +23,7 @@ import trimesh
 
 import aobake
 from aobake import capabilities
-from aobake.config import DEFAULTS, SPECS, BakeConfig
+from aobake.settings import DEFAULTS, SPECS, BakeConfig
 from aobake.errors import InputError
 
 from conftest import run_cli

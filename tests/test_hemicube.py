@@ -27,7 +27,7 @@ import trimesh
 
 import aobake
 from aobake import child
-from aobake.config import BakeConfig
+from aobake.settings import BakeConfig
 from aobake.errors import InputError
 from aobake.methods import METHODS, hemicube_cells
 from aobake.methods.hemicube import (NO_INFORMATION_AO, HemicubeError, HemicubeMethod,

@@ -9,10 +9,10 @@ import pytest
 import aobake
 from aobake.cli import main
 from aobake.cli.view import NOT_FOR_VIEWS, view_command
-from aobake.config import DEFAULTS, SECTIONS, SPECS, BakeConfig, CommonOptions
-from aobake.methods.file import FileOptions
-from aobake.methods.rays_options import RaysOptions
-from aobake.targets.texels.options import LightmapOptions
+from aobake.settings import DEFAULTS, SECTIONS, SPECS, BakeConfig, CommonOptions
+from aobake.settings.file import FileOptions
+from aobake.settings.rays import RaysOptions
+from aobake.settings.texels import LightmapOptions
 
 from conftest import run_cli
 
@@ -31,7 +31,7 @@ def _options(command):
     return {p.name: p for p in command.params if isinstance(p, click.Option)}
 
 
-def test_every_section_record_lives_beside_its_plugin():
+def test_every_section_record_lives_in_the_settings_package():
     assert {f for f in DEFAULTS} == set(SPECS)
     for record, section in ((CommonOptions, "common"), (RaysOptions, "rays"),
                             (FileOptions, "file"), (LightmapOptions, "texels")):
@@ -39,6 +39,7 @@ def test_every_section_record_lives_beside_its_plugin():
         assert names and all(SECTIONS[n] == section for n in names), section
     for record in (CommonOptions, RaysOptions, FileOptions, LightmapOptions):
         assert issubclass(BakeConfig, record)
+        assert record.__module__.startswith("aobake.settings"), record
 
 
 #: the settings sections each command can use (main and batch: a lightmap or vertices, by

@@ -13,7 +13,7 @@ from readers import read_image
 
 import aobake
 from aobake.backends import BACKENDS
-from aobake.config import CHOICES, DEFAULTS, BakeConfig
+from aobake.settings import CHOICES, DEFAULTS, BakeConfig
 from aobake.outputs.registry import WRITERS, markdown_table
 from aobake.outputs.report import to_jsonable
 from aobake.quantities import FIELDS, QUANTITIES

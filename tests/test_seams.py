@@ -11,7 +11,7 @@ import pytest
 import trimesh
 
 from aobake.api import bake_texels
-from aobake.config import CHOICES, DEFAULTS, BakeConfig
+from aobake.settings import CHOICES, DEFAULTS, BakeConfig
 from aobake.errors import InputError
 from aobake.targets.texels import seams
 from aobake.targets.texels.seams import (SeamMesh, bilinear, bilinear_stencil, seam_edges,

@@ -18,13 +18,13 @@ import trimesh
 import aobake
 from aobake import camera as cameras
 from aobake import occluders
-from aobake.config import BakeConfig
+from aobake.settings import BakeConfig
 from aobake.errors import InputError
 from aobake.methods.ssao import (CrytekMethod, GtaoMethod, HeightfieldMethod, ShanmugamMethod)
 from aobake.scene import load_scene
 from aobake.screen import crytek, gtao, kernels, refine, shanmugam
 from aobake.screen.gbuffer import CHANNELS, GBuffer, depth_step
-from aobake.screen.options import GtaoOptions, SsaoOptions
+from aobake.settings.screen import GtaoOptions, SsaoOptions
 from aobake.targets.view import ViewTarget
 
 from analytic import combine, quad

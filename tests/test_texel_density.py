@@ -15,7 +15,7 @@ import pytest
 import trimesh
 
 from aobake.api import bake_texels
-from aobake.config import BakeConfig
+from aobake.settings import BakeConfig
 from aobake.errors import InputError
 from aobake.targets.texels.charts import chart_texel_density
 from aobake.targets.texels.unwrap import unwrap

@@ -17,7 +17,7 @@ from scipy import stats
 import aobake
 from aobake import camera as cameras
 from aobake import occluders
-from aobake.config import BakeConfig
+from aobake.settings import BakeConfig
 from aobake.scene import load_scene
 from aobake.targets.view import ViewTarget
 

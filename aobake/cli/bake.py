@@ -1,6 +1,6 @@
 """Command line: parses and prints; everything else is a library call.
 
-Defaults come from ``aobake.config.DEFAULTS`` and choices from the registries
+Defaults come from ``aobake.settings.DEFAULTS`` and choices from the registries
 (samplers, weightings, quantities, backends, output formats), so no name or
 default is typed twice.  Only this module talks to the terminal.
 

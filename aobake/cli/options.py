@@ -1,5 +1,5 @@
 """The command line's options and their help, made from the settings' specs
-(``aobake.options``) and the registries' declarations (``aobake.capabilities``): flag,
+(``aobake.settings.spec``) and the registries' declarations (``aobake.capabilities``): flag,
 default, choices, range, help and check come from each field's one declaration, and each
 command offers only the settings, methods and quantities it can run.
 
@@ -18,10 +18,10 @@ import math
 import click
 
 from aobake import capabilities
-from aobake.config import SPECS, parse_distance
+from aobake.settings import SPECS, parse_distance
 from aobake.errors import InputError
 from aobake.executors import EXECUTORS
-from aobake.options import from_text
+from aobake.settings.spec import from_text
 
 #: help panel -> its title, in the order panels are listed (a setting's panel is its
 #: section's unless its spec names another)
@@ -107,7 +107,7 @@ def click_type(name: str, spec, quantities=None):
 
 def option(name: str, spec, quantities=None) -> click.Option:
     """The click option of setting ``name``, defaulting to the config's default."""
-    from aobake.config import DEFAULTS
+    from aobake.settings import DEFAULTS
 
     default = DEFAULTS[name]
     flags = list(spec.flags) or [f"--{name.replace('_', '-')}"]

@@ -76,7 +76,7 @@ from aobake.records import Estimates
 from aobake.methods import discs_tree
 from aobake.methods.base import refuse_ray_settings
 # the settings record and its constants live apart (read by every config), re-exported here
-from aobake.methods.discs_options import (DEFAULT_INDIRECT_PASSES,  # noqa: F401
+from aobake.settings.discs import (DEFAULT_INDIRECT_PASSES,  # noqa: F401
                                           DEFAULT_INDIRECT_WEIGHT, DEFAULT_KAPPA, MAX_PASSES,
                                           TRAVERSALS, DiscsOptions)
 from aobake.vectors import defined

@@ -12,33 +12,14 @@ interpolation (read them from the file).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from aobake.errors import InputError
+from aobake.settings.file import FileOptions  # noqa: F401  (the method's settings)
 from aobake.records import Estimates
-from aobake.options import setting
 from aobake.vectors import defined
-
-
-def _path(value):
-    if not isinstance(value, (str, Path)):
-        raise InputError(f"ao_from must be a file path, got {value!r}")
-    return str(value)
-
-
-@dataclass(frozen=True)
-class FileOptions:
-    """The ``file`` method's settings."""
-
-    ao_from: str | None = setting(
-        None, "parsed", "--method file: read the values (ao, and obscurance with -q "
-        "obscurance) from this per-vertex bake of the same mesh (.npz, .ply, .glb) and "
-        "interpolate them at every pixel or texel, e.g. to look at a bake with 'aobake "
-        "view MESH --ao-from ao.ply --out look.png'.", section="file", optional=True,
-        parse=_path, show_default=False)
 
 
 class FileMethod:

@@ -50,7 +50,7 @@ from aobake.errors import AobakeError, InputError
 from aobake.records import Estimates
 from aobake.methods.base import refuse_ray_settings
 # the settings record and its limits live apart (read by every config), re-exported here
-from aobake.methods.hemicube_options import (DEFAULT_RESOLUTION, MAX_RESOLUTION,  # noqa: F401
+from aobake.settings.hemicube import (DEFAULT_RESOLUTION, MAX_RESOLUTION,  # noqa: F401
                                              HemicubeOptions)
 from aobake.vectors import defined
 
@@ -307,6 +307,6 @@ class HemicubeMethod:
 
 
 def _default_ray_offset() -> float:
-    from aobake.methods.rays_options import DEFAULT_RAY_OFFSET
+    from aobake.settings.rays import DEFAULT_RAY_OFFSET
 
     return DEFAULT_RAY_OFFSET

@@ -22,7 +22,7 @@ from aobake.errors import InputError
 from aobake.methods.base import refuse_ray_settings
 from aobake.records import Estimates
 from aobake.screen import crytek, gbuffer, gtao, heightfield, refine, shanmugam
-from aobake.screen.options import CrytekOptions, GtaoOptions, HeightfieldOptions, SsaoOptions
+from aobake.settings.screen import CrytekOptions, GtaoOptions, HeightfieldOptions, SsaoOptions
 
 #: pixels per unit of work on the thread pool (each a pure function of the G-buffer, so
 #: the cut changes no bit)

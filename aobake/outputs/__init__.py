@@ -155,7 +155,7 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
     orm = orm or orm_from is not None
     target = result.target  # each result says what made it: no guessing from its attributes
     config = result.report.get("config", {}) if isinstance(result.report, dict) else {}
-    from aobake.config import INPUT_FILES
+    from aobake.settings import INPUT_FILES
 
     read = {flag: config.get(name) for name, flag in INPUT_FILES.items()}
     read["--orm-from"] = orm_from

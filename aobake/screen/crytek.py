@@ -56,8 +56,8 @@ import numpy as np
 from aobake.screen import kernels
 from aobake.screen.gbuffer import Frame, depth_step
 # the normalisations of the visible fraction A and the range checks (module docstring) are
-# the settings' choices, stated in ``aobake.screen.options``
-from aobake.screen.options import NORMALISATIONS, RANGE_CHECKS  # noqa: F401
+# the settings' choices, stated in ``aobake.settings.screen``
+from aobake.settings.screen import NORMALISATIONS, RANGE_CHECKS  # noqa: F401
 
 #: the value an open flat wall gets under each normalisation (docs/screen-space.md), where the
 #: ball's image lies on the image (off it, samples count as open): with the plane check

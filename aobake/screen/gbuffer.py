@@ -30,8 +30,8 @@ import numpy as np
 from aobake import camera as cameras
 from aobake.errors import InputError
 # the depth buffers and normals a method may read: the settings' choices, stated in
-# ``aobake.screen.options``
-from aobake.screen.options import DEPTH_SOURCES, NORMAL_SOURCES
+# ``aobake.settings.screen``
+from aobake.settings.screen import DEPTH_SOURCES, NORMAL_SOURCES
 
 #: the G-buffer channel of each depth source
 DEPTH_CHANNELS = {"linear": "depth", "opengl": "hwdepth_gl", "d3d": "hwdepth_d3d",

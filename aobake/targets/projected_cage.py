@@ -38,30 +38,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from aobake.errors import InputError
+from aobake.settings.studio import parse_offset
 from aobake.vectors import normalize
 
 #: rays projected at once (memory, not results: each ray's hit is its own)
 PROJECT_CHUNK = 1 << 14
-
-
-def parse_offset(value) -> float | str:
-    """A cage offset: a number > 0 (scene units) or 'P%' (P > 0, percent of the low mesh's
-    bounding-box diagonal).  Returns a float or the normalised 'P%' string; InputError on
-    anything else."""
-    text = value.strip().lower() if isinstance(value, str) else value
-    try:
-        if isinstance(text, str) and text.endswith("%"):
-            percent = float(text[:-1])
-            if math.isfinite(percent) and percent > 0:
-                return f"{percent:g}%"
-        elif not isinstance(text, bool):
-            number = float(text)
-            if math.isfinite(number) and number > 0:
-                return number
-    except (TypeError, ValueError):
-        pass
-    raise InputError(f"cage offset must be a number > 0 (scene units) or 'P%' (percent of "
-                     f"the low mesh's diagonal), got {value!r}")
 
 
 def resolve_offset(offset, diagonal: float) -> float:

@@ -1,7 +1,7 @@
 """The screen-space methods' settings: one record shared by the three methods (section
 ``ssao``) and one per method where it has its own (``crytek``, ``gtao``).
 
-Made by ``aobake.options.setting`` like every section's record, so that composing them
+Made by ``aobake.settings.spec.setting`` like every section's record, so that composing them
 into ``BakeConfig`` gives ``--ssao-radius`` and the rest with their checks, help and
 report keys; until then a method reads them from a config that has them (``of``), else
 its class-level defaults.
@@ -13,8 +13,8 @@ import math
 from dataclasses import dataclass
 
 from aobake.errors import InputError
-from aobake.options import check as check_settings
-from aobake.options import record_of, setting
+from aobake.settings.spec import check as check_settings
+from aobake.settings.spec import record_of, setting
 from aobake.constants import DEPTH_CONVENTIONS
 
 # The settings' choices are stated here, where every config reads them, and imported by the

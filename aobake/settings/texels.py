@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from aobake.errors import InputError
-from aobake.options import setting
+from aobake.settings.spec import setting
 
 UNWRAP = ("auto", "always", "never")
 BENT_SPACES = ("object", "tangent")

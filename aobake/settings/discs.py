@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from aobake.options import check as check_settings
-from aobake.options import record_of, setting
+from aobake.settings.spec import check as check_settings
+from aobake.settings.spec import record_of, setting
 
 #: how a receiver reaches the elements: through the hierarchy, or every element
 TRAVERSALS = ("hierarchy", "brute")
@@ -34,7 +34,7 @@ DEFAULT_INDIRECT_WEIGHT = 1.0
 class DiscsOptions:
     """The ``discs`` method's settings (each field's help is its documentation).
 
-    Made by ``aobake.options.setting`` like every section's record, so that adding this
+    Made by ``aobake.settings.spec.setting`` like every section's record, so that adding this
     record to ``BakeConfig``'s bases gives ``--discs-kappa`` and the rest, their checks and
     their report keys; until then ``DiscsMethod.options`` (a class-level default) or
     ``prepare(..., options=)`` sets them, and :meth:`of` reads them from a config that has

@@ -1,8 +1,8 @@
 """Option fields: one declaration per setting gives its default, its check, its command-line
 flag, its choices and its help, so nothing is typed twice.
 
-An options record (``config.CommonOptions``, ``methods.rays_options.RaysOptions``,
-``targets.texels.options.LightmapOptions``) is a frozen dataclass whose fields are made
+An options record (``settings.CommonOptions``, ``settings.rays.RaysOptions``,
+``settings.texels.LightmapOptions``, ...) is a frozen dataclass whose fields are made
 by :func:`setting`; ``BakeConfig`` composes the records of every section.  :func:`check`
 validates and normalises a record's fields from their specs (the library's checks);
 ``aobake.cli`` makes its click options from the same specs (the command line's checks),

@@ -7,8 +7,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from aobake.errors import InputError
-from aobake.options import check as check_settings
-from aobake.options import record_of, setting
+from aobake.settings.spec import check as check_settings
+from aobake.settings.spec import record_of, setting
 
 #: the largest resolution: a tile is 3R x R pixels and must fit the framebuffer's usable
 #: half (hemicube_gl.half_size); at 512 one point is 786k pixels
@@ -21,7 +21,7 @@ DEFAULT_RESOLUTION = 64
 class HemicubeOptions:
     """The ``hemicube`` method's settings (each field's help is its documentation).
 
-    Made by ``aobake.options.setting`` like every section's record: adding it to
+    Made by ``aobake.settings.spec.setting`` like every section's record: adding it to
     ``BakeConfig``'s bases gives ``--hemicube-resolution``, its check and its report key;
     until then ``HemicubeMethod.options`` (a class-level default) or ``prepare(...,
     options=)`` sets it, and :meth:`of` reads it from a config that has it.

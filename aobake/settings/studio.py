@@ -1,26 +1,48 @@
 """The studio settings (section "studio"): high-to-low baking through a cage
 (``aobake.targets.projected``) and what occludes what (``aobake.groups``).
 
-Not (yet) part of ``BakeConfig``: a record of its own, made and checked like the others
-(``aobake.options``), which the command line turns into a target and a selection:
+A record like the others (``aobake.settings.spec``), composed into ``BakeConfig``;
+``aobake.api`` turns it into a target (``projected_target``) and a selection
+(``aobake.groups.Selection``):
 
     aobake LOW.obj --from HIGH.obj --out ao.exr [--cage-offset D | --cage CAGE.obj]
            [--low-occludes] [--alpha-cutout] [--exclude NAME ...] [--receive-only NAME ...] [--occluder-only NAME ...]
 
 With ``--from`` the positional mesh is the low mesh (where the values are stored: its UVs
 for an image, its vertices for .ply/.npz/.glb) and ``--from`` the source, the pipeline's
-scene (``run(config, options.source, options.target(per))``); the groups select faces of
+scene (``run(config, config.source, api.projected_target(config, per, low))``); the
+groups select faces of
 the pipeline's scene (the source with ``--from``).
 """
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 
 from aobake.errors import InputError
-from aobake.options import check, setting
-from aobake.targets.projected_cage import parse_offset
+from aobake.settings.spec import check, setting
+
+
+def parse_offset(value) -> float | str:
+    """A cage offset: a number > 0 (scene units) or 'P%' (P > 0, percent of the low mesh's
+    bounding-box diagonal).  Returns a float or the normalised 'P%' string; InputError on
+    anything else."""
+    text = value.strip().lower() if isinstance(value, str) else value
+    try:
+        if isinstance(text, str) and text.endswith("%"):
+            percent = float(text[:-1])
+            if math.isfinite(percent) and percent > 0:
+                return f"{percent:g}%"
+        elif not isinstance(text, bool):
+            number = float(text)
+            if math.isfinite(number) and number > 0:
+                return number
+    except (TypeError, ValueError):
+        pass
+    raise InputError(f"cage offset must be a number > 0 (scene units) or 'P%' (percent of "
+                     f"the low mesh's diagonal), got {value!r}")
 
 
 def _path(value) -> str:
@@ -106,19 +128,3 @@ class StudioOptions:
         if self.source is None and self.low_occludes:
             raise InputError("--low-occludes adds the low mesh of --from to the occluders: "
                              "give --from HIGH")
-
-    def target(self, per: str, low):
-        """The high-to-low target storing values per ``per`` ("texels" | "vertices") of the
-        low mesh ``low`` (the CLI's positional mesh), or None without ``source``."""
-        if self.source is None:
-            return None
-        from aobake.targets import TARGETS  # by name: this record imports no target
-
-        return TARGETS[f"projected_{per}"](low, cage_offset=self.cage_offset, cage=self.cage,
-                    low_occludes=self.low_occludes)
-
-    def selection(self):
-        """The ``aobake.groups.Selection`` of the group patterns (falsy when none)."""
-        from aobake.groups import Selection
-
-        return Selection(self.exclude, self.receive_only, self.occluder_only)

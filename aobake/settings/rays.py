@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from aobake.samplers import SAMPLERS
 from aobake.samplers.base import MAX_REPLICATES, MIN_REPLICATES, REPLICATES
-from aobake.options import setting
+from aobake.settings.spec import setting
 
 #: largest rays per point (vertex, query point, texel or pixel).  Not a memory limit (a
 #: point's rays stream in pieces of samplers.base.PIECE_RAYS, whatever their number): ray

@@ -1,13 +1,16 @@
-"""Bake configuration: option records in sections, composed into one frozen, validated,
-serialisable ``BakeConfig``.
+"""The settings of a bake, in one package: one module per section, composed here into one
+frozen, validated, serialisable ``BakeConfig``.
 
-Each section's record lives beside its plugin: ``CommonOptions`` here (what every method
-and target reads: the quantities, the scene, the AO's definition), ``RaysOptions`` beside
-the ray-traced method (``aobake.methods.rays_options``) and ``LightmapOptions`` beside the
-lightmap target (``aobake.targets.texels.options``).  Every field is made by
-``aobake.options.setting``: its default, check, CLI flag, choices and help in one place
-(the CLI generates its options from them).  One name per concept: the CLI flag
-``--max-distance`` is the field ``max_distance`` and the report key ``max_distance``.
+``CommonOptions`` here (what every method and target reads: the quantities, the scene, the
+AO's definition); ``rays`` (the ray-traced method), ``file``, ``discs``, ``hemicube``,
+``screen`` (the screen-space methods and the height field), ``texels`` (the lightmap
+target) and ``studio`` (high-to-low and occluder groups) each hold one section's record.
+Every field is made by ``aobake.settings.spec.setting``: its default, check, CLI flag,
+choices and help in one place (the CLI generates its options from them).  Settings are
+values only: this package imports no method, target or command (the plugins import their
+record from here; ``aobake.api`` turns the studio settings into a target and a selection).
+One name per concept: the CLI flag ``--max-distance`` is the field ``max_distance`` and the
+report key ``max_distance``.
 """
 
 from __future__ import annotations
@@ -18,18 +21,18 @@ from dataclasses import asdict, dataclass, fields
 from aobake.backends import BACKENDS
 from aobake.constants import AXES, OFFSET_ULPS  # noqa: F401  (re-exported)
 from aobake.errors import InputError
-from aobake.methods.discs_options import DiscsOptions
-from aobake.methods.file import FileOptions
-from aobake.methods.hemicube_options import HemicubeOptions
-from aobake.methods.rays_options import (BACKFACES, DEFAULT_RAY_OFFSET, MAX_CONFIDENCE,  # noqa: F401
+from aobake.settings.discs import DiscsOptions
+from aobake.settings.file import FileOptions
+from aobake.settings.hemicube import HemicubeOptions
+from aobake.settings.rays import (BACKFACES, DEFAULT_RAY_OFFSET, MAX_CONFIDENCE,  # noqa: F401
                                          MAX_RAYS, RaysOptions)
-from aobake.options import check as check_settings
-from aobake.options import setting, specs
+from aobake.settings.spec import check as check_settings
+from aobake.settings.spec import setting, specs
 from aobake.quantities import QUANTITIES, canonical
-from aobake.screen.options import CrytekOptions, GtaoOptions, HeightfieldOptions, SsaoOptions
+from aobake.settings.screen import CrytekOptions, GtaoOptions, HeightfieldOptions, SsaoOptions
 from aobake.repair import MODES as FIX_NORMALS
-from aobake.targets.projected_options import StudioOptions
-from aobake.targets.texels.options import (BENT_SPACES, DEFAULT_RESOLUTION,  # noqa: F401
+from aobake.settings.studio import StudioOptions
+from aobake.settings.texels import (BENT_SPACES, DEFAULT_RESOLUTION,  # noqa: F401
                                            SEAMS, UNWRAP, LightmapOptions, parse_resolution)
 from aobake.warp import WEIGHTINGS
 
@@ -136,9 +139,9 @@ class BakeConfig(StudioOptions, LightmapOptions, HeightfieldOptions, GtaoOptions
                  RaysOptions, CommonOptions):
     """Everything that decides a bake's numbers (threads, executors and chunking do not): the
     common settings, the ray-traced method's, the file method's, the disc method's, the
-    hemicube method's, the screen-space methods' (aobake.screen.options), the lightmap
+    hemicube method's, the screen-space methods' (aobake.settings.screen), the lightmap
     target's and the studio's (high-to-low, groups), in that order (each
-    section's record documents its fields; ``python -c "from aobake.config import
+    section's record documents its fields; ``python -c "from aobake.settings import
     BakeConfig; help(BakeConfig)"`` or ``aobake --help`` shows them).  The one source of
     every default: the CLI reads them from here.
     """
@@ -210,7 +213,7 @@ class BakeConfig(StudioOptions, LightmapOptions, HeightfieldOptions, GtaoOptions
         return cls(**data)
 
 
-#: the settings of every section, by field name (``aobake.options.Spec``)
+#: the settings of every section, by field name (``aobake.settings.spec.Spec``)
 SPECS = specs(BakeConfig)
 
 #: field -> allowed values (the CLI's choices come from the same registries)
