@@ -348,7 +348,7 @@ def inputs(mesh, config) -> dict:
 
 
 def _jsonable(value):
-    from aobake.outputs.report import to_jsonable
+    from aobake.outputs.strictjson import to_jsonable
 
     return json.loads(json.dumps(to_jsonable(value)))
 

@@ -177,7 +177,7 @@ def test_outputs_must_be_distinct_files(mesh_path, tmp_path, report_name, out_na
 def test_failed_output_leaves_nothing_behind(mesh_path, tmp_path, monkeypatch):
     """The outputs are one transaction: a report that cannot be written takes the already
     written --out with it (and no temporary file stays)."""
-    from aobake.outputs import report
+    from aobake.outputs import strictjson as report
 
     def fail(path, data):
         from aobake.outputs.atomic import atomic_path

@@ -22,7 +22,7 @@ from aobake.outputs import glb, npz, ply, write_vertices
 from aobake.quantities import FIELDS
 from aobake.outputs.registry import suffixes
 from readers import read_accessor, read_glb, read_ply, read_view
-from aobake.outputs.report import to_jsonable, write_report
+from aobake.outputs.strictjson import to_jsonable, write_report
 
 # float32 storage of values in [-2, 2]: half an ulp is 1.2e-7
 F32_ATOL = 2.5e-7

@@ -15,7 +15,7 @@ import aobake
 from aobake.backends import BACKENDS
 from aobake.settings import CHOICES, DEFAULTS, BakeConfig
 from aobake.outputs.registry import WRITERS, markdown_table
-from aobake.outputs.report import to_jsonable
+from aobake.outputs.strictjson import to_jsonable
 from aobake.quantities import FIELDS, QUANTITIES
 from aobake.samplers import SAMPLERS
 

@@ -90,7 +90,7 @@ def _run(inputs, out_dir, fmt, target, run, write, force, summary_path, quiet, s
          config):
     import aobake
     from aobake import batch
-    from aobake.outputs.report import write_report
+    from aobake.outputs.strictjson import write_report
 
     aobake.BakeConfig(**config)  # the command's settings checked before anything is read
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -11,7 +11,7 @@ import numpy as np
 from aobake.compare.values import kind
 from aobake.errors import OutputError
 from aobake.outputs.atomic import atomic_path
-from aobake.outputs.report import metadata_json
+from aobake.outputs.strictjson import metadata_json
 from aobake.outputs.values import Values
 
 #: heatmap colours (sRGB bytes): e = -scale, 0, +scale

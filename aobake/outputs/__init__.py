@@ -148,7 +148,7 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
     Returns the paths written, ``out`` first.
     """
     from aobake.outputs.atomic import transaction
-    from aobake.outputs.report import write_report
+    from aobake.outputs.strictjson import write_report
     from aobake.outputs.texture import prepare_atlas_mesh
 
     _check_write_arguments(result, out, mesh_out, report, half, bit_depth, r_only)
@@ -186,7 +186,7 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
                 write_mesh()
             written.append(where.mesh_out)
         if where.camera is not None:  # a view: its camera and conventions beside the image
-            from aobake.outputs.report import write_report
+            from aobake.outputs.strictjson import write_report
 
             with _naming(where.camera):
                 write_report(where.camera, {"camera": meta["camera"],

@@ -42,7 +42,7 @@ import numpy as np
 from aobake.outputs.atomic import atomic_path
 from aobake.outputs.gltf import COMPONENT_DTYPES, accessor_array, parse_glb, write_glb
 from aobake.outputs.npz import check_vertex_data
-from aobake.outputs.report import check_metadata, to_jsonable
+from aobake.outputs.strictjson import check_metadata, to_jsonable
 from aobake.outputs.table import Table, Unreadable, float64
 from aobake.quantities import FIELDS
 

@@ -53,7 +53,7 @@ import numpy as np
 
 from aobake.errors import OutputError
 from aobake.outputs.atomic import atomic_path, outside_transaction
-from aobake.outputs.report import to_jsonable
+from aobake.outputs.strictjson import to_jsonable
 from aobake.outputs.table import Table, Unreadable, parse_json
 
 log = logging.getLogger(__name__)

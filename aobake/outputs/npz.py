@@ -57,7 +57,7 @@ import numpy as np
 
 from aobake.errors import InputError
 from aobake.outputs.atomic import atomic_path
-from aobake.outputs.report import metadata_json
+from aobake.outputs.strictjson import metadata_json
 from aobake.outputs.table import Table, Unreadable, float64, parse_json, triangles
 from aobake.quantities import FIELDS
 

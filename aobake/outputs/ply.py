@@ -50,7 +50,7 @@ import numpy as np
 
 from aobake.outputs.atomic import atomic_path
 from aobake.outputs.npz import check_vertex_data
-from aobake.outputs.report import metadata_json
+from aobake.outputs.strictjson import metadata_json
 from aobake.outputs.table import Table, Unreadable, parse_json
 from aobake.quantities import FIELDS
 

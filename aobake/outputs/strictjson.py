@@ -1,4 +1,5 @@
-"""The run report (``report.json``) and the JSON conversion every writer shares.
+"""Strict JSON for every file aobake writes: the report file (``report.json``) and the
+metadata every output carries (the report dict itself is built by ``aobake.report``).
 
 Reports and file metadata hold numpy scalars, small arrays, paths and
 non-finite floats (an unbounded ``max_distance`` is ``inf``).  Strict JSON has
