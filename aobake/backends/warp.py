@@ -18,10 +18,16 @@ vertices escaped, 19 of 17922 from inside an icosphere (Embree robust: 0 and 5; 
 reference: 0).  Here every box is grown by a few ulps of the farthest coordinate the ray's
 box test meets (``pads``), and an edge's sign is exact (float32 where it is sure, float64
 where it is not: ``edge``), so the same edge seen from its two triangles gives opposite
-signs: none escaped (``tests/test_warp_backend.py``).  The queries also keep the contract
-of ``aobake.backends.base`` exactly: a hit has ``0 < t <= tmax`` (Warp's keep
-``0 <= t < max_t``), and of faces hit at the same t the lowest index wins, whatever order
-the walk meets them in.
+signs: none escaped (``tests/test_warp_backend.py``).  A hit has ``0 <= t <= tmax`` (Warp's
+own keep ``t < max_t``), and of faces hit at the same t the lowest index wins, whatever
+order the walk meets them in.
+
+t = 0 counts, as on Embree (the contract of ``aobake.backends.base`` and the reference say
+``0 < t``), and t is Embree's ``n . (a - o) / n . d`` with the face's float32 normal, not
+Woop's sheared sum, so an origin lying on a face (a vertex where a box rests on the floor:
+608 of the still life's 19745) is blocked by it, as on Embree, rather than by the rounding
+of a t that should be 0 (with Woop's t and ``0 < t`` those vertices read AO ~0.9 against
+Embree's 0; with these rules 16 differ, by at most 11 rays of 64).
 
 Each ray's answer depends on that ray alone (no shared state), so results are bit-identical
 for any thread count and chunk size on one device.  A CUDA device and the CPU may differ
@@ -112,11 +118,14 @@ def _kernels(wp) -> dict:
         return wp.float32(wp.float64(ax) * wp.float64(by) - wp.float64(ay) * wp.float64(bx))
 
     @wp.func
-    def triangle(o: wp.vec3, kx: int, ky: int, kz: int, sx: float, sy: float, sz: float,
+    def triangle(o: wp.vec3, d: wp.vec3, kx: int, ky: int, kz: int, sx: float, sy: float,
                  a: wp.vec3, b: wp.vec3, c: wp.vec3):
-        """Distance along the ray to triangle abc, or -1 on a miss: the watertight test of
-        Woop, Benthin and Wald (JCGT 2013), edges counted as inside (a ray through an edge
-        or a vertex hits), degenerate triangles and rays in their plane never hit."""
+        """Distance along the ray to triangle abc, or -1 on a miss.  Inside: the watertight
+        test of Woop, Benthin and Wald (JCGT 2013) in the ray's shear frame (kx, ky, kz;
+        sx, sy), edges counted as inside (a ray through an edge or a vertex hits);
+        degenerate triangles and rays in their plane never hit.  t: n . (a - o) / n . d
+        with the float32 normal n = (b - a) x (c - a), Embree's: exactly 0 for an origin on
+        an axis-aligned face, where the sheared sum leaves rounding of either sign."""
         pa = a - o
         pb = b - o
         pc = c - o
@@ -134,13 +143,16 @@ def _kernels(wp) -> dict:
         det = u + v + w
         if det == 0.0:
             return -1.0
-        t = u * (sz * pa[kz]) + v * (sz * pb[kz]) + w * (sz * pc[kz])
-        return t / det
+        ng = wp.cross(b - a, c - a)
+        den = wp.dot(ng, d)
+        if den == 0.0:
+            return -1.0
+        return wp.dot(ng, pa) / den
 
     @wp.func
     def frame(d: wp.vec3):
-        """The ray's shear: kz its largest axis, kx ky the others (swapped when d[kz] < 0 to
-        keep the winding), and the shear factors."""
+        """The ray's shear axes (kx, ky, kz): kz its largest axis, kx ky the others
+        (swapped when d[kz] < 0 to keep the winding)."""
         kz = int(0)
         if wp.abs(d[1]) > wp.abs(d[kz]):
             kz = 1
@@ -163,20 +175,21 @@ def _kernels(wp) -> dict:
         o = origins[i]
         d = directions[i]
         tmax = limits[i]
+        hit[i] = wp.uint8(0)
+        if tmax <= 0.0:  # a zero limit is a miss (t = 0 included), as on every backend
+            return
         k = frame(d)
         sz = 1.0 / d[k[2]]
         sx = d[k[0]] * sz
         sy = d[k[1]] * sz
-        found = wp.uint8(0)
         query = wp.bvh_query_capsule(bvh, o, d, pads[i])
         f = int(0)
         while wp.bvh_query_next(query, f, tmax):
-            t = triangle(o, k[0], k[1], k[2], sx, sy, sz, corners[f, 0], corners[f, 1],
+            t = triangle(o, d, k[0], k[1], k[2], sx, sy, corners[f, 0], corners[f, 1],
                          corners[f, 2])
-            if t > 0.0 and t <= tmax:
-                found = wp.uint8(1)
+            if t >= 0.0 and t <= tmax:
+                hit[i] = wp.uint8(1)
                 break
-        hit[i] = found
 
     @wp.kernel(enable_backward=False)
     def nearest(bvh: wp.uint64, corners: wp.array2d(dtype=wp.vec3),
@@ -187,6 +200,10 @@ def _kernels(wp) -> dict:
         o = origins[i]
         d = directions[i]
         best = limits[i]
+        t_out[i] = wp.inf
+        face_out[i] = -1
+        if best <= 0.0:  # a zero limit is a miss (t = 0 included), as on every backend
+            return
         k = frame(d)
         sz = 1.0 / d[k[2]]
         sx = d[k[0]] * sz
@@ -198,17 +215,15 @@ def _kernels(wp) -> dict:
         # exactly at it is still visited, so of faces hit at one t the lowest index wins,
         # whatever order the traversal meets them in
         while wp.bvh_query_next(query, f, best):
-            t = triangle(o, k[0], k[1], k[2], sx, sy, sz, corners[f, 0], corners[f, 1],
+            t = triangle(o, d, k[0], k[1], k[2], sx, sy, corners[f, 0], corners[f, 1],
                          corners[f, 2])
-            if t > 0.0 and t <= best:
+            if t >= 0.0 and t <= best:
                 if t < best or face < 0 or f < face:
                     best = t
                     face = f
         if face >= 0:
             t_out[i] = best
-        else:
-            t_out[i] = wp.inf
-        face_out[i] = face
+            face_out[i] = face
 
     return {"occluded": occluded, "nearest": nearest}
 
@@ -308,7 +323,7 @@ class WarpBackend(TriangleBackend):
                 o[:] = d.numpy()
 
     def occluded(self, origins, directions, tmax) -> np.ndarray:
-        """(n,) bool: a hit within (0, tmax]."""
+        """(n,) bool: a hit within [0, tmax] (t = 0: the origin on a face, as Embree)."""
         hit = np.zeros(len(origins), dtype=np.uint8)
         self._launch(self._kernels["occluded"], origins, directions, tmax, [hit])
         return hit.view(bool)
