@@ -48,6 +48,7 @@ def assert_within(estimate, stderr, exact, k):
         f"estimates {estimate[bad][:5]}, stderr {stderr[bad][:5]}, exact {exact}")
 
 
+@pytest.mark.slow
 def test_open_plane_is_fully_open(sampler, backend):
     mesh = quad([0, 0, 0], 5, 5)
     pts, nrm = floor_points(16, 4.0)
@@ -109,6 +110,7 @@ def test_floor_under_ceiling_with_max_distance(sampler, weighting, backend):
     assert np.any(res.ao_stderr > 0)
 
 
+@pytest.mark.slow
 def test_floor_under_tessellated_disc(sampler, backend):
     h, radius, sides = 0.7, 1.3, 24
     disc = polygon([0, 0, h], radius, sides)

@@ -68,6 +68,7 @@ def _chart_ids(un, resolution, texel_samples=4):
     return ids.reshape(resolution, resolution), bool(mixed.any())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(MESHES))
 @pytest.mark.parametrize("padding", [0, 1, 2, 4])
 def test_padding_separates_the_charts(atlases, name, padding):
@@ -88,6 +89,7 @@ def test_padding_separates_the_charts(atlases, name, padding):
             assert not np.any((a >= 0) & (b >= 0) & (a != b)), (dr, dc)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(MESHES))
 def test_every_chart_has_the_same_texel_density(atlases, name):
     """Per chart sqrt(UV area in texels / surface area): the same for all charts (by
@@ -298,6 +300,7 @@ def test_charts_that_fill_the_image_with_padding_alone_get_one_texel_each():
 
 # (mesh, resolution, padding): the charts as given cover more, their mirror images do,
 # and a tie (the box's squares)
+@pytest.mark.slow
 @pytest.mark.parametrize("name, resolution, padding",
                          [("torus", 256, 2), ("torus", 256, 1), ("box", 256, 2)])
 def test_the_better_of_the_two_layouts_is_kept(name, resolution, padding):

@@ -32,6 +32,7 @@ def _rays(seed, n=4000):
     return o, d / np.linalg.norm(d, axis=1)[:, None]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("tmax", [np.inf, 0.7])
 @pytest.mark.parametrize("seed", range(3))
 def test_embree_matches_reference_distances_and_occlusion(seed, tmax):
@@ -48,6 +49,7 @@ def test_embree_matches_reference_distances_and_occlusion(seed, tmax):
     assert np.array_equal(occ.occluded(o32, d32, np.float32(tmax)), hit)
 
 
+@pytest.mark.slow
 def test_backface_ignoring_matches_reference_front_hits():
     mesh = _scene(7)
     v, f = mesh.vertices, mesh.faces.astype(np.int64)
@@ -199,6 +201,7 @@ class _RecordingReference:
     del _recorded
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("quantities", [("ao", "obscurance", "bent-normal"), ("ao", "bent-normal")],
                          ids=["distance-query", "occlusion-query"])
 @pytest.mark.parametrize("backfaces", ["occlude", "ignore"])

@@ -232,6 +232,7 @@ def test_outputs_inside_the_input_folder_are_not_inputs(tmp_path):
     assert run_batch(*args)[2]["counts"] == {"ok": 0, "skipped": 3, "failed": 0}
 
 
+@pytest.mark.slow
 def test_processes_executor_bakes_the_same_bits(tmp_path):
     meshes = _library(tmp_path / "in")
     a, b = tmp_path / "a", tmp_path / "b"

@@ -250,6 +250,7 @@ def test_stderr_size_matches_its_distribution_on_symmetric_scenes(name, sampler,
 # --------------------------------------------------------------------------- closed forms
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("b", [0.35, math.pi / 2, 0.9 * math.pi])
 def test_wedge_closed_form(b):
     """The wedge's AO and bent normal (derivation above) against a midpoint quadrature of

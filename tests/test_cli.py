@@ -129,6 +129,7 @@ def test_unsupported_output_and_missing_directory(mesh_path, tmp_path):
     assert res.exit_code == 1 and "does not exist" in res.output
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("entry", [["-m", "aobake"], [str(ROOT / "cli.py")]], ids=["python-m", "shim"])
 def test_python_m_and_shim(mesh_path, tmp_path, entry):
     out = tmp_path / "m.npz"
@@ -138,6 +139,7 @@ def test_python_m_and_shim(mesh_path, tmp_path, entry):
     assert out.exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("entry", [["-m", "aobake"], [str(ROOT / "cli.py")]], ids=["python-m", "shim"])
 def test_process_entry_flushes_and_keeps_the_exit_status(mesh_path, tmp_path, entry):
     """The entry ends the process without the interpreter's teardown: what was printed to
@@ -194,6 +196,7 @@ def test_failed_output_leaves_nothing_behind(mesh_path, tmp_path, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == [mesh_path.name]
 
 
+@pytest.mark.slow
 def test_sigterm_cleans_up_and_exits_143(mesh_path, tmp_path):
     import signal
     import subprocess
@@ -312,6 +315,7 @@ def tiny_disk(tmp_path):
     subprocess.run(["umount", str(where)], check=False)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ext", ["ply", "glb", "exr", "png", "tif"])
 def test_full_disk_is_one_line_and_leaves_nothing(tmp_path, tiny_disk, ext):
     import trimesh

@@ -156,6 +156,7 @@ def test_every_face_with_area_has_a_footprint_inside_a_chart(scene, size):
     assert check_uvs(un.uv, un.faces, size, size).valid
 
 
+@pytest.mark.slow
 def test_lookups_on_the_tiny_faces_read_their_neighbours(scene):
     """The baked map read at each tiny face and at the zero-area one (bilinear at its UV
     centroid) agrees with the map read at the same vertices from the faces around it,

@@ -286,6 +286,7 @@ def test_other_settings_that_change_the_number_are_warned_about(vertex_bake, tmp
 # lightmaps
 
 
+@pytest.mark.slow
 def test_texel_offset_over_covered_texels_only(texel_bake, tmp_path):
     result, tmp = texel_bake
     covered = result.channels["coverage"] > 0
@@ -435,6 +436,7 @@ BAD = ["missing", "missing reference", "not a zip", "not a ply", "truncated ply"
        "vertices vs texels", "format", "heatmap suffix"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", BAD)
 def test_bad_input_is_one_line_and_exit_1(vertex_bake, texel_bake, tmp_path, case):
     reference, candidate, text, named = bad_inputs(vertex_bake, texel_bake, tmp_path)[case]

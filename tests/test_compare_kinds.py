@@ -31,6 +31,7 @@ def files(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("reference, candidate", [("view", "lightmap"), ("lightmap", "view")])
 def test_library_refuses_a_view_against_a_lightmap(files, reference, candidate):
     with pytest.raises(aobake.InputError) as info:

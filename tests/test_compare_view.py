@@ -38,6 +38,7 @@ def views(tmp_path_factory):
     return truth, gtao, tmp
 
 
+@pytest.mark.slow
 def test_view_scores_equal_the_screen_score_of_the_views_own_g_buffer(views):
     truth, gtao, tmp = views
     m = compare(tmp / "truth.exr", tmp / "gtao.exr")
@@ -137,6 +138,7 @@ def test_a_hand_edited_camera_record_is_refused_naming_the_file(tmp_path, record
 
 # -- aobake view --truths: the G-buffer, both truths and the camera in one run ----------------
 
+@pytest.mark.slow
 def test_view_truths_are_the_bounded_and_unbounded_views_bit_for_bit():
     truths = aobake.bake_view_truths(STILL_LIFE, size=SIZE, rays=16, ssao_radius=RADIUS, seed=5)
     bounded = aobake.bake_view(STILL_LIFE, size=SIZE, rays=16, max_distance=RADIUS, seed=5)
@@ -154,6 +156,7 @@ def test_view_truths_are_the_bounded_and_unbounded_views_bit_for_bit():
     assert record["unbounded"]["channels"][0] == "ao_unbounded"
 
 
+@pytest.mark.slow
 def test_view_truths_from_the_cli_score_a_shader_against_either_truth(tmp_path):
     out = tmp_path / "view.exr"
     res = run_cli("view", STILL_LIFE, "--out", out, "--size", "48x36", "--rays", "16",

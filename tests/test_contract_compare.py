@@ -133,6 +133,7 @@ CASES = ["truncated npz", "not a zip", "npz claiming terabytes", "deep ply metad
          "ply claiming terabytes", "glb zero accessors", "glb zero stride", "deep glb json"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", CASES)
 def test_malformed_candidate_is_one_line_without_allocating_its_claims(bake, tmp_path, case):
     name, data, text = malformed(bake, tmp_path)[case]
@@ -187,6 +188,7 @@ def _mutations(data: bytes, rng, count: int, glb: bool = False):
             yield _json_mutation(data, rng)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("suffix", ["npz", "ply", "glb", "png"])
 def test_broken_files_give_input_errors_only(bake, tmp_path, suffix):
     """The next malformation of the same kind: mutated copies of each format, as the
@@ -238,6 +240,7 @@ def _match_cost(positions, normals, order):
     return seconds, peak
 
 
+@pytest.mark.slow
 def test_coincident_vertices_cost_what_distinct_ones_do():
     """4,000 vertices at one position in a 12,000-vertex pair: a pairwise comparison would
     make (4000, 4000, 3) floats (384 MB) and take seconds; the work stays within a few times
@@ -337,6 +340,7 @@ def _png(tmp_path):
     return (tmp_path / "ref.png").read_bytes()
 
 
+@pytest.mark.slow
 def test_truncated_png_is_one_line_from_aobake(tmp_path):
     """libpng prints its own ``libpng error:`` line on the process's stderr: through a real
     process, the only line is aobake's."""

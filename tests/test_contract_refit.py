@@ -115,6 +115,7 @@ HAND_EDITS = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", sorted(HAND_EDITS))
 def test_a_hand_edited_bake_is_refused_naming_it(kept, tmp_path, case):
     """Each would give a traceback or, worse, a wrong answer with exit 0 (NaN distances:

@@ -135,6 +135,7 @@ def test_uv_orientation_and_the_factor_alpha(tmp_path):
     assert (clear.ao == 1.0).all()
 
 
+@pytest.mark.slow
 def test_bit_identical_for_threads_and_executors(tmp_path):
     path = scene_file(tmp_path, checker())
     points, normals = floor_points()

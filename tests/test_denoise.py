@@ -79,6 +79,7 @@ def test_keeps_a_step_the_noise_cannot_explain():
         assert (np.abs(err) < 0.1).all()
 
 
+@pytest.mark.slow
 def test_no_bias_and_the_noise_channel_predicts_the_spread():
     # Constant truth 0.6, Gaussian noise of a known sd per texel (two levels), over seeds:
     # the denoised value's mean is the truth within 4 SE of the seeds' mean, and its
@@ -155,6 +156,7 @@ def _cli(*args):
                           capture_output=True, text=True)
 
 
+@pytest.mark.slow
 def test_cli_writes_the_channels_to_exr(torus, tmp_path):
     import OpenImageIO as oiio
 
@@ -193,6 +195,7 @@ def test_refused_without_a_scalar_quantity(torus):
         bake_texels(str(torus), denoise=True, quantities=("bent_normal",), resolution=16, rays=4)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("out", ["ao.png", "ao.npz", "ao.glb"])
 def test_cli_refuses_denoise_without_exr(torus, tmp_path, out):
     done = _cli(torus, "--out", tmp_path / out, "--denoise", "--rays", 4, "--resolution", 16)

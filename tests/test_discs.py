@@ -174,6 +174,7 @@ def _rmse(a, b) -> float:
     return float(np.sqrt(np.mean((a - b) ** 2)))
 
 
+@pytest.mark.slow
 def test_hierarchy_that_opens_every_node_is_brute_force(tori_elements):
     """With kappa beyond the scene's span over the smallest disc's radius every node is
     opened: the same terms as brute force, summed in another order (and with a max
@@ -197,6 +198,7 @@ def test_hierarchy_that_opens_every_node_is_brute_force(tori_elements):
     assert (a.fields["ao"] > 0.5).any() and (a.fields["ao"] < 0.99).any()  # a real test
 
 
+@pytest.mark.slow
 def test_hierarchy_agrees_with_brute_force_within_the_stated_tolerance(tori_elements):
     """At the default kappa the hierarchy is within HIERARCHY_RMSE of brute force (the
     claim docs/discs.md states), and each doubling of kappa at least halves its error
@@ -272,6 +274,7 @@ def test_scaling_by_a_power_of_two_changes_no_bit(tori_elements):
 
 # ---------------------------------------------------------------------------- method protocol
 
+@pytest.mark.slow
 @pytest.mark.parametrize("traversal", ["hierarchy", "brute"])
 def test_any_split_of_the_points_gives_the_same_rows(tori_elements, traversal):
     """Each point's value from that point alone: a permutation, a subset, other chunk
@@ -335,6 +338,7 @@ def _small_mesh() -> trimesh.Trimesh:
     return trimesh.creation.torus(1.0, 0.4, major_sections=24, minor_sections=12)
 
 
+@pytest.mark.slow
 def test_bake_view_and_bake_points_run_discs_without_rays_or_stderr():
     mesh = _small_mesh()
     view = aobake.bake_view(mesh, method="discs", size=(40, 30), threads=1)
@@ -379,6 +383,7 @@ def test_bake_per_vertex_runs_discs():
     assert chunked.report["parameters"] == result.report["parameters"]
 
 
+@pytest.mark.slow
 def test_bake_texels_runs_discs():
     """A lightmap of a method that casts no rays: values and coverage, no stderr, no rays;
     the covered texels are the ray-traced bake's (the same atlas)."""

@@ -178,6 +178,7 @@ def tori_scene():
     return load_scene(_tori())
 
 
+@pytest.mark.slow
 def test_zero_albedo_gives_zero_and_leaves_ao_alone(tori_scene):
     """Albedo 0: every element's radiance is 0, so every pass is exactly 0; the AO columns
     of the same gather keep their bits (a column's sums never depend on the others)."""
@@ -192,6 +193,7 @@ def test_zero_albedo_gives_zero_and_leaves_ao_alone(tori_scene):
     np.testing.assert_array_equal(black.extras["discs_passes"], alone.extras["discs_passes"])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("traversal", ["hierarchy", "brute"])
 def test_any_split_of_the_points_gives_the_same_rows(tori_scene, traversal):
     position, normal, area = elements(tori_scene)
@@ -209,6 +211,7 @@ def test_any_split_of_the_points_gives_the_same_rows(tori_scene, traversal):
         np.testing.assert_array_equal(part.extras[name], whole.extras[name][index])
 
 
+@pytest.mark.slow
 def test_a_point_without_normal_gets_no_information(tori_scene):
     method = DiscsMethod.from_elements(*elements(tori_scene), quantities=("indirect",))
     got = method.estimate(_points([[0, 0, 0], [0, 0, 0.5]], [[0, 0, 0], [0, 0, 1]]), 1, 4096)
@@ -217,6 +220,7 @@ def test_a_point_without_normal_gets_no_information(tori_scene):
     assert set(got.fields) == {"indirect"} and "discs_passes" not in got.extras
 
 
+@pytest.mark.slow
 def test_agrees_with_the_ray_traced_truth_within_the_measured_error():
     """The approximation against ``--method rays -q indirect`` (256 rays, another
     estimator altogether) at every vertex of the tori: its excess RMSE (the truth's noise
@@ -242,6 +246,7 @@ def test_agrees_with_the_ray_traced_truth_within_the_measured_error():
 
 # ---------------------------------------------------------------------------- plumbing
 
+@pytest.mark.slow
 def test_defaults_and_the_record():
     options = DiscsOptions()
     assert options.discs_indirect_passes == DEFAULT_INDIRECT_PASSES == 2

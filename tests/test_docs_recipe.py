@@ -8,9 +8,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow
 def test_score_my_shader_recipe_runs_and_scores_against_both_truths(tmp_path):
     out = subprocess.run(
         [sys.executable, str(ROOT / "docs" / "score_my_shader.py"), "--mesh",

@@ -37,6 +37,7 @@ def test_scaled_and_translated_scene_gives_same_ao(scale, shift):
     assert 0.5 <= ratio <= 2.0, ratio
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scale, shift", [(1e-4, 0.0), (1.0, 1e5)])
 def test_scaled_and_translated_lightmap_gives_same_texels(scale, shift):
     """A fresh atlas and its texels do not depend on units or position: the same texels are

@@ -46,6 +46,7 @@ def check(path):
     assert np.isfinite(scene.vertices).all() and np.isfinite(scene.vertex_normals).all()
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(lines=st.lists(obj_line, min_size=0, max_size=25))
 def test_obj_text(tmp_path, lines):
@@ -54,6 +55,7 @@ def test_obj_text(tmp_path, lines):
     check(path)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("suffix", [".ply", ".stl", ".off", ".glb", ".obj"])
 @SETTINGS
 @given(data=st.binary(min_size=0, max_size=400))
@@ -71,6 +73,7 @@ HEADERS = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("suffix", sorted(HEADERS))
 @SETTINGS
 @given(body=st.lists(st.lists(numbers, min_size=0, max_size=5).map(" ".join), max_size=12))

@@ -118,6 +118,7 @@ SIZES = [pytest.param(128, 2, id="128-pad2"), pytest.param((101, 75), 1, id="101
          pytest.param((96, 128), 3, id="96x128-pad3"), pytest.param(64, 0, id="64-pad0")]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("resolution, padding", SIZES)
 def test_every_filled_channel_is_finite_and_filled_outside_the_charts(resolution, padding):
     res, _, names = _bake(resolution, padding)
@@ -150,6 +151,7 @@ def test_every_filled_channel_is_finite_and_filled_outside_the_charts(resolution
     assert np.all(old.channels["ao"][fill] == 0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("resolution, padding", SIZES)
 def test_box_filtered_mips_never_bleed_black_into_the_charts(resolution, padding):
     res, _, _ = _bake(resolution, padding)
@@ -188,6 +190,7 @@ def test_dilation_within_padding_is_unchanged_bit_for_bit(resolution, padding):
         assert np.array_equal(res.channels[name], old.channels[name]), name
 
 
+@pytest.mark.slow
 def test_padding_zero_through_the_cli(tmp_path):
     mesh = tmp_path / "scene.ply"
     _mesh().export(mesh)
@@ -230,6 +233,7 @@ def _push_pull_brute_force(image, mask):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(6))
 def test_push_pull_matches_brute_force_at_odd_and_non_square_sizes(seed):
     rng = np.random.default_rng(seed)

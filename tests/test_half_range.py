@@ -68,6 +68,7 @@ def test_library_view_of_a_far_scene_as_half_has_no_inf(far_mesh, tmp_path):
     assert dict(zip(names, formats))["ao"] == "half"
 
 
+@pytest.mark.slow
 def test_cli_view_of_a_far_scene_as_half_warns_once(far_mesh, tmp_path):
     out = tmp_path / "v.exr"
     result = subprocess.run([sys.executable, "-m", "aobake", "view", str(far_mesh), "--half",

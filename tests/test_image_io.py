@@ -204,6 +204,7 @@ def test_image_metadata_is_strict_json(tmp_path):
         assert data["config"]["max_distance"] == "inf" and data["parameters"]["x"] == "nan"
 
 
+@pytest.mark.slow
 def test_identical_inputs_give_byte_identical_images(tmp_path):
     """No time stamp in the files: the same channels written a second later are the same
     bytes (EXR, TIFF and PNG), so a cache may key bakes by file hash."""

@@ -93,6 +93,7 @@ def test_indirect_with_backfaces_ignored_is_refused():
             aobake.BakeConfig(quantities=("indirect",), **bad)
 
 
+@pytest.mark.slow
 def test_indirect_is_the_same_for_any_threads_and_split():
     points, normals = _points(40)
     options = dict(rays=16, quantities=("ao", "indirect"), max_distance=D, albedo=0.7,

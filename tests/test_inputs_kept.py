@@ -45,7 +45,7 @@ def test_an_ao_from_file_is_never_an_output_of_the_same_run(baked, tmp_path, rol
             "--resolution", 32, role, source]
     result = run_cli(*args)
     assert result.exit_code == 1, result.output
-    assert f"refusing to overwrite the input --ao-from" in result.output
+    assert "refusing to overwrite the input --ao-from" in result.output
     assert _snapshot(before) == before
     assert not (tmp_path / "look.exr").exists()
 
@@ -129,6 +129,7 @@ def test_a_resumed_batch_with_a_report_nested_by_hand_bakes_again(baked, tmp_pat
     assert json.loads((out_dir / "batch-summary.json").read_text())["counts"]["ok"] == 1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", ["npz", "ply", "exr"])
 def test_a_resumed_batch_bakes_a_damaged_output_again(baked, tmp_path, fmt):
     out_dir = tmp_path / "out"

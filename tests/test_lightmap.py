@@ -84,6 +84,7 @@ def test_floor_under_ceiling_texel_by_texel(ceiling_obj, sampler):
     assert res.report["texture"]["charts"] is None  # only a new atlas has a chart count
 
 
+@pytest.mark.slow
 def test_vertex_and_texel_bakes_agree(tmp_path):
     # A flat floor grid (planar UVs, the compared surface) under a floating sphere: AO
     # varies smoothly over the floor and flat faces carry no faceting bias, so the
@@ -171,6 +172,7 @@ def _seam_bakes():
     return results, _seam_midpoints(results[4].atlas)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("padding", [4, 0], ids=["padded-seams-agree", "unpadded-gutter-shows"])
 def test_seams_agree_after_padding_and_gutter_shows_without(padding):
     results, (ua, ub) = _seam_bakes()
@@ -246,6 +248,7 @@ def test_ldr_bit_depths_read_back_exactly(ceiling_obj, tmp_path, ext, depth):
     assert np.array_equal(stored[..., 3], cov)
 
 
+@pytest.mark.slow
 def test_glb_lightmap_reloads_with_occlusion_texture(tmp_path):
     torus = trimesh.creation.torus(major_radius=1.0, minor_radius=0.3)
     src = tmp_path / "t.ply"
@@ -293,6 +296,7 @@ def test_bad_texture_options(tmp_path, box_ply, args, message, code):
     assert not out.exists() and not (tmp_path / "ao.obj").exists()
 
 
+@pytest.mark.slow
 def test_unwritable_output_path(tmp_path, box_ply):
     locked = tmp_path / "locked"
     locked.mkdir()
@@ -311,6 +315,7 @@ def test_unwritable_output_path(tmp_path, box_ply):
     assert res.exit_code == 1 and "does not exist" in res.output
 
 
+@pytest.mark.slow
 def test_output_on_read_only_filesystem(box_ply):
     # /proc refuses new files even for root: the write itself fails, cleanly.
     res = run_cli(box_ply, "--out", "/proc/aobake-test.exr", "--resolution", 8, "--rays", 4)
@@ -318,6 +323,7 @@ def test_output_on_read_only_filesystem(box_ply):
     assert "Traceback" not in res.output and len(res.output.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_glb_keeps_base_colour_and_uvs_with_new_atlas(tmp_path):
     from PIL import Image
 
@@ -451,6 +457,7 @@ def test_charts_of_a_few_texels_warn_with_the_density(tmp_path):
     assert density == pytest.approx(np.sqrt(res.report["texture"]["texels_covered"] / mesh.area))
 
 
+@pytest.mark.slow
 def test_unwrap_failure_names_the_mesh(tmp_path):
     rng = np.random.default_rng(0)
     corners = (rng.uniform(-2, 2, (150, 1, 3)) + rng.normal(scale=0.2, size=(150, 3, 3))).reshape(-1, 3)
@@ -462,6 +469,7 @@ def test_unwrap_failure_names_the_mesh(tmp_path):
     assert res.output.startswith(f"aobake: error: {path}: unwrapping") and "--resolution" in res.output
 
 
+@pytest.mark.slow
 def test_progress_reports_every_stage(tmp_path, box_ply):
     """Unwrapping and rasterising are reported as they start (xatlas ran 4-9 s with nothing
     shown), then the tracing progress."""
@@ -476,6 +484,7 @@ def test_progress_reports_every_stage(tmp_path, box_ply):
     assert ticks and ticks[-1][0] == ticks[-1][1]
 
 
+@pytest.mark.slow
 def test_texel_bent_normal_error_stays_no_information_where_a_sample_has_none(tmp_path):
     """An inside-out box (every ray blocked): each sample's angle error is the pi/2
     sentinel, and so is the texel's (it was pi/(2 sqrt(K)), as if averaging measured errors)."""

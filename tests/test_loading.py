@@ -431,6 +431,7 @@ def _same_or_both_reject(data: bytes):
         _assert_identical(fast, slow)
 
 
+@pytest.mark.slow
 @HYP
 @given(text=_obj_files())
 def test_obj_fast_path_property(text):
@@ -446,6 +447,7 @@ _junk = st.one_of(
 )
 
 
+@pytest.mark.slow
 @HYP
 @given(text=_obj_files(), where=st.integers(0, 10**6), junk=_junk, replace=st.booleans())
 def test_obj_fast_path_property_spoilt_files(text, where, junk, replace):
@@ -457,6 +459,7 @@ def test_obj_fast_path_property_spoilt_files(text, where, junk, replace):
     _same_or_both_reject("\n".join(lines).encode("utf-8", errors="surrogateescape"))
 
 
+@pytest.mark.slow
 @HYP
 @given(data=st.binary(max_size=300))
 def test_obj_fast_path_property_arbitrary_bytes(data):

@@ -52,6 +52,7 @@ def test_check_source_refuses_a_corrupt_png(tmp_path, kind):
         check_source(path, (SIZE, SIZE))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["crc", "garbage"])
 def test_cli_corrupt_orm_from_is_one_line(plane, tmp_path, kind):
     source = tmp_path / "orm.png"

@@ -124,6 +124,7 @@ def _same_masks(a, b):
         np.testing.assert_array_equal(x, y)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(MESHES))
 def test_chart_masks_are_the_same(charted, kernel, name):
     """The compiled marks are numpy's: origins, covered and padded masks, at scales from
@@ -170,6 +171,7 @@ def _layout_both(kernel, monkeypatch, function, *args):
     return outcomes
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(MESHES))
 def test_layouts_are_the_same(charted, kernel, monkeypatch, name):
     """``_layout``: the same scale search (every pack's outcome), scale, UVs (bit for bit),
@@ -194,6 +196,7 @@ def test_layouts_are_the_same(charted, kernel, monkeypatch, name):
     assert failures > 0  # the low resolutions exercised the retries
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["torus", "pieces", "box"])
 def test_layouts_at_a_density_are_the_same(charted, kernel, monkeypatch, name):
     """``_layout_at_density`` (the strip grown until the charts fit): the same packs and
@@ -209,6 +212,7 @@ def test_layouts_at_a_density_are_the_same(charted, kernel, monkeypatch, name):
         assert reference[1] == got[1] and reference[3] == got[3] and reference[4] == got[4]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("index", range(len(ATLASES)))
 def test_whole_atlases_are_the_same(charted, index):
     """``_xatlas_atlas`` in the child with compiled=True and False: the same UVs, chart
@@ -270,6 +274,7 @@ def _both_packs(kernel, masks, width, height, order, upright):
     return reference
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(MESHES))
 def test_chart_masks_pack_the_same(charted, kernel, name):
     """The generated meshes' masks, in every order, in a roomy and a tight strip."""
@@ -283,6 +288,7 @@ def test_chart_masks_pack_the_same(charted, kernel, name):
             _both_packs(kernel, padded, strip, strip, packing._order(padded, how), upright)
 
 
+@pytest.mark.slow
 def test_random_mask_sets_pack_the_same(kernel):
     """Random masks in random strips, every order and both upright settings: the same
     placements, turns, texels placed and rows used, also when they do not fit."""
@@ -311,6 +317,7 @@ def test_free_runs_are_cut_as_far_left_as_numpy(kernel):
         assert place == [(0, 0, 0), (0, left, 0)]
 
 
+@pytest.mark.slow
 def test_small_charts_fill_holes_and_search_everywhere_the_same(kernel):
     """Many small charts after large hollow ones in a tight strip: holes (the lazily made
     free squares, the rows tried) and the exhaustive search decide most places."""
@@ -401,6 +408,7 @@ def test_pack_kernel_refuses_bad_buffers(kernel):
 # --- which packer ran, through the child process and the report ------------------------
 
 
+@pytest.mark.slow
 def test_unwrap_reports_the_packer_that_ran(kernel):
     """The caller's choice reaches the isolated child (numpy_only is thread-local) and
     comes back in ``Unwrapped.packing_compiled``; the atlas is the same."""

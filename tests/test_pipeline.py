@@ -102,6 +102,7 @@ def test_rebaking_from_the_report_config_gives_identical_bits(torus):
         np.testing.assert_array_equal(array, again.fields()[name], err_msg=name)
 
 
+@pytest.mark.slow
 def test_rebaking_a_lightmap_from_the_report_config_gives_identical_bits(torus):
     first = aobake.bake_texels(torus, rays=8, resolution="40x24", padding=2, texel_samples=2,
                                quantities=("ao", "bent_normal"), bent_space="tangent", seed=3)
@@ -138,6 +139,7 @@ def test_write_gives_the_files_the_cli_writes(torus, tmp_path):
     assert json.loads((tmp_path / "lib.json").read_text())["outputs"] == [str(written[0])]
 
 
+@pytest.mark.slow
 def test_write_of_a_lightmap_writes_the_atlas_mesh_like_the_cli(tmp_path):
     mesh = tmp_path / "box.ply"
     trimesh.creation.box().export(mesh)  # no UVs: a new atlas, so a mesh to write
@@ -173,6 +175,7 @@ def test_readme_lists_every_cli_option():
                 assert flag in text, flag
 
 
+@pytest.mark.slow
 def test_lazy_registries_resolve_every_plugin_and_a_vertex_bake_imports_none_it_does_not_need():
     """TARGETS, METHODS and EXECUTORS name their plugins without importing them (issue 21:
     the command's start-up cost); each name resolves to its class, whose ``name`` is the

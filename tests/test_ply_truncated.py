@@ -68,6 +68,7 @@ def test_library_view_from_a_truncated_ply_is_an_input_error(baked):
         aobake.bake_view(mesh, method="file", ao_from=str(cut), size=(16, 12))
 
 
+@pytest.mark.slow
 def test_cli_view_from_a_truncated_ply_exits_1(baked, tmp_path):
     mesh, out = baked
     cut = _cut(out, 7)

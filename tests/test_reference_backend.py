@@ -268,6 +268,7 @@ def test_agrees_with_trimesh_numpy_intersector():
 
 # One pair at a time; 7 of the 80 faces a block (a ragged last block); one ray against all
 # faces (100); all 64 rays x 80 faces at once.
+@pytest.mark.slow
 @pytest.mark.parametrize("block_pairs", [1, 7, 100, 80 * 64])
 def test_block_size_does_not_change_results(block_pairs):
     mesh = trimesh.creation.icosphere(subdivisions=1)

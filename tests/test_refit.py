@@ -29,6 +29,7 @@ def kept():
             for sampler in SAMPLERS}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("tau, distance", [(None, None), (0.0, "40%"), (3.0, "10%"),
                                            (float("inf"), "1%"), (0.25, 0.0), (7.0, 0.3)])
 def test_refit_equals_a_fresh_bake(kept, sampler, tau, distance):
@@ -41,6 +42,7 @@ def test_refit_equals_a_fresh_bake(kept, sampler, tau, distance):
     _assert_same(again, aobake.bake(ASSET, **options))
 
 
+@pytest.mark.slow
 def test_refit_with_a_ground_plane_and_backfaces_ignored():
     options = dict(quantities=("ao", "obscurance"), rays=16, ground_plane=True,
                    backfaces="ignore", max_distance="50%", seed=1)
@@ -65,6 +67,7 @@ def test_refit_of_streamed_points(monkeypatch):
                                     **dict(options, tau=5.0, max_distance=0.8)))
 
 
+@pytest.mark.slow
 def test_refit_through_the_cli_and_npz(tmp_path):
     baked = tmp_path / "kept.npz"
     res = run_cli(ASSET, "-o", baked, "--keep-distances", "-q", "ao", "--rays", 16,
@@ -84,6 +87,7 @@ def test_refit_through_the_cli_and_npz(tmp_path):
         np.testing.assert_array_equal(data["ao"], fresh.ao.astype(np.float32))
 
 
+@pytest.mark.slow
 def test_refit_refusals(tmp_path, kept):
     with pytest.raises(aobake.InputError, match="beyond the baked"):
         refit(kept["sobol"], max_distance="50%")

@@ -15,6 +15,7 @@ def scene():
     return trimesh.util.concatenate([knot, floor])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sampler", ["random", "sobol"])
 def test_threads_and_chunks_do_not_change_results(sampler, tmp_path):
     opts = dict(rays=40, sampler=sampler, quantities=("ao", "obscurance", "bent-normal"), seed=11)
@@ -74,6 +75,7 @@ def test_morton_order_matches_bitwise_interleave():
     np.testing.assert_array_equal(morton_order(np.ones((4, 3))), np.arange(4))
 
 
+@pytest.mark.slow
 def test_bakes_do_not_depend_on_the_compiled_kernel(kernel):
     """Without aobake._kernels (no compiler at install) every bake gives the same bits,
     and the report says which implementation ran."""

@@ -57,6 +57,7 @@ def test_samples_are_a_pure_function_of_point_and_seed(sampler):
     assert not np.array_equal(u, _values(sampler, 64, ids, seed=2)[0])
 
 
+@pytest.mark.slow
 def test_no_sample_value_is_shared_between_points_or_replicates(sampler):
     """Independence: distinct points (and replicates) never share a random number, and the
     estimates of a step function at different points are uncorrelated across seeds."""

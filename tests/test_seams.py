@@ -123,6 +123,7 @@ def test_agreement_is_limited_only_by_the_seam_weight(torus, monkeypatch):
         assert np.max(np.abs(d)) < 1e-3, (name, np.max(np.abs(d)))
 
 
+@pytest.mark.slow
 def test_new_atlas_seams_agree():
     """An xatlas atlas (a sphere under a plate): its charts' seams are erased too."""
     mesh = sphere_under_plate()
@@ -239,6 +240,7 @@ def sphere_under_plate(subdivisions=2):
     return trimesh.util.concatenate([sphere, plate])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["torus-own-uvs", "sphere-xatlas"])
 def test_kept_stderr_bounds_the_adjusted_values_noise(torus, case):
     """The adjusted covered values are linear in the baked ones, x = K b.  With the
@@ -336,6 +338,7 @@ def test_config_field():
         BakeConfig(seams="blend")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["torus-own-uvs", "sphere-xatlas"])
 def test_compiled_solve_gives_the_numpy_bits(torus, case, kernel):
     """The seam solve's kernel (group sums and conjugate gradients) repeats the numpy
@@ -355,6 +358,7 @@ def test_compiled_solve_gives_the_numpy_bits(torus, case, kernel):
             np.testing.assert_array_equal(fast, slow)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["torus-own-uvs", "sphere-xatlas"])
 def test_assembled_matrix_is_the_normal_matrix(torus, case, kernel):
     """The solve's CSR matrix is W + P^T G^T Lambda G P over the covered unknowns, made
@@ -692,6 +696,7 @@ def _systematic(mesh_or_path, seeds, **options):
     return raw, np.sqrt(max(raw ** 2 - random ** 2 / len(d), 0.0))
 
 
+@pytest.mark.slow
 def test_parts_through_parts_meet_the_seam_target(monkeypatch):
     """The ogre's remaining class (issue 21): a part through another (a sphere half in a
     box, a new atlas), texels buried (AO 0) a texel from open ones, seams across the
@@ -722,6 +727,7 @@ def _sphere_through_box():
     return trimesh.util.concatenate([sphere, box])
 
 
+@pytest.mark.slow
 def test_a_map_coarse_for_its_charts_meets_the_seam_target(monkeypatch):
     """The ogre at 512^2, scaled down: the sphere through the box at 48^2, its charts
     finer than the texels, so its steps across the seams are steep and a fixed weight
@@ -738,6 +744,7 @@ def test_a_map_coarse_for_its_charts_meets_the_seam_target(monkeypatch):
     assert fixed > SEAM_TARGET, fixed
 
 
+@pytest.mark.slow
 def test_the_report_says_which_seam_weight_ran():
     """texture.seams.kappa: KAPPA where the seams met the target at once, higher where the
     weight had to rise (the 48^2 map above)."""
@@ -751,6 +758,7 @@ def test_the_report_says_which_seam_weight_ran():
     assert coarse["texture"]["seams"]["rms_after"] <= seams.SEAM_TARGET
 
 
+@pytest.mark.slow
 def test_seam_rounds_stop_at_the_range_or_where_a_round_no_longer_helps(monkeypatch):
     """With no target met (SEAM_TARGET 0) the weight rises to KAPPA x KAPPA_RANGE; a round
     that leaves more than PLATEAU of the last one's difference is the last (PLATEAU 0: the

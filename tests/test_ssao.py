@@ -95,6 +95,7 @@ def test_linearised_hardware_depth_equals_the_linear_depth(convention):
 
 # -- flat walls -----------------------------------------------------------------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("depth", ["linear", "opengl"])
 @pytest.mark.parametrize("method", [CrytekMethod, ShanmugamMethod])
 def test_flat_wall_is_exactly_open_for_crytek_doubled_and_shanmugam(method, depth):
@@ -124,6 +125,7 @@ def test_flat_wall_crytek_raw_visible_fraction_is_at_least_half():
             assert inner.sum() > 100 and (visible[inner] == 0.5).all()
 
 
+@pytest.mark.slow
 def test_flat_wall_gtao_gives_its_documented_flat_value():
     for mesh, cam in _plane_views():
         frame = GBuffer.from_view(aobake.bake_view(mesh, camera=cam, rays=1)).frame()
@@ -144,6 +146,7 @@ def test_flat_wall_gtao_gives_its_documented_flat_value():
                                rotate, 4)[0] == pytest.approx(1.0, abs=angle)
 
 
+@pytest.mark.slow
 def test_flat_wall_heightfield_truth_is_open():
     for mesh, cam in _plane_views():
         image = GBuffer.from_view(aobake.bake_view(mesh, camera=cam, rays=1))
@@ -154,6 +157,7 @@ def test_flat_wall_heightfield_truth_is_open():
 
 # -- closed forms ---------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_sphere_term_is_the_small_cap_limit_of_the_exact_occlusion():
     distance = 1.0
     for radius in (0.01, 0.1, 0.3, 0.6):
@@ -265,6 +269,7 @@ def test_inside_a_right_angle_corner_the_bounded_truth_is_the_closed_form():
     assert (got[~near] == 1.0).all()
 
 
+@pytest.mark.slow
 def test_inside_a_right_angle_corner_gtao_with_a_hard_cut_is_the_closed_form():
     mesh, cam = _crease()
     radius, steps = 0.5, 256
@@ -402,6 +407,7 @@ def test_gtao_at_a_crease_matches_the_bounded_truth_within_its_step_spacing():
 
 # -- the height-field truth -----------------------------------------------------------------
 
+@pytest.mark.slow
 def test_heightfield_truth_equals_ray_traced_truth_on_a_height_field_scene():
     """A box on a floor seen from straight above, nearly orthographic: the depth buffer is
     the scene (the box's walls are hidden, the box's top edges fall on pixel boundaries).
@@ -545,6 +551,7 @@ def test_bad_settings_are_refused_with_clear_messages():
 
 # -- split invariance -------------------------------------------------------------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["crytek", "shanmugam", "gtao", "heightfield"])
 def test_any_split_of_the_pixels_gives_the_same_bits(name):
     mesh = combine(quad([0, 0, 0], 2.0, 2.0), trimesh.creation.icosphere(2, 0.5))
@@ -560,6 +567,7 @@ def test_any_split_of_the_pixels_gives_the_same_bits(name):
         assert "rays" not in whole.channels and "ao_stderr" not in whole.channels
 
 
+@pytest.mark.slow
 def test_processes_executor_carries_the_g_buffer():
     mesh = combine(quad([0, 0, 0], 2.0, 2.0), trimesh.creation.icosphere(2, 0.5))
     cam = cameras.look_at([1.0, -2.0, 2.0], [0, 0, 0.2], [0, 0, 1], 40, size=(32, 24))

@@ -57,6 +57,7 @@ def test_streamed_statistics_equal_the_whole_point(sampler, monkeypatch):
     assert 0 < whole["ao"].min() and whole["ao"].max() < 1  # a partly blocked hemisphere
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("replicates", [2, 3, 6, 8])
 def test_streamed_equals_whole_for_any_replicates(sampler, replicates, monkeypatch):
     """--replicates R not a power of two: the pieces stay powers of two (a Sobol piece is the
@@ -86,6 +87,7 @@ def test_streamed_rays_match_the_numpy_formulation(sampler, small_pieces, kernel
         np.testing.assert_array_equal(compiled[name], reference[name], err_msg=name)
 
 
+@pytest.mark.slow
 def test_memory_does_not_grow_with_rays_per_point():
     """Peak traced memory at 2^22 rays per point (64 pieces) within 1.5x of one piece's
     (2^16 rays): one point's rays held at once would need ~64x (~200 MB)."""

@@ -153,6 +153,7 @@ def bake(seed=0, offset=CAGE, rays=64, **options):
 # --------------------------------------------------------------------------- 1. projection
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("offset", [CAGE, TIGHT])
 def test_projection_equals_an_independent_cast(offset):
     high, _ = meshes()
@@ -194,6 +195,7 @@ def reference():
     return value.reshape(shape), np.sqrt(var).reshape(shape), (count > 0).reshape(shape)
 
 
+@pytest.mark.slow
 def test_low_map_equals_ao_at_the_projected_points_within_its_error_bars():
     """20 seeds x ~700 texels at 64 rays against the 16384-ray reference: the intervals
     cover it in >= 93% (one-sided binomial), and on the interior texels (reference in
@@ -230,6 +232,7 @@ def test_low_map_equals_ao_at_the_projected_points_within_its_error_bars():
     assert 0.9 * lo <= q <= 1.1 * hi, (q, lo, hi)
 
 
+@pytest.mark.slow
 def test_per_vertex_equals_ao_at_the_projected_vertices():
     """Each low vertex projected (independent cast) and baked: within the FWER bound of the
     combined stderr everywhere (162 vertices x 10 seeds), z-scores calibrated.  The bake's
@@ -261,6 +264,7 @@ def test_per_vertex_equals_ao_at_the_projected_vertices():
         np.mean(normal ** 2)
 
 
+@pytest.mark.slow
 def test_bit_identical_for_threads_and_executors():
     a = bake(rays=16, threads=1)
     b = bake(rays=16, threads=2)
@@ -277,6 +281,7 @@ def test_bit_identical_for_threads_and_executors():
 # --------------------------------------------------------------------------- 3. misses, backs
 
 
+@pytest.mark.slow
 def test_a_tight_cage_flags_and_counts_its_misses(caplog):
     high, _ = meshes()
     res = bake(offset=TIGHT, rays=8)
@@ -320,6 +325,7 @@ def test_a_source_inside_out_is_hit_on_its_back():
 # --------------------------------------------------------------------------- 4. cage meshes
 
 
+@pytest.mark.slow
 def test_the_offset_cage_as_a_mesh_bakes_the_same_bits():
     high, low = meshes()
     cage = make_scene(low.vertices + CAGE * low.vertex_normals, low.faces, fix_normals="off")
@@ -352,6 +358,7 @@ def test_a_cage_of_another_topology_is_refused(tmp_path):
 # --------------------------------------------------------------------------- 5. outputs
 
 
+@pytest.mark.slow
 def test_outputs(tmp_path):
     from readers import read_image, read_ply
 

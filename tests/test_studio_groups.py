@@ -156,6 +156,7 @@ def test_a_receive_only_object_casts_nothing(tmp_path):
     assert entry["receive_only"] == entry["faces"] == len(ball().faces)
 
 
+@pytest.mark.slow
 def test_an_occluder_only_object_is_not_baked(tmp_path):
     path = scene_file(tmp_path, ["floor", "ball", "wall"])
     a = vertex_bake(path, occluder_only=("ball",))

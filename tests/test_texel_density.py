@@ -33,6 +33,7 @@ def _sphere():
 @pytest.mark.parametrize("make, density, padding", [
     (_sphere, 20.0, 2), (_sphere, 45.0, 4), (lambda: trimesh.creation.box(extents=[2, 1, 3]), 12.5, 1),
 ])
+@pytest.mark.slow
 def test_every_chart_at_the_density_asked_for(make, density, padding):
     """Each chart's sqrt(UV texels / surface area) is D to rounding (the layout fixes the
     scale; only the image side is quantised), and the side is the smallest the charts'
@@ -53,6 +54,7 @@ def test_every_chart_at_the_density_asked_for(make, density, padding):
     assert covered / (width * height) >= 0.4
 
 
+@pytest.mark.slow
 def test_bake_at_a_texel_density_reports_and_reproduces(tmp_path):
     """The report records the density asked for, the size chosen and the charts at that
     density; its config rebuilds the same bake (the same size)."""
@@ -115,6 +117,7 @@ def test_too_large_an_image_is_refused_before_charting(tmp_path):
     assert not (tmp_path / "ao.exr").exists()
 
 
+@pytest.mark.slow
 def test_cli_bake_at_a_texel_density(tmp_path):
     path = tmp_path / "sphere.ply"
     _sphere().export(path)
@@ -124,6 +127,7 @@ def test_cli_bake_at_a_texel_density(tmp_path):
     assert "texel density 12-12 per scene unit" in res.output
 
 
+@pytest.mark.slow
 def test_the_sparse_chart_warning_names_the_option_in_use():
     """Too few texels per chart: with --texel-density the advice is to raise the density
     (a resolution cannot be given with it), else the resolution."""

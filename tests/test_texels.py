@@ -287,6 +287,7 @@ def unit_torus_atlas():
     return mesh, unwrap(mesh.vertices, mesh.faces, 128, 2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scale, shift", [(1e-4, 0.0), (1e4, 0.0), (1.0, 1e5)])
 def test_unwrap_does_not_depend_on_scale_or_position(unit_torus_atlas, scale, shift):
     """xatlas works in float32 with absolute tolerances; unwrap normalises the mesh first, so
@@ -301,6 +302,7 @@ def test_unwrap_does_not_depend_on_scale_or_position(unit_torus_atlas, scale, sh
     np.testing.assert_allclose(un.uv, ref.uv, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_unwrap_into_a_non_square_image():
     """xatlas packs square layouts: a W x H atlas uses the top-left min(W, H) square, on the
     texel grid of the W x H image, with the usual padding."""
@@ -316,6 +318,7 @@ def test_unwrap_into_a_non_square_image():
     np.testing.assert_array_equal(mesh.vertices[un.vmapping][un.faces], mesh.vertices[mesh.faces])
 
 
+@pytest.mark.slow
 def test_unwrap_large_mesh_in_parts():
     """Above charts.PART_FACES triangles the mesh is charted in spatial parts with capped
     chart areas: still one valid, padded, deterministic atlas that uses the image."""
@@ -335,6 +338,7 @@ def test_unwrap_large_mesh_in_parts():
         np.testing.assert_array_equal(x, y)
 
 
+@pytest.mark.slow
 def test_unwrap_v_orientation_matches_xatlas_chart_image():
     # xatlas's v runs down its chart image (row 0 first); unwrap flips it to
     # OBJ's v-up so that our row r is xatlas's row r.
@@ -376,6 +380,7 @@ def _xatlas_chart_image_in_child(positions, faces, resolution, padding):
             return data["f"], data["uv"], data["img"]
 
 
+@pytest.mark.slow
 def test_unwrap_is_deterministic():
     mesh = trimesh.creation.icosphere(subdivisions=2)
     a = unwrap(mesh.vertices, mesh.faces, 64, 1)
@@ -390,6 +395,7 @@ def _stand_in(monkeypatch, **code):
     monkeypatch.setattr(unwrapping, "WORKER", unwrapping.WORKER._replace(**code))
 
 
+@pytest.mark.slow
 def test_unwrap_timeout_retries_then_fails(monkeypatch):
     _stand_in(monkeypatch, code="import time; time.sleep(30)")
     monkeypatch.setattr(unwrapping, "XATLAS_TIMEOUT_BASE_S", 0.5)
@@ -406,6 +412,7 @@ def test_unwrap_crash_becomes_input_error(monkeypatch):
         unwrap(mesh.vertices, mesh.faces, 32, 1)
 
 
+@pytest.mark.slow
 def test_prestarted_child_takes_the_unwrap():
     """The CLI starts the xatlas child before reading the mesh; the unwrap hands it its job
     (the same atlas as a child started then), and it is gone afterwards."""
@@ -419,6 +426,7 @@ def test_prestarted_child_takes_the_unwrap():
     assert warm.uv.tobytes() == fresh.uv.tobytes() and (warm.faces == fresh.faces).all()
 
 
+@pytest.mark.slow
 def test_prestarted_child_discarded_or_failing(monkeypatch):
     """discard_prestarted ends the waiting child; a prestarted child that fails hands the
     job to a new one (its failure says nothing about the mesh), and when that one crashes
@@ -558,6 +566,7 @@ def test_tangent_space_round_trip_is_orthonormal():
     np.testing.assert_allclose(np.linalg.det(m), t[:, 3], atol=1e-12)
 
 
+@pytest.mark.slow
 def test_tangents_on_unwrapped_sphere_are_perpendicular_and_unit():
     mesh = trimesh.creation.icosphere(subdivisions=2)
     un = unwrap(mesh.vertices, mesh.faces, 64, 1)
@@ -592,6 +601,7 @@ def test_compiled_rasteriser_equals_numpy_rasteriser_bit_for_bit(kernel):
             assert x.tobytes() == y.tobytes(), (trial, name)
 
 
+@pytest.mark.slow
 def test_compiled_rasteriser_on_an_atlas_equals_numpy(kernel):
     """Many triangles per row and per texel (an unwrapped sphere, shells overlapping
     where it is mirrored): the row kernel's order is the numpy path's."""
@@ -607,6 +617,7 @@ def test_compiled_rasteriser_on_an_atlas_equals_numpy(kernel):
             assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), (k, name)
 
 
+@pytest.mark.slow
 def test_compiled_surface_points_equal_numpy_bit_for_bit(kernel, monkeypatch):
     """aobake._kernels.surface_interp interpolates and normalises as the numpy formulation,
     operation for operation: points and shading normals (zero, flipped and turned-face

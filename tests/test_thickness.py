@@ -100,6 +100,7 @@ def test_sphere_is_four_thirds_of_its_radius():
     assert 2 * depth < 1e-3  # the bias allowed is small against the value
 
 
+@pytest.mark.slow
 def test_intervals_cover_and_stderr_is_calibrated():
     """(point, seed) pairs of i.i.d. bakes at 64 rays: slab (capped) and sphere."""
     mesh, sphere_at, sphere_n, depth = sphere_points(60)
@@ -137,6 +138,7 @@ def test_an_open_surface_counts_every_miss_at_the_cap():
         np.testing.assert_allclose(result.thickness_stderr, expected / 256, rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_bit_identical_for_threads_executors_chunks_and_streaming():
     points, normals = top_points(30)
     base = aobake.bake_points(slab(), points, normals, quantities=("ao", "thickness"),
@@ -168,6 +170,7 @@ def test_thickness_is_written_and_known_to_the_cli(tmp_path):
         assert "thickness_stderr" in data.files
 
 
+@pytest.mark.slow
 def test_a_lightmap_of_thickness_is_neither_clipped_nor_biased():
     """Texels average their samples' thickness; seam erasure keeps values above 1."""
     mesh = trimesh.creation.icosphere(subdivisions=3)

@@ -40,6 +40,7 @@ def scene(ao: float):
     return mesh, points, mesh.vertices[1:]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ao", TRUE_AO)
 def test_final_interval_covers_and_is_unbiased(sampler, ao):
     mesh, points, ring = scene(ao)
@@ -126,6 +127,7 @@ def test_cli_reports_the_tolerance(box_ply, tmp_path):
     assert rays.max() <= report["config"]["rays"] + 2048
 
 
+@pytest.mark.slow
 def test_lightmap_with_a_tolerance(tmp_path):
     """Texel samples meet E on their own; a texel (the mean of K) is narrower still, and its
     rays channel counts pilot + final rays."""

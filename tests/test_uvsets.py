@@ -72,6 +72,7 @@ def _gltf_uv(path, k):
     return np.column_stack([uv[:, 0], 1.0 - uv[:, 1]])  # OBJ convention
 
 
+@pytest.mark.slow
 def test_uv_set_1_bakes_into_texcoord_1_and_writes_it_back(two_sets, tmp_path):
     common = ["--resolution", 16, "--rays", 64, "--normals", "angle", "--texel-samples", 1]
     out = tmp_path / "baked.glb"
@@ -142,6 +143,7 @@ def _texel_point(uv, faces_uv, face_ids, target):
     raise AssertionError(f"no face holds {target}")
 
 
+@pytest.mark.slow
 def test_overlapping_uvs_detected_refused_with_the_overlap_shown(tmp_path):
     obj = _obj(tmp_path / "stacked.obj", SET0)
     out, mask = tmp_path / "ao.exr", tmp_path / "overlap.png"

@@ -82,6 +82,7 @@ def _cli(*args):
                           capture_output=True, text=True)
 
 
+@pytest.mark.slow
 def test_cli_far_eye_is_one_error_line(mesh, tmp_path):
     result = _cli(mesh, "--look-from", "1e300,0,0", "--look-at", "0,0,0", "--size", "8x6",
                   "--out", tmp_path / "v.exr")
@@ -90,6 +91,7 @@ def test_cli_far_eye_is_one_error_line(mesh, tmp_path):
     assert len(lines) == 1 and lines[0].startswith(f"aobake: error: {mesh}: the camera's eye")
 
 
+@pytest.mark.slow
 def test_cli_camera_on_an_obj_says_it_needs_a_gltf(mesh, tmp_path):
     result = _cli(mesh, "--camera", "first", "--size", "8x6", "--out", tmp_path / "v.exr")
     assert result.returncode in (1, 2), result.stderr

@@ -44,6 +44,7 @@ def each_mesh(test):
         pytest.mark.parametrize("cap", [0.0, 40.0])(run)))
 
 
+@pytest.mark.slow
 @each_mesh
 def test_built_xatlas_charts_exactly_like_the_package(meshes, cap):
     ours = charts.xatlas_charts(meshes, cap, 4.0, library="aobake._xatlas", placed=True)
@@ -79,6 +80,7 @@ def _placement_errors(placed, unplaced, faces):
     return out
 
 
+@pytest.mark.slow
 @each_mesh
 def test_unplaced_charts_are_the_placed_ones_translated(meshes, cap):
     placed = charts.xatlas_charts(meshes, cap, 4.0, library="aobake._xatlas", placed=True)
