@@ -107,3 +107,21 @@ def test_the_command_line_bakes_what_the_library_bakes(tmp_path, box_ply):
                    report, "--quiet").exit_code == 0
     config = json.loads(report.read_text())["config"]
     assert BakeConfig.from_dict(config) == BakeConfig(rays=8)
+
+
+@pytest.mark.parametrize("args, flag", [
+    (["--method", "hemicube", "--hemicube-resolution", "65"], "--hemicube-resolution"),
+    (["--cage-offset", "0.1"], "--from"),
+    (["--low-occludes"], "--from"),
+])
+def test_settings_that_cannot_go_together_are_a_usage_error_naming_the_flag(tmp_path, box_ply,
+                                                                          args, flag):
+    """Checked by BakeConfig before anything is read: exit 2 (usage), as a bad value of a
+    single flag is, and the message names the flag (issue 35: an odd resolution exited 1
+    without naming it)."""
+    for command in ([], ["view"]) if "--hemicube-resolution" in args else ([],):
+        result = run_cli(*command, box_ply, "--out", tmp_path / ("v.exr" if command else
+                                                                  "ao.npz"), *args)
+        assert result.exit_code == 2, result.output
+        assert flag in result.output and "Traceback" not in result.output
+    assert list(tmp_path.iterdir()) == [box_ply]

@@ -400,4 +400,4 @@ def test_cli_from_bakes_high_to_low_and_protects_the_source(tmp_path):
     clash = run_cli(low, "--from", high, "--out", high, "--rays", "8")
     assert clash.exit_code == 1 and "refusing to overwrite the input --from" in clash.output
     alone = run_cli(low, "--cage-offset", "0.1", "--out", tmp_path / "x.ply")
-    assert alone.exit_code == 1 and "--from" in alone.output
+    assert alone.exit_code == 2 and "--from" in alone.output  # settings that cannot go together

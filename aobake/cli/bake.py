@@ -17,7 +17,7 @@ import click
 
 from aobake.cli.common import guarded
 from aobake.cli.options import (BAKE_METHODS as METHODS, BAKE_TARGETS as TARGETS,
-                                PanelCommand, given, in_panel, method_for, run_options,
+                                PanelCommand, checked, given, in_panel, method_for, run_options,
                                 settings)
 from aobake.outputs.registry import MESH_OUTPUTS, suffixes
 
@@ -179,7 +179,7 @@ def _main(mesh, out, target, threads, mesh_out, half, bit_depth, r_only, orm, or
     request = dict(target=target, method=method_for(method, config), mesh_out=mesh_out,
                    report=report_path, half=half, bit_depth=int(bit_depth), r_only=r_only,
                    orm=orm, orm_from=orm_from, **run)
-    guarded(quiet, _run, mesh, out, request, quiet, given(config))
+    guarded(quiet, _run, mesh, out, request, quiet, checked(given(config)))
 
 
 main = _command()

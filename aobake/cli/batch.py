@@ -19,8 +19,8 @@ import click
 
 from aobake.cli.common import guarded
 from aobake.cli.options import (BAKE_METHODS as METHODS, BAKE_TARGETS as TARGETS,
-                                PanelCommand, given, in_panel, method_for, run_options,
-                                settings)
+                                PanelCommand, checked, given, in_panel, method_for,
+                                run_options, settings)
 from aobake.outputs.registry import suffixes
 
 #: every output extension a batch can write, without its dot
@@ -83,7 +83,8 @@ def _batch(inputs, out_dir, fmt, target, threads, method, executor, workers, chu
                workers=workers, chunk_points=chunk_points)
     write = dict(half=half, bit_depth=int(bit_depth), r_only=r_only)
     guarded(quiet, _run, inputs, out_dir, fmt, target, run, write, force,
-            summary_path or out_dir / "batch-summary.json", quiet, scheduler, given(config))
+            summary_path or out_dir / "batch-summary.json", quiet, scheduler,
+            checked(given(config)))
 
 
 def _run(inputs, out_dir, fmt, target, run, write, force, summary_path, quiet, scheduler,

@@ -150,6 +150,19 @@ def settings(targets, methods, exclude=()) -> list:
 SWITCHES = {"unwrap": {None: None, True: "always", False: "never"}}
 
 
+def checked(settings: dict) -> dict:
+    """``settings`` (BakeConfig keywords) once BakeConfig accepts them together: a
+    combination it refuses (--cage without --from, an odd --hemicube-resolution) is a usage
+    error (exit 2), as a bad value of one flag is, before anything is read."""
+    from aobake.settings import BakeConfig
+
+    try:
+        BakeConfig(**settings)
+    except InputError as exc:
+        raise click.UsageError(str(exc)) from None
+    return settings
+
+
 def given(values: dict) -> dict:
     """The settings the user gave (None = not given; an empty repeatable option too), as
     BakeConfig keywords."""

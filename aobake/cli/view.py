@@ -13,8 +13,8 @@ import click
 
 from aobake import capabilities
 from aobake.cli.common import guarded
-from aobake.cli.options import (FiniteRange, PanelCommand, given, in_panel, method_for,
-                                run_options, settings)
+from aobake.cli.options import (FiniteRange, PanelCommand, checked, given, in_panel,
+                                method_for, run_options, settings)
 
 #: settings that mean nothing for a camera view (kept distances are an NPZ's; a view sees
 #: the scene, it is not projected from another mesh, so no low mesh occludes)
@@ -132,7 +132,7 @@ def _view(mesh, out, look_from, look_at, up, fov, size, camera, truths, threads,
                    bit_depth=int(bit_depth), threads=threads, executor=executor,
                    workers=workers, chunk_points=chunk_points, scheduler=scheduler)
     guarded(quiet, _run, mesh, out, request, quiet,
-            given(dict(config, quantities=quantities)))
+            checked(given(dict(config, quantities=quantities))))
 
 
 def _check_truths(out: Path, method: str, quantities) -> None:

@@ -42,8 +42,8 @@ class HemicubeOptions:
     def check_hemicube(self) -> None:
         """The checks the field's spec cannot state: R even (a side face has R/2 rows)."""
         if self.hemicube_resolution % 2:
-            raise InputError(f"hemicube resolution must be an even integer >= 2, got "
-                             f"{self.hemicube_resolution}")
+            raise InputError(f"--hemicube-resolution: the hemicube resolution must be an even "
+                             f"integer >= 2, got {self.hemicube_resolution}")
 
     @classmethod
     def of(cls, config, default: "HemicubeOptions | None" = None) -> "HemicubeOptions":
