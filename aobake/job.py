@@ -19,7 +19,7 @@ from pathlib import Path
 
 from aobake import capabilities
 from aobake.settings import INPUT_FILES, BakeConfig
-from aobake.errors import InputError
+from aobake.errors import InputError, UsageError
 
 
 
@@ -130,7 +130,7 @@ def plan(mesh, out, config: BakeConfig | dict | None = None, *, target: str | No
     name = where.target
     if config.source is not None:
         if name not in ("vertices", "texels"):
-            raise InputError(f"--from bakes onto a low mesh's vertices or lightmap, not {name}")
+            raise UsageError(f"--from bakes onto a low mesh's vertices or lightmap, not {name}")
         name = f"projected_{name}"
     capabilities.check(method, name, config)
     if orm_from is not None and config.texel_density is None:
