@@ -44,8 +44,10 @@ class VertexTarget:
         values = {name: array[inverse] for name, array in estimates.fields.items()}
         unsampled = int(np.count_nonzero(~defined(scene.vertex_normals)))
         if unsampled:
-            warnings.append(f"{unsampled} vertices have no defined normal (unreferenced or only on "
-                            "zero-area faces): not sampled, no-information values")
+            why = ("unreferenced, only on zero-area faces, or only on faces --exclude left "
+                   "out" if config.exclude else "unreferenced or only on zero-area faces")
+            warnings.append(f"{unsampled} vertices have no defined normal ({why}): not "
+                            "sampled, no-information values")
         if estimates.rays is None:  # a method that casts no rays (an approximation, a file)
             result = BakeResult(scene.vertices, scene.faces, scene.vertex_normals, None, values)
             return Finished(result, values, None, len(scene.vertices))
