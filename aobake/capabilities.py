@@ -146,6 +146,11 @@ def check(method: str, target: str, config) -> None:
     """
     if method not in METHODS:
         raise UsageError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+    from aobake.backends import unavailable  # its optional extra (warp) missing: say so now
+
+    missing = unavailable(config.backend)
+    if missing:
+        raise InputError(missing)
     if target not in TARGETS:
         raise UsageError(f"unknown target {target!r}; choose from {', '.join(TARGETS)}")
     can, where = METHODS[method], TARGETS[target]

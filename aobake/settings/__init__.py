@@ -124,8 +124,9 @@ class CommonOptions:
         0.5, "float", "-q indirect: the albedo rho of every surface (two-sided Lambertian) "
         "under a uniform white sky.", low=0.0, high=1.0, panel="indirect")
     backend: str = setting(
-        "embree", "choice", "Tracing backend: embree, or reference (float64 numpy, every ray "
-        "against every triangle: slow, for validating on small scenes).",
+        "embree", "choice", "Tracing backend: embree; warp (NVIDIA Warp: a CUDA GPU where "
+        "there is one, else the CPU; the warp extra, docs/gpu.md); or reference (float64 "
+        "numpy, every ray against every triangle: slow, for validating on small scenes).",
         choices=tuple(BACKENDS), panel="run")
     embree_mode: str = setting(
         "robust", "choice", "Embree's traversal: robust (watertight: no ray slips between two "
