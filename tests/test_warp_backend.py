@@ -90,6 +90,7 @@ def _rays(seed, n=4000):
     return o.astype(np.float32), d.astype(np.float32)
 
 
+@pytest.mark.slow
 @needs_warp
 @pytest.mark.parametrize("tmax", [np.inf, 0.7, "per-ray"])
 @pytest.mark.parametrize("seed", range(3))
@@ -114,6 +115,7 @@ def test_matches_reference_ray_by_ray(seed, tmax):
     np.testing.assert_array_equal(warp.occluded(o, d, limit), hit)
 
 
+@pytest.mark.slow
 @needs_warp
 def test_front_faces_match_reference():
     """--backfaces ignore: the nearest front-face hit, back faces stepped through."""
@@ -198,6 +200,7 @@ def _edge_aimed(mesh, seed):
             directions.astype(np.float32), targets)
 
 
+@pytest.mark.slow
 @needs_warp
 @pytest.mark.parametrize("name", ["icosphere", "cube"])
 def test_watertight_at_shared_edges_and_vertices(name):
