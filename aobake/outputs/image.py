@@ -21,7 +21,9 @@ OIIO 3.2):
 - Colour space: AO maps are data, written linear (no sRGB curve).  With
   ``oiio:ColorSpace = "lin_rec709_scene"`` the PNG writer stores a gAMA chunk
   of 1.0 and no sRGB chunk; without it OIIO writes sRGB + gAMA 1/2.2 chunks.
-  TIFF has no such tag.  EXR is linear by definition.
+  TIFF has no tag that says linear (short of an ICC profile): aobake's TIFFs
+  are known by the metadata in their ImageDescription, which says they are
+  aobake's (linear by its convention).  EXR is linear by definition.
 - EXR channel order: OpenEXR stores channels sorted by name, and OIIO reads
   them back grouped (unlayered names first, then by layer), so the order given
   to ``write_exr`` is not what a reader sees.  It is kept in the
@@ -29,10 +31,17 @@ OIIO 3.2):
 - Custom attributes: PNG (text chunks) and EXR keep ``aobake:*`` attributes;
   TIFF drops them, so the metadata JSON also goes into ``ImageDescription``.
 
-The reader beside the writers: ``read`` (any image's channels as a ``Table``), on
-``read_pixels`` / ``read_size``, which check a PNG's bytes before libpng sees them, bound
-the pixels by the file's size and keep the image library's own complaints off the terminal
-(``quiet_stderr``).
+The reader beside the writers: ``read`` (every channel of every part of any image as a
+``Table``: a multi-part EXR's subimages, Blender's render passes, included; each channel
+with its transfer function as the file's colour tags say, ``transfer_of``: PNG chunks
+cICP / iCCP / sRGB / gAMA, ICC profiles, TIFF's EXIF colour space, EXR's colorInteropID),
+on ``read_parts`` / ``read_pixels`` / ``read_size``, which check a PNG's bytes before libpng
+sees them, bound the pixels by the file's size and keep the image library's own complaints
+off the terminal (``quiet_stderr``).
+
+OpenImageIO reports ``oiio:ColorSpace = "srgb_rec709_scene"`` for every PNG without colour
+chunks (its default guess, not the file's word), so a PNG's transfer is read from its
+chunks, here, never from that attribute.
 """
 
 from __future__ import annotations
@@ -41,11 +50,13 @@ import contextlib
 import json
 import logging
 import os
+import re
 import struct
 import sys
 import tempfile
 import threading
 import zlib
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -310,15 +321,18 @@ def png_bytes(value, coverage, bit_depth: int = 8, r_only: bool = True,
 
 
 def read(path) -> Table:
-    """An image (EXR, PNG, TIFF) as a ``Table`` (``naming`` 'exr'): every channel as (H, W)
-    float (integer files scaled to [0, 1]), alpha unassociated (coverage is not opacity),
-    the first subimage; aobake's metadata attribute (TIFF: its ImageDescription) as the
-    metadata.  Raises ``Unreadable``."""
-    pixels, names, attrs = read_pixels(path)
-    columns = {name: pixels[:, :, i] for i, name in enumerate(names)}
+    """An image (EXR, PNG, TIFF) as a ``Table`` (``naming`` 'exr'): every channel of every
+    part (an EXR's subimages: Blender writes each render pass as a part) as (H, W) float
+    (integer files scaled to [0, 1]), alpha unassociated (coverage is not opacity), and
+    each channel's transfer function as the file tags it (``transfers``: see
+    ``transfer_of``); aobake's metadata attribute (TIFF: its ImageDescription) as the
+    metadata.  Channels of a multi-part file are named ``part.channel`` unless their own
+    name already starts with the part's (Blender's ``ViewLayer.AO.R`` in part
+    ``ViewLayer.AO``).  Raises ``Unreadable``."""
+    parts, chunks = _read(path, every_part=True)
     metadata = {}
     for attr in ("aobake:metadata", "ImageDescription"):  # TIFF keeps only the description
-        text = attrs.get(attr)
+        text = parts[0].attrs.get(attr)
         if not isinstance(text, str):
             continue
         try:
@@ -328,7 +342,404 @@ def read(path) -> Table:
         if isinstance(candidate, dict) and "config" in candidate:
             metadata = candidate
             break
-    return Table(columns, "exr", metadata=metadata)
+    columns, transfers, listing = {}, {}, {}
+    for index, part in enumerate(parts):
+        names = listing.setdefault(part.name or f"part {index}", [])
+        for i, channel in enumerate(part.names):
+            name = _column_name(part.name, channel, len(parts) > 1)
+            if name in columns:  # the same names in two parts (a stereo pair's views)
+                name = f"{part.name or index}.{channel}"
+            if name in columns:
+                name = f"{name} (part {index})"
+            columns[name] = part.pixels[:, :, i]
+            transfers[name] = transfer_of(Path(path).suffix.lower(), part.attrs, part.format,
+                                          channel, chunks)
+            names.append(name)
+    return Table(columns, "exr", metadata=metadata, transfers=transfers,
+                 parts=listing if len(parts) > 1 else None)
+
+
+def _column_name(part: str, channel: str, multi: bool) -> str:
+    """A channel's column: its own name, prefixed with its part's in a multi-part file
+    unless it already starts with it (Blender names channels layer.pass.channel in part
+    layer.pass)."""
+    if not multi or not part or channel == part or channel.startswith(part + "."):
+        return channel
+    return f"{part}.{channel}"
+
+
+@dataclass(frozen=True)
+class Part:
+    """One part (subimage) of an image file: name ('' when it has none), pixels (H, W, C)
+    float32, channel names, attributes (plus 'oiio:format', 'oiio:channelformats'), format
+    (the pixel type: 'uint8', 'uint16', 'half', 'float', ...)."""
+
+    name: str
+    pixels: np.ndarray
+    names: list
+    attrs: dict
+    format: str
+
+
+#: parts read from one file at most (Blender writes one per pass and view: a few dozen)
+MAX_PARTS = 1024
+
+
+def read_parts(path) -> list:
+    """Every part (subimage) of an image through OpenImageIO, alpha unassociated: a list of
+    ``Part``.  The pixels of all parts together are bounded by the file's size as
+    :func:`read_pixels` bounds one.  ``Unreadable`` for a broken file."""
+    return _read(path, every_part=True)[0]
+
+
+def read_pixels(path) -> tuple[np.ndarray, list[str], dict]:
+    """The first subimage through OpenImageIO, alpha unassociated (colour is not multiplied by
+    alpha; in aobake's files alpha is coverage, not opacity).
+
+    Returns (pixels (H, W, C) float32, channel names, attributes).  Float files come back as
+    stored; integer files in OIIO's normalised scale, x / (2**bits - 1).  The attributes are
+    the file's, plus 'oiio:format' (e.g. 'uint8', 'half') and 'oiio:channelformats' (the
+    per-channel formats of a mixed file; [] when uniform).
+    """
+    part = _read(path, every_part=False)[0][0]
+    return part.pixels, part.names, part.attrs
+
+
+def _read(path, every_part: bool) -> tuple[list, dict]:
+    """(the parts (every one, or the first), a PNG's colour chunks ({} for other files))."""
+    import OpenImageIO as oiio
+
+    chunks = {}
+    with open(path, "rb") as handle:
+        head = handle.read(len(_PNG_SIGNATURE))
+        size = os.fstat(handle.fileno()).st_size
+        if head == _PNG_SIGNATURE:  # libpng reports a broken file on stderr itself: check first
+            handle.seek(0)
+            chunks = check_png(handle.read())
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    parts, need = [], 0
+    with quiet_stderr() as said:
+        inp = oiio.ImageInput.open(str(path), config)
+        if inp is None:
+            raise Unreadable(oiio.geterror() or "OpenImageIO cannot open it")
+        try:
+            index = 0
+            while True:
+                if index and (not every_part or not inp.seek_subimage(index, 0)):
+                    break
+                if index >= MAX_PARTS:
+                    raise Unreadable(f"has more than {MAX_PARTS} parts")
+                spec = inp.spec()
+                need += spec.width * spec.height * max(spec.nchannels, 1) * 4
+                if need > max(_IMAGE_FLOOR, _IMAGE_RATIO * size):
+                    raise Unreadable(f"its header claims {spec.width}x{spec.height} pixels of "
+                                     f"{spec.nchannels} channels"
+                                     f"{f' in part {index}' if index else ''} ({need} bytes "
+                                     f"as float) from {size} bytes")
+                pixels = inp.read_image(index, 0, 0, spec.nchannels, oiio.FLOAT)
+                if pixels is None:
+                    raise Unreadable(inp.geterror() or "cannot read its pixels")
+                attrs = {p.name: p.value for p in spec.extra_attribs}
+                attrs["oiio:format"] = str(spec.format)
+                attrs["oiio:channelformats"] = [str(f) for f in spec.channelformats]
+                name = attrs.get("oiio:subimagename", attrs.get("name", ""))
+                pixels = np.asarray(pixels, dtype=np.float32).reshape(
+                    spec.height, spec.width, spec.nchannels)
+                parts.append(Part(name if isinstance(name, str) else "", pixels,
+                                  list(spec.channelnames), attrs, str(spec.format)))
+                index += 1
+        finally:
+            inp.close()
+    if said:
+        log.debug("%s: the image library said: %s", path, " ".join(said))
+    return parts, chunks
+
+
+# ---------------------------------------------------------------------------------------------
+# transfer functions: how an image's stored values relate to linear ones
+
+
+@dataclass(frozen=True)
+class Transfer:
+    """How a channel's stored values v in [0, 1] relate to the linear values they encode.
+
+    kind : 'linear' (x = v) | 'srgb' (the sRGB EOTF: v / 12.92 up to 0.04045, else
+      ((v + 0.055) / 1.055)^2.4) | 'gamma' (x = v^gamma) | 'curve' (an ICC profile's curve:
+      ``curve`` holds x at evenly spaced v in [0, 1], interpolated linearly) |
+      'display' (no tag says, and the format's convention is display-referred: an 8/16-bit
+      PNG or TIFF is shown as sRGB by every viewer, but it may hold a view transform's
+      output, or linear values: unknown) |
+      'unsupported' (a tag says something this reader does not invert: a log or PQ curve,
+      an unknown colour space)
+    source : what says so, for messages ("the PNG's gAMA chunk (1.0)")
+    """
+
+    kind: str
+    source: str
+    gamma: float = 1.0
+    curve: tuple = ()
+
+    @property
+    def known(self) -> bool:
+        """Whether the stored values can be linearised."""
+        return self.kind in ("linear", "srgb", "gamma", "curve")
+
+    @property
+    def name(self) -> str:
+        """How the record names it: 'linear', 'srgb', 'gamma 2.2', 'ICC curve'."""
+        return {"gamma": f"gamma {self.gamma:.4g}", "curve": "ICC curve"}.get(self.kind, self.kind)
+
+    @property
+    def says(self) -> str:
+        """How a message names the values: 'sRGB-encoded', 'gamma 2.2-encoded', 'linear'."""
+        return {"linear": "linear", "srgb": "sRGB-encoded", "display": "display-referred",
+                "unsupported": "non-linear"}.get(self.kind, f"{self.name}-encoded")
+
+    def to_linear(self, v: np.ndarray) -> np.ndarray:
+        """(...) float64 linear values of stored values ``v`` (float, in [0, 1] for an integer
+        file; float files may hold more: the curve is extended as a power or a line)."""
+        v = np.asarray(v, dtype=np.float64)
+        if self.kind == "linear":
+            return v.copy()
+        if self.kind == "srgb":
+            a = np.abs(v)  # odd extension below 0, as OCIO's sRGB does
+            return np.sign(v) * np.where(a <= 0.04045, a / 12.92,
+                                         ((a + 0.055) / 1.055) ** 2.4)
+        if self.kind == "gamma":
+            return np.sign(v) * np.abs(v) ** self.gamma
+        if self.kind == "curve":
+            curve = np.asarray(self.curve, dtype=np.float64)
+            return np.interp(v, np.linspace(0.0, 1.0, len(curve)), curve)
+        raise ValueError(f"cannot linearise values of transfer {self.kind!r}")
+
+    def slope(self, v: np.ndarray) -> np.ndarray:
+        """d linear / d stored at ``v``: what a standard error of stored values is multiplied
+        by (the delta method), by a central difference of ``to_linear``."""
+        v = np.asarray(v, dtype=np.float64)
+        h = 1e-6
+        return (self.to_linear(v + h) - self.to_linear(v - h)) / (2 * h)
+
+
+#: the transfers a user may state for a file (``--candidate-transfer``, ``transfer=``)
+TRANSFERS = {
+    "linear": Transfer("linear", "stated"),
+    "srgb": Transfer("srgb", "stated"),
+}
+
+#: colour space names (lower case) that hold linear values: OpenColorIO's and Blender's
+#: common names; every ASWF colour interop ID starting 'lin_' is linear too
+_LINEAR_SPACES = {
+    "linear", "scene_linear", "scene-linear", "data", "raw", "non-color", "noncolor",
+    "utility - raw", "acescg", "aces2065-1", "aces - acescg", "aces - aces2065-1",
+    "linear rec.709", "linear rec.709 (srgb)", "linear rec.2020", "linear srgb",
+    "linear cie-xyz d65", "linear cie-xyz e", "linear dci-p3 d65", "linear p3-d65",
+    "linear filmlight e-gamut", "utility - linear - srgb", "utility - linear - rec.709",
+    "utility - linear - rec.2020", "cie-xyz-d65", "ciexyz", "xyz",
+}
+#: colour space names (lower case) that hold sRGB-encoded values; every interop ID starting
+#: 'srgb_' is sRGB-encoded too
+_SRGB_SPACES = {
+    "srgb", "srgb texture", "srgb - texture", "utility - srgb - texture", "srgb_texture",
+    "srgb_tx", "output - srgb", "srgb - display", "srgb display", "srgb_display",
+    "srgb iec61966-2.1", "srgb2.2",
+}
+
+
+def named_transfer(space: str, source: str) -> Transfer:
+    """The transfer of a colour space named ``space`` (an OpenEXR colorInteropID, OIIO's
+    ``oiio:ColorSpace``): linear, sRGB, a pure gamma (ASWF interop IDs 'g22_...', 'g24_...',
+    Rec.1886 = gamma 2.4), or 'unsupported' for any other (a log encoding, a view transform
+    such as Filmic or AgX, a name this table does not know)."""
+    lower = " ".join(str(space).split()).lower()
+    where = f"{source} ({space!r})"
+    if lower.startswith("lin_") or lower in _LINEAR_SPACES:
+        return Transfer("linear", where)
+    if lower.startswith("srgb_") or lower in _SRGB_SPACES:
+        return Transfer("srgb", where)
+    match = re.fullmatch(r"g(\d)(\d)_\w+", lower)
+    if match:
+        return Transfer("gamma", where, gamma=int(match.group(1)) + int(match.group(2)) / 10)
+    if lower.startswith("rec1886_") or lower in ("rec.1886", "rec1886", "bt.1886"):
+        return Transfer("gamma", where, gamma=2.4)
+    return Transfer("unsupported", f"{where} names a colour space compare cannot linearise")
+
+
+def transfer_of(suffix: str, attrs: Mapping, fmt: str, channel: str = "R",
+                png_chunks: Mapping | None = None) -> Transfer:
+    """The transfer function a file's tags give a channel's values.
+
+    PNG (its chunks, by the PNG specification's precedence): cICP (transfer 8 linear, 13
+    sRGB, 4 gamma 2.2, 5 gamma 2.8), iCCP (the ICC profile's curve for the channel), sRGB,
+    gAMA (gamma 1/g); none of them: display-referred (an 8/16-bit image without tags is
+    shown as sRGB by every viewer).  TIFF: an ICC profile, else the colour space
+    OpenImageIO reads (the EXIF ColorSpace tag: sRGB), else linear for a float file and
+    display-referred for an integer one.  EXR: its colorInteropID (or ``oiio:ColorSpace``),
+    else linear (OpenEXR's convention: scene-linear values).  Chromaticities (primaries)
+    do not change a transfer, and are not read.
+    """
+    bits = {"uint8": "8-bit", "uint16": "16-bit"}.get(fmt, fmt)
+    if suffix == ".png":
+        return _png_transfer(png_chunks or {}, channel, bits)
+    icc = attrs.get("ICCProfile")
+    if icc is not None:
+        return icc_transfer(bytes(np.asarray(icc, dtype=np.uint8)), channel, "its ICC profile")
+    if suffix == ".exr":
+        for attr in ("colorInteropID", "oiio:ColorSpace"):
+            space = attrs.get(attr)
+            if isinstance(space, str) and space.strip():
+                return named_transfer(space, f"its {attr} attribute")
+        return Transfer("linear", "an EXR without a colour space (linear by OpenEXR's convention)")
+    space = attrs.get("oiio:ColorSpace")
+    if isinstance(space, str) and space.strip():
+        return named_transfer(space, "its colour space tag")
+    if fmt in ("half", "float", "double"):
+        return Transfer("linear", f"a {fmt} image without a colour tag (linear by convention)")
+    return Transfer("display", f"{_article(bits)} {bits} {suffix[1:].upper()} without a colour "
+                               "tag (an ICC profile or the EXIF colour space)")
+
+
+#: cICP transfer characteristics (ITU-T H.273) this reader inverts
+_CICP = {8: ("linear", 1.0), 13: ("srgb", 1.0), 4: ("gamma", 2.2), 5: ("gamma", 2.8)}
+
+
+def _png_transfer(chunks: Mapping, channel: str, bits: str) -> Transfer:
+    """A PNG's transfer from its colour chunks (``transfer_of``)."""
+    if b"cICP" in chunks:
+        body = chunks[b"cICP"]
+        if len(body) != 4:
+            return Transfer("unsupported", "its cICP chunk is malformed")
+        primaries, transfer, matrix, full = body
+        where = f"its cICP chunk (transfer {transfer})"
+        if matrix != 0 or full != 1:
+            return Transfer("unsupported", f"{where} says "
+                                           f"{'narrow-range' if not full else 'YCbCr'} values, "
+                                           "which compare does not read")
+        if transfer not in _CICP:
+            return Transfer("unsupported", f"{where} says a transfer (ITU-T H.273) compare "
+                                           "cannot undo")
+        kind, gamma = _CICP[transfer]
+        return Transfer(kind, where, gamma=gamma)
+    if b"iCCP" in chunks:
+        body = chunks[b"iCCP"]
+        end = body.find(b"\0")
+        if end < 1 or end + 2 > len(body) or body[end + 1] != 0:
+            return Transfer("unsupported", "its iCCP chunk is malformed")
+        inflate = zlib.decompressobj()
+        try:
+            profile = inflate.decompress(body[end + 2:], _ICC_LIMIT)
+        except zlib.error:
+            return Transfer("unsupported", "its iCCP chunk's profile does not inflate")
+        if inflate.unconsumed_tail:
+            return Transfer("unsupported", f"its ICC profile is larger than {_ICC_LIMIT} bytes")
+        return icc_transfer(profile, channel, "its ICC profile (iCCP)")
+    if b"sRGB" in chunks:
+        return Transfer("srgb", "its sRGB chunk")
+    if b"gAMA" in chunks:
+        body = chunks[b"gAMA"]
+        (g,) = struct.unpack(">I", body) if len(body) == 4 else (0,)
+        if g <= 0:
+            return Transfer("unsupported", "its gAMA chunk is malformed")
+        # gAMA holds the encoding exponent g x 100000: linear = stored^(1/g)
+        gamma = 100000.0 / g
+        where = f"its gAMA chunk ({g / 100000:.5g})"
+        if abs(gamma - 1.0) < 1e-3:
+            return Transfer("linear", where)
+        return Transfer("gamma", where, gamma=gamma)
+    return Transfer("display", f"{_article(bits)} {bits} PNG without a colour chunk (sRGB, "
+                               "gAMA, cICP or iCCP)")
+
+
+def _article(word: str) -> str:
+    return "an" if word[:1] in "8aeiou" or word.startswith(("11", "18")) else "a"
+
+
+#: the largest ICC profile read (a profile's curves and header are a few kB; LUT profiles
+#: reach a few hundred)
+_ICC_LIMIT = 4 << 20
+#: sRGB's EOTF as an ICC parametric curve (type 3: g, a, b, c, d)
+_SRGB_PARA = (2.4, 1 / 1.055, 0.055 / 1.055, 1 / 12.92, 0.04045)
+
+
+def icc_transfer(profile: bytes, channel: str, source: str) -> Transfer:
+    """The transfer of ``channel`` in an ICC profile: its TRC tag (kTRC for a grey profile,
+    else rTRC, gTRC or bTRC by the channel), a 'curv' (identity, a gamma, or a table) or a
+    'para' (the five parametric types).  Named 'linear', 'srgb' or 'gamma' when it is one
+    (within 1e-3), else 'curve' (the curve sampled at 4096 points)."""
+    try:
+        values = _icc_curve(profile, channel)
+    except (struct.error, ValueError, IndexError, ZeroDivisionError, OverflowError) as exc:
+        return Transfer("unsupported", f"{source}'s curve cannot be read ({exc})")
+    if isinstance(values, Transfer):
+        return Transfer(values.kind, source, gamma=values.gamma)
+    if values is None:
+        return Transfer("unsupported", f"{source} has no curve for {channel}")
+    grid = np.linspace(0.0, 1.0, len(values))
+    for kind, gamma in (("linear", 1.0), ("srgb", 1.0), ("gamma", 2.2)):
+        reference = Transfer(kind, source, gamma=gamma).to_linear(grid)
+        if np.max(np.abs(values - reference)) < 1e-3:
+            return Transfer(kind, source, gamma=gamma)
+    if not (np.all(np.isfinite(values)) and np.all(np.diff(values) >= 0)):
+        return Transfer("unsupported", f"{source}'s curve is not increasing")
+    return Transfer("curve", source, curve=tuple(float(x) for x in values))
+
+
+def _icc_curve(profile: bytes, channel: str):
+    """The TRC of ``channel`` as a Transfer (identity, gamma) or (4096,) float64 samples in
+    [0, 1], or None when the profile has none."""
+    if len(profile) < 132 or profile[36:40] != b"acsp":
+        raise ValueError("not an ICC profile")
+    space = profile[16:20]
+    wanted = [b"kTRC"] if space == b"GRAY" else \
+        [{"G": b"gTRC", "B": b"bTRC"}.get(channel.rsplit(".", 1)[-1], b"rTRC")]
+    (count,) = struct.unpack_from(">I", profile, 128)
+    count = min(count, (len(profile) - 132) // 12)
+    tags = {}
+    for i in range(count):
+        sig, offset, size = struct.unpack_from(">4sII", profile, 132 + 12 * i)
+        tags.setdefault(sig, (offset, size))
+    for sig in wanted:
+        if sig not in tags:
+            continue
+        offset, size = tags[sig]
+        body = profile[offset:offset + size]
+        kind = body[:4]
+        if kind == b"curv":
+            (n,) = struct.unpack_from(">I", body, 8)
+            if n == 0:
+                return Transfer("linear", "")
+            if n == 1:
+                (g,) = struct.unpack_from(">H", body, 12)
+                return Transfer("linear", "") if g == 256 else Transfer("gamma", "", gamma=g / 256)
+            table = np.frombuffer(body[12:12 + 2 * n], dtype=">u2").astype(np.float64) / 65535
+            if len(table) != n:
+                raise ValueError("its curv table is cut short")
+            return np.interp(np.linspace(0, 1, 4096), np.linspace(0, 1, n), table)
+        if kind == b"para":
+            (function,) = struct.unpack_from(">H", body, 8)
+            counts = {0: 1, 1: 3, 2: 4, 3: 5, 4: 7}
+            if function not in counts:
+                raise ValueError(f"unknown parametric curve type {function}")
+            params = [x / 65536 for x in struct.unpack_from(f">{counts[function]}i", body, 12)]
+            if function == 0:
+                g = params[0]
+                return Transfer("linear", "") if abs(g - 1) < 1e-4 else \
+                    Transfer("gamma", "", gamma=g)
+            # ICC.1 10.18: Y = (aX + b)^g + e for X >= d, else cX + f; types 1 and 2 have
+            # d = -b / a and the constant c (type 2) on both sides; type 3 has e = f = 0
+            g, a, b = params[:3]
+            if function == 1:
+                c, d, e, f = 0.0, -b / a, 0.0, 0.0
+            elif function == 2:
+                c, d, e, f = 0.0, -b / a, params[3], params[3]
+            else:
+                c, d = params[3:5]
+                e, f = (params[5], params[6]) if function == 4 else (0.0, 0.0)
+            x = np.linspace(0.0, 1.0, 4096)
+            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                return np.where(x >= d, np.maximum(a * x + b, 0.0) ** g + e, c * x + f)
+        raise ValueError(f"unknown curve type {kind!r}")
+    return None
 
 
 def read_size(path) -> tuple[int, int, int]:
@@ -353,51 +764,6 @@ def read_size(path) -> tuple[int, int, int]:
     if said:
         log.debug("%s: the image library said: %s", path, " ".join(said))
     return size
-
-
-def read_pixels(path) -> tuple[np.ndarray, list[str], dict]:
-    """The first subimage through OpenImageIO, alpha unassociated (colour is not multiplied by
-    alpha; in aobake's files alpha is coverage, not opacity).
-
-    Returns (pixels (H, W, C) float32, channel names, attributes).  Float files come back as
-    stored; integer files in OIIO's normalised scale, x / (2**bits - 1).  The attributes are
-    the file's, plus 'oiio:format' (e.g. 'uint8', 'half') and 'oiio:channelformats' (the
-    per-channel formats of a mixed file; [] when uniform).
-    """
-    import OpenImageIO as oiio
-
-    with open(path, "rb") as handle:
-        head = handle.read(len(_PNG_SIGNATURE))
-        size = os.fstat(handle.fileno()).st_size
-        if head == _PNG_SIGNATURE:  # libpng reports a broken file on stderr itself: check first
-            handle.seek(0)
-            check_png(handle.read())
-    config = oiio.ImageSpec()
-    config.attribute("oiio:UnassociatedAlpha", 1)
-    with quiet_stderr() as said:
-        inp = oiio.ImageInput.open(str(path), config)
-        if inp is None:
-            raise Unreadable(oiio.geterror() or "OpenImageIO cannot open it")
-        try:
-            spec = inp.spec()
-            need = spec.width * spec.height * max(spec.nchannels, 1) * 4
-            if need > max(_IMAGE_FLOOR, _IMAGE_RATIO * size):
-                raise Unreadable(f"its header claims {spec.width}x{spec.height} pixels of "
-                                 f"{spec.nchannels} channels ({need} bytes as float) from "
-                                 f"{size} bytes")
-            pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
-            if pixels is None:
-                raise Unreadable(inp.geterror() or "cannot read its pixels")
-            attrs = {p.name: p.value for p in spec.extra_attribs}
-            attrs["oiio:format"] = str(spec.format)
-            attrs["oiio:channelformats"] = [str(f) for f in spec.channelformats]
-            names = list(spec.channelnames)
-        finally:
-            inp.close()
-    if said:
-        log.debug("%s: the image library said: %s", path, " ".join(said))
-    pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
-    return pixels, names, attrs
 
 
 #: an image's pixels (as float32) may take this many times its file's size (compressed
@@ -435,19 +801,22 @@ def quiet_stderr():
 
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: the chunks that say how a PNG's values are encoded (``transfer_of``)
+_COLOUR_CHUNKS = (b"cICP", b"iCCP", b"sRGB", b"gAMA")
 #: colour type -> channels, and the bit depths allowed for it (the PNG specification, 11.2.2)
 _PNG_COLOUR = {0: (1, (1, 2, 4, 8, 16)), 2: (3, (8, 16)), 3: (1, (1, 2, 4, 8)),
                4: (2, (8, 16)), 6: (4, (8, 16))}
 
 
-def check_png(data: bytes) -> None:
+def check_png(data: bytes) -> dict:
     """Refuse (``Unreadable``) a PNG that libpng would fail on: a bad signature, a chunk
     running past the end or failing its CRC, no IHDR first, no IEND, or image data that
     does not inflate to exactly the rows the header describes.  Inflating is bounded by
-    that size."""
+    that size.  Returns its colour chunks (cICP, iCCP, sRGB, gAMA: type -> body, the first
+    of each before the image data, where the specification puts them)."""
     if not data.startswith(_PNG_SIGNATURE):
         raise Unreadable("not a PNG file")
-    at, chunks, idat = len(_PNG_SIGNATURE), [], []
+    at, chunks, idat, colour_chunks = len(_PNG_SIGNATURE), [], [], {}
     while True:
         if at + 12 > len(data):
             raise Unreadable(f"truncated: a chunk header at byte {at} runs past the end")
@@ -462,6 +831,8 @@ def check_png(data: bytes) -> None:
         chunks.append(kind)
         if kind == b"IDAT":
             idat.append(body)
+        elif kind in _COLOUR_CHUNKS and not idat:
+            colour_chunks.setdefault(kind, body)
         elif kind == b"IHDR":
             if len(chunks) != 1 or length != 13:
                 raise Unreadable("malformed IHDR chunk")
@@ -501,3 +872,4 @@ def check_png(data: bytes) -> None:
         raise Unreadable(f"corrupt image data ({exc})") from None
     if got != expected or not inflate.eof:
         raise Unreadable(f"truncated image data: {got} of {expected} bytes")
+    return colour_chunks

@@ -38,6 +38,11 @@ class Table:
     positions, normals : (n, 3) float64 or None; faces : (f, 3) int64 or None
     metadata : the aobake metadata the file carries ({} for another tool's file)
     warnings : what the reader could not honour (without the file name)
+    transfers : an image's columns -> how their stored values encode linear ones
+      (``aobake.outputs.image.Transfer``, as the file's colour tags say); None for files of
+      numbers (per-vertex formats)
+    parts : a multi-part image's part names -> their channels (as the file names them), for
+      messages; None for a single-part file or another format
     """
 
     columns: Mapping
@@ -47,6 +52,8 @@ class Table:
     faces: np.ndarray | None = None
     metadata: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
+    transfers: Mapping | None = None
+    parts: Mapping | None = None
 
 
 def float64(array) -> np.ndarray | None:

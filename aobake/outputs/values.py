@@ -6,6 +6,15 @@ Per vertex (``.npz``, ``.ply``, ``.glb``) a file gives (n,) values with the posi
 normals and faces it holds; per texel or pixel (``.exr``, ``.png``, ``.tif``) (H, W) values
 with the coverage where it says which texels it covers.  ``aobake compare`` and
 ``--method file`` read through here.
+
+An image's values are linearised as its colour tags say (``aobake.outputs.image.Transfer``:
+an sRGB or gamma PNG, a TIFF with an ICC profile); an 8/16-bit PNG or TIFF without tags
+holds display-referred values by convention and is refused unless the caller states its
+transfer (``transfer='srgb' | 'linear'``).  aobake's own images hold linear values (its
+PNGs say so with gAMA 1.0; its metadata says it is aobake's).  Channels of a layered or
+multi-part image (``layer.pass.channel``, Blender's ``ViewLayer.AO.R``) are found by their
+full name, by a pass's name (``ViewLayer.AO``: its R, X or Y channel) or by a unique end
+of the name (``AO.R``); without a name, Blender's AO pass is found by its name.
 """
 
 from __future__ import annotations
@@ -48,6 +57,8 @@ class Values:
     notes : what was assumed to read it (grey vertex colours taken as the quantity)
     columns : every channel of a camera view's image (name -> (H, W)), its G-buffer; None
       for other files
+    transfer : how the stored values were turned into ``value``: 'linear' (as stored),
+      'srgb', 'gamma 2.2', 'ICC curve' (``aobake.outputs.image.Transfer.name``)
     """
 
     path: Path
@@ -63,6 +74,7 @@ class Values:
     warnings: list = field(default_factory=list)
     notes: list = field(default_factory=list)
     columns: dict | None = None
+    transfer: str = "linear"
 
 
 def target_of(path: Path) -> str:
@@ -90,15 +102,25 @@ def file_path(path, role: str = "file", who: str = "read") -> Path:
                      f"{type(path).__name__}{hint}")
 
 
-def read(path, quantity: str = "ao", *, key: str | None = None, role: str = "reference") -> Values:
+def read(path, quantity: str = "ao", *, key: str | None = None, role: str = "reference",
+         transfer: str | None = None) -> Values:
     """Read ``quantity`` (and its stderr, positions, coverage where the file has them) from an
     NPZ, PLY, GLB, EXR, PNG or TIFF file.
 
     key : the name of the array / property / attribute / channel holding it (default:
-    aobake's name for it); role : 'reference' | 'candidate' (for the messages; a candidate's
-    grey vertex colours are read as the quantity when it has no column of that name).
+    aobake's name for it; in a layered image also a pass's name or a unique end of a
+    channel's name); role : 'reference' | 'candidate' (for the messages; a candidate's grey
+    vertex colours are read as the quantity when it has no column of that name);
+    transfer : None (as the file's colour tags say; an untagged 8/16-bit PNG or TIFF is
+    refused) | 'linear' | 'srgb' (how the values are encoded, whatever the tags say: a
+    warning when they say otherwise) (``aobake.outputs.image.TRANSFERS``).
     Raises InputError('FILE: problem').
     """
+    from aobake.outputs.image import TRANSFERS
+
+    if transfer is not None and (not isinstance(transfer, str) or transfer not in TRANSFERS):
+        raise InputError(f"transfer must be one of {tuple(TRANSFERS)} or None (as the file's "
+                         f"tags say), got {transfer!r}")
     path = file_path(path, role)
     target = target_of(path)
     if not path.exists():
@@ -123,6 +145,7 @@ def read(path, quantity: str = "ao", *, key: str | None = None, role: str = "ref
         raise InputError(f"{path}: cannot read as {suffix[1:].upper()}: {reason}") from None
     values = pick(path, table, quantity, key, role, target)
     values.warnings = [f"{path}: {text}" for text in table.warnings]
+    linearise(values, table, role, transfer)
     for text in values.warnings:
         log.warning("%s", text)
     for text in values.notes:
@@ -132,15 +155,18 @@ def read(path, quantity: str = "ao", *, key: str | None = None, role: str = "ref
 
 
 def pick(path: Path, table: Table, quantity: str, key, role: str, target: str) -> Values:
-    """The quantity's column (``key``, else its aobake name) and, with aobake's names, its stderr."""
+    """The quantity's column (``key``, else its aobake name) and its stderr (aobake's name
+    for it, or ``NAME_stderr`` beside another column NAME)."""
     q = QUANTITIES[quantity]
     standard = getattr(q.value, table.naming)
     standard = standard[0] if isinstance(standard, tuple) else standard
     columns = table.columns
     mask, notes = None, []
     name = key if key is not None else standard
+    if key is not None and key not in columns and target == "texels":
+        name = _layered(path, columns, key, role)
     if key is None and standard not in columns and target == "texels":
-        name = _image_channel(path, table, quantity)
+        name = _image_channel(path, table, quantity, role, notes)
     grey = None
     if key is None and standard not in columns and target == "vertices" and role == "candidate":
         grey = _grey_colour(columns, table.naming)
@@ -150,7 +176,7 @@ def pick(path: Path, table: Table, quantity: str, key, role: str, target: str) -
                          f"({_COLOUR_NAMES[table.naming]}, equal) are read as {quantity} "
                          "(white = 1)")
     if name not in columns:
-        have = ", ".join(sorted(columns)) or "nothing"
+        have = _listing(table)
         hint = "; name the candidate's with --candidate-key NAME" if role == "candidate" else ""
         what = {"name": "array", "ply": "vertex property", "gltf": "vertex attribute",
                 "exr": "channel"}[table.naming]
@@ -165,8 +191,8 @@ def pick(path: Path, table: Table, quantity: str, key, role: str, target: str) -
     if name == standard:  # aobake's own names: its stderr sits beside it
         error_name = getattr(q.error, table.naming)
         error_name = error_name[0] if isinstance(error_name, tuple) else error_name
-    else:  # another channel of aobake's (a view's ao_unbounded): NAME_stderr beside it
-        error_name = f"{name}_stderr" if table.metadata else None
+    else:  # another column (a view's ao_unbounded, another tool's): NAME_stderr beside it
+        error_name = f"{name}_stderr"
     if error_name is not None:
         if error_name in columns:
             stderr = _scalar(path, error_name, columns[error_name], target)
@@ -212,21 +238,143 @@ def _grey_colour(columns, naming: str):
     return None
 
 
-def _image_channel(path: Path, table: Table, quantity: str) -> str:
+def _image_channel(path: Path, table: Table, quantity: str, role: str, notes: list) -> str:
     """The channel of an image without one named after the quantity: an aobake PNG/TIFF's R
-    (its metadata says which map it is), else the only channel, else R of a grey image."""
+    (its metadata says which map it is), else a layered channel ending in the quantity's
+    name (``layer.ao``), else Blender's ambient occlusion pass (``ViewLayer.AO.R``, named
+    'AO' or 'Ambient Occlusion': when there is exactly one), else the only channel, else R
+    of a grey image."""
     columns, meta = table.columns, table.metadata
     if "map" in meta:
         if meta["map"] != quantity:
             raise InputError(f"{path}: holds {meta['map']}, not {quantity}")
         return "R"
+    standard = QUANTITIES[quantity].value.exr[0]
+    ending = [name for name in columns if name.endswith("." + standard)]
+    if len(ending) == 1:
+        return ending[0]
+    if quantity == "ao":
+        passes = sorted({name.rsplit(".", 1)[0] for name in columns if "." in name
+                         and name.rsplit(".", 1)[0].rsplit(".", 1)[-1].lower() in AO_PASSES})
+        if len(passes) > 1:
+            raise InputError(f"{path}: has {len(passes)} ambient occlusion passes "
+                             f"({', '.join(passes)}): name the one to read with "
+                             f"--{role}-key PASS (or one of its channels)")
+        if passes:
+            name = _pass_channel(path, columns, passes[0], role)
+            notes.append(f"{path}: has no {standard!r} channel: its ambient occlusion pass "
+                         f"{passes[0]!r} is read as ao (channel {name!r})")
+            return name
     names = list(columns)
     if len(names) == 1:
         return names[0]
     if {"R", "G", "B"} <= set(names) and np.array_equal(columns["R"], columns["G"]) \
             and np.array_equal(columns["R"], columns["B"]):
         return "R"
-    return QUANTITIES[quantity].value.exr[0]  # not there: pick names what there is
+    return standard  # not there: pick names what there is
+
+
+#: how renderers name an ambient occlusion pass (Blender: 'AO' in render results and
+#: multi-part files, 'Ambient Occlusion' after the compositor's File Output node), lower case
+AO_PASSES = ("ao", "ambient occlusion", "ambient_occlusion", "ambientocclusion")
+#: the channel of a pass read as its value, in this order of preference (a grey pass has
+#: R = G = B; Blender names some passes' channels X, Y, Z)
+_PASS_CHANNELS = ("R", "X", "Y", "V", "L")
+
+
+def _pass_channel(path: Path, columns, prefix: str, role: str) -> str:
+    """The column read from the pass (or layer) ``prefix``: its R (X, Y, ...) channel, or its
+    only one; InputError when its R, G and B differ (not grey: which one is AO?) or it has
+    no channel to take."""
+    members = {name[len(prefix) + 1:]: name for name in columns
+               if name.startswith(prefix + ".") and "." not in name[len(prefix) + 1:]}
+    for channel in _PASS_CHANNELS:
+        if channel in members:
+            if channel == "R" and {"G", "B"} <= set(members):
+                r, g, b = (columns[members[c]] for c in "RGB")
+                if not (np.array_equal(r, g) and np.array_equal(r, b)):
+                    raise InputError(f"{path}: the pass {prefix!r} is not grey (its R, G and B "
+                                     f"differ): name its channel with --{role}-key "
+                                     f"{prefix}.R (or .G, .B)")
+            return members[channel]
+    if len(members) == 1:
+        return next(iter(members.values()))
+    raise InputError(f"{path}: the pass {prefix!r} has channels {', '.join(members) or 'none'}: "
+                     f"name one with --{role}-key {prefix}.CHANNEL")
+
+
+def _layered(path: Path, columns, key: str, role: str) -> str:
+    """The column a key names in a layered image when it is no column's full name: a pass
+    or layer (``ViewLayer.AO``: its channel by ``_pass_channel``), else the one column whose
+    name ends in ``.key`` (``AO.R`` for ``ViewLayer.AO.R``); the key itself when neither
+    (the caller's message lists what there is)."""
+    if any(name.startswith(key + ".") for name in columns):
+        return _pass_channel(path, columns, key, role)
+    ending = [name for name in columns if name.endswith("." + key)]
+    if len(ending) > 1:
+        raise InputError(f"{path}: {len(ending)} channels end in {key!r} "
+                         f"({', '.join(ending)}): name one in full with --{role}-key")
+    return ending[0] if ending else key
+
+
+def _listing(table: Table) -> str:
+    """What a file has, for a message: its columns, by part in a multi-part image."""
+    if table.parts:
+        return "; ".join(f"part {part!r}: {', '.join(names)}"
+                         for part, names in table.parts.items())
+    return ", ".join(sorted(table.columns)) or "nothing"
+
+
+def linearise(values: Values, table: Table, role: str, stated: str | None) -> None:
+    """Turn ``values``' value (and stderr) into linear values, as the file's tags say
+    (``table.transfers``) or as ``stated``; refuse what cannot be known to be linear.
+
+    An aobake file holds linear values whatever its tags (its metadata says it is
+    aobake's; stating 'srgb' for it is refused).  A stated transfer wins over the tags (a
+    warning when they say otherwise: a renderer may tag a raw view's values sRGB).  Without
+    one, a display-referred file (an 8/16-bit PNG or TIFF without tags) and one whose tags
+    this reader cannot invert are refused with what to do.  Per-vertex files hold numbers
+    (linear) unless a transfer is stated.  A stderr is carried through the curve by its
+    slope (the delta method).
+    """
+    from aobake.outputs.image import TRANSFERS
+
+    path = values.path
+    flag = f"--{role}-transfer" if role in ("reference", "candidate") else "transfer="
+    tagged = None if table.transfers is None else table.transfers.get(values.key)
+    if table.metadata:  # aobake's file: linear by aobake's convention
+        if stated == "srgb":
+            raise InputError(f"{path}: is an aobake output, which holds linear values; "
+                             f"{flag} srgb is for files that hold sRGB-encoded ones")
+        values.transfer = "linear"
+        return
+    if stated is not None:
+        use = TRANSFERS[stated]
+        if tagged is not None and tagged.kind not in (use.kind, "display"):
+            says = "" if tagged.kind == "unsupported" else f" says it holds {tagged.says} values"
+            values.warnings.append(f"{path}: {tagged.source}{says}; read as {use.says}, as "
+                                   f"stated ({flag} {stated})")
+    elif tagged is None:  # numbers, not colours
+        return
+    elif not tagged.known:
+        say = f"{flag} srgb|linear" if flag != "transfer=" else "transfer='srgb' | 'linear'"
+        python = f" (Python: {role}_transfer=)" if flag != "transfer=" else ""
+        problem = (" holds display-referred values by convention (sRGB, or a view "
+                   "transform's), not linear ones" if tagged.kind == "display" else "")
+        raise InputError(f"{path}: {tagged.source}{problem}; compare needs linear values: "
+                         "save them linear (an EXR, or a PNG tagged gAMA 1.0) or state how "
+                         f"they are encoded with {say}{python}")
+    else:
+        use = tagged
+    values.transfer = use.name
+    if use.kind == "linear":
+        return
+    if values.stderr is not None:
+        values.stderr = values.stderr * np.abs(use.slope(values.value))
+    values.value = use.to_linear(values.value)
+    source = "as stated" if stated is not None else f"as {tagged.source} says"
+    values.notes.append(f"{path}: {values.key!r} holds {use.says} values ({source}): "
+                        "linearised before comparing")
 
 
 def _coverage(table: Table) -> np.ndarray | None:
