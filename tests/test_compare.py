@@ -112,8 +112,15 @@ def test_constant_offset_is_the_bias(vertex_bake, tmp_path, suffix, c):
     noise = math.sqrt(np.mean(stored(result, "ao_stderr") ** 2))
     assert m["reference_noise_rms"] == pytest.approx(noise, rel=1e-12)
     assert m["rmse_in_reference_se"] == pytest.approx(m["rmse"] / noise, rel=1e-12)
-    assert m["excess_rmse"] == pytest.approx(math.sqrt(max(0.0, m["rmse"] ** 2 - noise**2)),
+    assert m["rmse_without_reference_noise"] == pytest.approx(
+        math.sqrt(max(0.0, m["rmse"] ** 2 - noise**2)), rel=1e-12, abs=1e-15)
+    # the candidate carries the reference's stderr too: the combined error, sqrt(2) noise
+    assert m["error"] == "combined" and m["noise_rms"] == pytest.approx(math.sqrt(2) * noise,
+                                                                        rel=1e-12)
+    assert m["excess_rmse"] == pytest.approx(math.sqrt(max(0.0, m["rmse"] ** 2 - 2 * noise**2)),
                                              rel=1e-12, abs=1e-15)
+    se = stored(result, "ao_stderr")
+    assert m["z_rms"] == pytest.approx(math.sqrt(np.mean(c**2 / (2 * se**2))), rel=1e-5)
 
 
 def test_ramp_has_its_analytic_rmse(vertex_bake, tmp_path):

@@ -17,9 +17,18 @@ coverage, the texels both cover).  Every metric is over those n points of the er
 - ``reference_noise_rms = sqrt(mean se_ref^2)`` from the reference's ``*_stderr``;
 - ``rmse_in_reference_se = rmse / reference_noise_rms``: about 1 for an exact candidate, about
   sqrt(2) for an independent bake as noisy as the reference;
-- ``excess_rmse = sqrt(max(0, rmse^2 - reference_noise_rms^2))``: the part of the difference
-  the reference's own noise does not explain (the candidate's noise is part of it;
-  ``candidate_noise_rms`` says how much, when the candidate has a stderr).
+- ``error``: the standard error the next ones use, per point: 'reference' (se = se_ref) or,
+  when the candidate carries its own (an ``ao_stderr`` channel, or ``candidate_stderr``),
+  'combined' (se = sqrt(se_ref^2 + se_cand^2): two independent estimates); None without a
+  reference stderr.  ``noise_rms = sqrt(mean se^2)``;
+- ``z_rms = sqrt(mean (e / se)^2)``: about 1 when the two agree within their noise (an
+  exact candidate against the reference's, or two independent bakes with 'combined'), and
+  ``within_95`` / ``z_over_3`` the shares of points with |e| <= 1.96 se (the 95% interval
+  of the difference holds 0) and |e| > 3 se; points with se = 0 (exact by construction)
+  are left out of these three;
+- ``excess_rmse = sqrt(max(0, rmse^2 - noise_rms^2))``: the part of the difference the noise
+  does not explain; ``rmse_without_reference_noise`` the same with the reference's noise
+  alone (the candidate's own error against the truth, its noise included).
 
 A camera view (an ``aobake view`` EXR as the reference; the candidate another view of the
 same camera or another tool's image of its pixels) is compared per covered pixel, and
@@ -54,18 +63,21 @@ from aobake.compare.screen import format_screen, is_view, score_view
 from aobake.compare.settings import check_same_quantity
 from aobake.compare.values import IMAGE_KINDS, image_kind, kind
 from aobake.errors import InputError
+from aobake.outputs.image import TRANSFERS
 from aobake.outputs.values import (TEXEL_SUFFIXES, VERTEX_SUFFIXES, Values, file_path, read,
                                    target_of)
 from aobake.quantities import QUANTITIES
 
-__all__ = ["COMPARABLE", "CONVENTIONS", "POSITION_TOLERANCE", "TEXEL_SUFFIXES", "VERTEX_SUFFIXES",
-           "Values", "compare", "diverging", "format_table", "main", "match_vertices", "metrics",
-           "position_tolerance", "read", "tie_features"]
+__all__ = ["COMPARABLE", "CONVENTIONS", "POSITION_TOLERANCE", "TEXEL_SUFFIXES", "TRANSFERS",
+           "VERTEX_SUFFIXES", "Values", "compare", "diverging", "format_table", "main",
+           "match_vertices", "metrics", "position_tolerance", "read", "tie_features"]
 
 log = logging.getLogger(__name__)
 
 #: quantities whose value is one number per point (the ones an error in [0, 1] describes)
 COMPARABLE = tuple(name for name, q in QUANTITIES.items() if q.value.width == 1)
+#: z of the two-sided 95% normal interval (``within_95``)
+Z95 = 1.959963984540054
 #: --candidate-convention -> what the candidate's numbers mean
 CONVENTIONS = {
     "ao": "as aobake: 1 = fully open, 0 = fully occluded",
@@ -75,15 +87,24 @@ CONVENTIONS = {
 
 def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_key: str | None = None,
             candidate_convention: str = "ao", heatmap=None,
-            reference_key: str | None = None) -> dict:
+            reference_key: str | None = None, candidate_transfer: str | None = None,
+            reference_transfer: str | None = None, candidate_stderr=None) -> dict:
     """Compare ``candidate_path`` against ``reference_path`` for ``quantity`` ('ao' | 'obscurance').
 
     candidate_key : the candidate's array (NPZ), vertex property (PLY), attribute (GLB) or
-      channel (image) holding the quantity, when it is not aobake's name for it
+      channel (image) holding the quantity, when it is not aobake's name for it (in a
+      layered or multi-part image also a pass, ``ViewLayer.AO``); its stderr is
+      ``<key>_stderr`` where there is one
     candidate_convention : 'ao' (1 = open) | 'occlusion' (the candidate holds 1 - value)
     heatmap : path of a .ply (per vertex) or .png (per texel) to write the error to
     reference_key : the reference's array / channel when it is not aobake's name for the
       quantity (a view's ``ao_unbounded``); its stderr is ``<key>_stderr`` where there is one
+    candidate_transfer, reference_transfer : None (as the file's colour tags say: an
+      untagged 8/16-bit PNG or TIFF is refused) | 'linear' | 'srgb': how the file's values
+      are encoded (``TRANSFERS``; ``aobake.outputs.read``'s ``transfer``)
+    candidate_stderr : a file holding the candidate's standard errors (its one channel or
+      array, or the quantity's name), of the candidate's size and order: z and the excess
+      RMSE then use the combined error
 
     Returns one record, always with the same keys (see the module docstring for the metrics;
     None where a value does not exist).  Raises ``InputError`` naming the file and the
@@ -104,8 +125,18 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
     for name, key in (("candidate_key", candidate_key), ("reference_key", reference_key)):
         if key is not None and not isinstance(key, str):
             raise InputError(f"{name} must be a name (str), got {key!r}")
-    reference = read(reference_path, quantity, key=reference_key)
-    candidate = read(candidate_path, quantity, key=candidate_key, role="candidate")
+    for name, value in (("candidate_transfer", candidate_transfer),
+                        ("reference_transfer", reference_transfer)):
+        if value is not None and (not isinstance(value, str) or value not in TRANSFERS):
+            raise InputError(f"{name} must be one of {tuple(TRANSFERS)} or None (as the "
+                             f"file's tags say), got {value!r}")
+    if candidate_stderr is not None:
+        candidate_stderr = file_path(candidate_stderr, "candidate's stderr file", "compare")
+    reference = read(reference_path, quantity, key=reference_key, transfer=reference_transfer)
+    candidate = read(candidate_path, quantity, key=candidate_key, role="candidate",
+                     transfer=candidate_transfer)
+    if candidate_stderr is not None:
+        _stderr_from_file(candidate, candidate_stderr, quantity)
     if candidate.target != reference.target:
         raise InputError(f"{candidate_path}: holds {kind(candidate.target)}, but the reference "
                          f"{reference_path} holds {kind(reference.target)}")
@@ -128,13 +159,19 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
         raise InputError(f"{reference_path}: holds no {quantity} values")
     aligned = (align_texels if target == "texels" else align_vertices)(reference, candidate)
     ref, cand, ref_se, cand_se, where, extra = aligned
+    cand_se_path = candidate_stderr or candidate_path
     for values, path, what in ((ref, reference_path, quantity), (cand, candidate_path, quantity),
                                (ref_se, reference_path, f"{quantity}_stderr"),
-                               (cand_se, candidate_path, f"{quantity}_stderr")):
+                               (cand_se, cand_se_path, f"{quantity}_stderr")):
         bad = 0 if values is None else int(np.count_nonzero(~np.isfinite(values)))
         if bad:
             raise InputError(f"{path}: {bad} of the {len(values)} compared {what} values "
                              "are not finite")
+    for values, path in ((ref_se, reference_path), (cand_se, cand_se_path)):
+        bad = 0 if values is None else int(np.count_nonzero(values < 0))
+        if bad:
+            raise InputError(f"{path}: {bad} of the {len(values)} compared standard errors "
+                             "are negative")
     with np.errstate(over="ignore"):
         error = cand - ref
     if not np.isfinite(error).all():  # finite values whose difference leaves float64
@@ -146,7 +183,9 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
     result = {"quantity": quantity, "target": "view" if view else target,
               "reference": str(reference_path),
               "candidate": str(candidate_path), "reference_key": reference.key,
-              "candidate_key": candidate.key, "candidate_convention": candidate_convention}
+              "candidate_key": candidate.key, "candidate_convention": candidate_convention,
+              "reference_transfer": reference.transfer, "candidate_transfer": candidate.transfer,
+              "candidate_stderr": None if candidate_stderr is None else str(candidate_stderr)}
     try:
         result.update(metrics(ref, cand, ref_se, cand_se))
     except ValueError as exc:  # a ratio beyond float64: the reference's stderr is the cause
@@ -155,8 +194,11 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
     notes = reference.notes + candidate.notes + extra.pop("notes")
     result.update(extra)
     result["screen"] = None
-    if view:  # scored as screen-space AO
-        result["screen"] = score_view(reference, candidate, where)
+    if view:  # scored as screen-space AO, in units of the error the metrics use
+        stderr = reference.stderr
+        if result["error"] == "combined":
+            stderr = np.hypot(reference.stderr, np.where(where, candidate.stderr, 0.0))
+        result["screen"] = score_view(reference, candidate, where, stderr)
         result["matched_by"] = "pixel"
     result["heatmap"], result["heatmap_scale"] = None, None
     result["warnings"] = warnings
@@ -180,10 +222,16 @@ def metrics(reference: np.ndarray, candidate: np.ndarray, reference_stderr: np.n
             candidate_stderr: np.ndarray | None = None) -> dict:
     """The error metrics of ``candidate - reference``.
 
-    reference, candidate : (n,) float, n >= 1, finite; *_stderr : (n,) float, finite, or None.
+    reference, candidate : (n,) float, n >= 1, finite; *_stderr : (n,) float, finite, >= 0,
+    or None.
     Returns a dict of Python floats / None (n an int): n, rmse, bias, max_error,
     mean_abs_error, psnr (peak 1, None when the error is exactly 0), reference_noise_rms,
-    rmse_in_reference_se, excess_rmse, candidate_noise_rms (None without the stderr).
+    rmse_in_reference_se, candidate_noise_rms (None without the stderr), error ('reference'
+    | 'combined' | None: the per-point standard error se the next ones use: the reference's,
+    or sqrt(se_ref^2 + se_cand^2) when the candidate has one too; None without the
+    reference's), noise_rms (sqrt(mean se^2)), z_rms, within_95, z_over_3 (over the points
+    with se > 0; None when there is none), excess_rmse (sqrt(max(0, rmse^2 - noise_rms^2))),
+    rmse_without_reference_noise (the same with reference_noise_rms).
     Every number is finite: the means are taken on values scaled by their largest when
     squares would leave float64's range (an error of 1e200 has an rmse of 1e200, not inf).
     Raises ValueError when the error, a difference or a ratio is beyond float64's range.
@@ -195,7 +243,13 @@ def metrics(reference: np.ndarray, candidate: np.ndarray, reference_stderr: np.n
     n = error.size
     rmse = _rms(error)
     largest = float(np.max(np.abs(error)))
-    noise = _rms(reference_stderr)
+    reference_noise = _rms(reference_stderr)
+    kind, se = None, None
+    if reference_stderr is not None:
+        kind, se = "reference", np.asarray(reference_stderr, dtype=np.float64)
+        if candidate_stderr is not None:  # two independent estimates: their variances add
+            kind, se = "combined", np.hypot(se, np.asarray(candidate_stderr, dtype=np.float64))
+    noise = _rms(se)
     out = {
         "n": int(n),
         "rmse": rmse,
@@ -204,25 +258,69 @@ def metrics(reference: np.ndarray, candidate: np.ndarray, reference_stderr: np.n
         "mean_abs_error": _mean(np.abs(error), largest),
         # peak 1 (AO spans [0, 1]): 10 log10(1 / mean e^2) = -20 log10(rmse)
         "psnr": -20.0 * math.log10(rmse) if rmse > 0 else None,
-        "reference_noise_rms": noise,
+        "reference_noise_rms": reference_noise,
         "rmse_in_reference_se": None,
-        "excess_rmse": None,
         "candidate_noise_rms": _rms(candidate_stderr),
+        "error": kind,
+        "noise_rms": noise,
+        "z_rms": None,
+        "within_95": None,
+        "z_over_3": None,
+        "excess_rmse": None if noise is None else _excess(rmse, noise),
+        "rmse_without_reference_noise": None if reference_noise is None else
+        _excess(rmse, reference_noise),
     }
-    if noise is not None:
-        # the reference's noise alone gives mean e^2 = noise^2 against an exact candidate:
-        # sqrt(max(0, rmse^2 - noise^2)), as rmse sqrt((1 - q)(1 + q)), q = noise / rmse
-        q = noise / rmse if rmse > 0 else math.inf
-        out["excess_rmse"] = 0.0 if q >= 1 else (math.sqrt(max(0.0, rmse * rmse - noise * noise))
-                                                 if rmse < 1e150 else
-                                                 rmse * math.sqrt((1 - q) * (1 + q)))
-        if noise > 0:
-            ratio = rmse / noise
-            if not math.isfinite(ratio):
-                raise ValueError(f"its stderr ({noise:.3g} rms) is too small against an error of "
-                                 f"{rmse:.3g}: their ratio is beyond float64's range")
-            out["rmse_in_reference_se"] = ratio
+    if reference_noise:
+        ratio = rmse / reference_noise
+        if not math.isfinite(ratio):
+            raise ValueError(f"its stderr ({reference_noise:.3g} rms) is too small against an "
+                             f"error of {rmse:.3g}: their ratio is beyond float64's range")
+        out["rmse_in_reference_se"] = ratio
+    if se is not None and np.any(se > 0):
+        known = se > 0  # a zero error bar claims exactness: no z of its own
+        with np.errstate(over="ignore", under="ignore"):
+            z = error[known] / se[known]
+        if not np.isfinite(z).all():
+            raise ValueError(f"its stderr (as small as {float(se[known].min()):.3g}) is too "
+                             f"small against errors up to {largest:.3g}: their ratio is beyond "
+                             "float64's range")
+        out["z_rms"] = _rms(z)
+        out["within_95"] = float(np.mean(np.abs(z) <= Z95))
+        out["z_over_3"] = float(np.mean(np.abs(z) > 3.0))
     return out
+
+
+def _excess(rmse: float, noise: float) -> float:
+    """sqrt(max(0, rmse^2 - noise^2)): the part of an RMS error a noise of RMS ``noise``
+    does not explain (the noise alone gives mean e^2 = noise^2 against an exact value), as
+    rmse sqrt((1 - q)(1 + q)), q = noise / rmse, where the squares would overflow."""
+    q = noise / rmse if rmse > 0 else math.inf
+    if q >= 1:
+        return 0.0
+    if rmse < 1e150:
+        return math.sqrt(max(0.0, rmse * rmse - noise * noise))
+    return rmse * math.sqrt((1 - q) * (1 + q))
+
+
+def _stderr_from_file(candidate: Values, path: Path, quantity: str) -> None:
+    """Give ``candidate`` the standard errors held by the file ``path`` (its one channel or
+    array, or the quantity's name: ``aobake.outputs.read``), checked against its size."""
+    values = read(path, quantity, role="candidate")
+    if values.target != candidate.target or values.value.shape != candidate.value.shape:
+        what = "x".join(str(d) for d in values.value.shape[::-1])
+        want = "x".join(str(d) for d in candidate.value.shape[::-1])
+        raise InputError(f"{path}: holds {what} values, the candidate {candidate.path} {want}: "
+                         "a stderr file holds one standard error per candidate value, in its "
+                         "order")
+    if candidate.positions is not None and values.positions is not None and \
+            not np.all(np.abs(values.positions - candidate.positions)
+                       <= position_tolerance(candidate.positions)):
+        raise InputError(f"{path}: its vertices are not the candidate {candidate.path}'s (in "
+                         "its order)")
+    own = " (in place of the ones it holds)" if candidate.stderr is not None else ""
+    candidate.stderr = values.value
+    candidate.notes.append(f"{path}: its {values.key!r} is read as the candidate's standard "
+                           f"errors{own}")
 
 
 def _rms(values) -> float | None:
@@ -267,14 +365,32 @@ def format_table(result: dict) -> str:
         ("psnr (peak 1)", "inf (identical)" if result["psnr"] is None else f"{result['psnr']:.2f} dB"),
         ("reference noise rms", num(result["reference_noise_rms"])),
         ("rmse / reference noise rms", num(result["rmse_in_reference_se"], ".3f")),
-        ("excess rmse", num(result["excess_rmse"])),
     ]
     if result["candidate_noise_rms"] is not None:
         rows.append(("candidate noise rms", num(result["candidate_noise_rms"])))
+    if result["error"] == "combined":
+        rows.append(("combined noise rms", num(result["noise_rms"])))
+    error = {"combined": "combined stderr", "reference": "reference stderr"}.get(result["error"])
+    rows += [
+        ("excess rmse" + (f" (beyond the {error})" if error else ""), num(result["excess_rmse"])),
+        ("z rms" + (f" (error / {error})" if error else ""), num(result["z_rms"], ".3f")),
+        ("within the 95% interval", "-" if result["within_95"] is None else
+         f"{100 * result['within_95']:.1f}% of points"),
+    ]
+    if result["error"] == "combined":
+        rows.append(("rmse without the reference noise",
+                     num(result["rmse_without_reference_noise"])))
     lines = [f"{result['quantity']}: {result['candidate']} against {result['reference']}, "
              f"{result['n']} {where}"]
     width = max(len(label) for label, _ in rows)
     lines += [f"  {label:<{width}}  {value}" for label, value in rows]
+    if result["error"] is not None:
+        lines.append("  error: " + ("combined: sqrt(reference stderr^2 + candidate stderr^2)"
+                                    if result["error"] == "combined" else
+                                    "the reference's stderr (the candidate has none)"))
+    for side in ("reference", "candidate"):
+        if result[f"{side}_transfer"] != "linear":
+            lines.append(f"  {side} values: {result[f'{side}_transfer']}-encoded, linearised")
     if result["n_uncovered_in_candidate"] and result["target"] in ("texels", "view"):
         points = "pixels" if result["target"] == "view" else "texels"
         lines.append(f"  ({result['n_uncovered_in_candidate']} {points} the reference covers are "
@@ -295,27 +411,43 @@ def format_table(result: dict) -> str:
               help="What to compare.")
 @click.option("--candidate-key", metavar="NAME", default=None,
               help="The candidate's NPZ array / PLY property / GLB attribute / image channel "
-                   "holding the quantity, when it is not aobake's name for it.")
+                   "holding the quantity, when it is not aobake's name for it (in a layered "
+                   "or multi-part EXR: the full name, ViewLayer.AO.R, a pass, ViewLayer.AO, or "
+                   "a unique end, AO.R).")
 @click.option("--reference-key", metavar="NAME", default=None,
               help="The reference's array / channel to compare against, when not aobake's "
                    "name for the quantity (a view's ao_unbounded); NAME_stderr is its stderr.")
 @click.option("--candidate-convention", type=click.Choice(tuple(CONVENTIONS)), default="ao",
               show_default=True,
               help="occlusion: the candidate holds 1 - AO (libigl); compared as 1 - value.")
+@click.option("--candidate-transfer", type=click.Choice(tuple(TRANSFERS)), default=None,
+              help="How the candidate image's values are encoded, whatever its tags say "
+                   "(default: as its colour tags say; an 8/16-bit PNG or TIFF without tags "
+                   "is refused). srgb: linearised by the sRGB curve.")
+@click.option("--reference-transfer", type=click.Choice(tuple(TRANSFERS)), default=None,
+              help="The same for the reference.")
+@click.option("--candidate-stderr", type=click.Path(path_type=Path), default=None,
+              metavar="FILE",
+              help="A file of the candidate's standard errors (one per value, in its order): "
+                   "z and the excess rmse then use sqrt(se_ref^2 + se_cand^2).")
 @click.option("--heatmap", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the error (candidate - reference) in a blue-white-red map: "
                    ".ply per vertex, .png per texel.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of the table.")
 def main(reference, candidate, quantity, candidate_key, reference_key, candidate_convention,
-         heatmap, as_json):
+         candidate_transfer, reference_transfer, candidate_stderr, heatmap, as_json):
     """Compare CANDIDATE against REFERENCE: RMSE, bias, max error, PSNR and how much of the
-    difference the reference's own noise explains.
+    difference the noise explains (the reference's, and the candidate's where it has a
+    stderr).
 
     Both are per-vertex files (.npz, .ply, .glb; vertices matched by position) or lightmaps
     (.exr, .png, .tif; the texels the reference covers).  A camera view from aobake view is
     compared per covered pixel and scored as screen-space AO as well: interior and
     depth-edge band, SSIM, stderr units, raw and after the best gain.  The candidate may come
-    from another tool (see --candidate-key, --candidate-convention).  Uniform- and
+    from another tool (see --candidate-key, --candidate-convention): images are read as
+    linear values (EXR; PNG/TIFF as their colour tags say, see --candidate-transfer), a
+    multi-part EXR's every part (Blender's AO pass by its name).  When the candidate carries
+    standard errors too, z and the excess rmse use both (error: combined).  Uniform- and
     cosine-weighted AO are different quantities and are not compared.
     """
     from aobake.cli.common import guarded  # the CLI's contract: errors, signals, exit codes
@@ -323,7 +455,9 @@ def main(reference, candidate, quantity, candidate_key, reference_key, candidate
     def run():
         result = compare(reference, candidate, quantity, candidate_key=candidate_key,
                          candidate_convention=candidate_convention, heatmap=heatmap,
-                         reference_key=reference_key)
+                         reference_key=reference_key, candidate_transfer=candidate_transfer,
+                         reference_transfer=reference_transfer,
+                         candidate_stderr=candidate_stderr)
         click.echo(json.dumps(result, allow_nan=False) if as_json else format_table(result))
 
     guarded(False, run)

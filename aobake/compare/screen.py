@@ -84,16 +84,19 @@ def edges_of(reference: Values, cam) -> tuple[np.ndarray | None, str | None]:
     return scoring.depth_edges(frame), None
 
 
-def score_view(reference: Values, candidate: Values, mask: np.ndarray) -> dict:
+def score_view(reference: Values, candidate: Values, mask: np.ndarray,
+               stderr: np.ndarray | None = None) -> dict:
     """The screen-space scores of ``candidate`` against the view ``reference`` on ``mask``
     (H, W) bool (the pixels both cover): ``aobake.screen.score.score``'s record plus the
-    band width, the edge tolerance and the pixel counts, and ``notes``."""
+    band width, the edge tolerance and the pixel counts, and ``notes``.  ``stderr`` (H, W)
+    is the error z is measured in (compare's: the reference's, or combined with the
+    candidate's); None: the reference's."""
     cam = camera_of(reference)
     if is_view(candidate):
         _same_view(reference, candidate)
     edges, why = edges_of(reference, cam)
     notes = [] if why is None else [why]
-    stderr = reference.stderr
+    stderr = reference.stderr if stderr is None else stderr
     if stderr is not None and not (stderr[mask] > 0).any():
         stderr = None  # a method without noise (an approximation): no stderr units
     record = scoring.score(reference.value, candidate.value, mask,
