@@ -246,6 +246,26 @@ class Camera:
         origins = np.repeat(self.eye[None, :], len(directions), axis=0)
         return origins, directions
 
+    def directions_through(self, pixels) -> np.ndarray:
+        """(n, 3) float64 unit world directions of the primary rays through continuous pixel
+        coordinates ``pixels`` (n, 2) float (x = column, y = row, origin at the image's
+        top-left corner: pixel (r, c) covers [c, c + 1) x [r, r + 1)), as ``pixel_rays``
+        makes them: through (c + 0.5, r + 0.5) the same direction, bit for bit.  A box
+        filter's jittered positions (``aobake.targets.view``) go through here."""
+        pixels = np.asarray(pixels, dtype=np.float64)
+        if pixels.ndim != 2 or pixels.shape[1] != 2:
+            raise InputError(f"camera: pixels must be (n, 2), got {pixels.shape}")
+        half_h = self.tan_half_fov
+        half_w = half_h * self.aspect
+        view = np.empty((len(pixels), 3))
+        # the arithmetic of pixel_rays: x (2 / W) - 1 and 1 - y (2 / H)
+        view[:, 0] = (pixels[:, 0] * (2.0 / self.width) - 1.0) * half_w
+        view[:, 1] = (1.0 - pixels[:, 1] * (2.0 / self.height)) * half_h
+        view[:, 2] = -1.0
+        directions = view @ self._rotation()
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+        return directions
+
     def project(self, points) -> tuple[np.ndarray, np.ndarray]:
         """Where world ``points`` (n, 3) float land in the image.
 

@@ -245,7 +245,7 @@ def test_every_setting_through_the_library(name, files, tmp_path):
     _, value = example(name)
     value = _fill(value, files)
     mesh, out, _, method, request = _context("main", name, files)
-    if SPECS[name].section in ("ssao", "crytek", "gtao", "heightfield"):
+    if SPECS[name].section in ("view", "ssao", "crytek", "gtao", "heightfield"):
         mesh, out, _, method, request = _context("view", name, files)
     _skip_unrunnable(method)
     config = {k: v for k, v in request.items() if k != "view" and v is not None}

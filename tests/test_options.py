@@ -46,8 +46,8 @@ def test_every_section_record_lives_in_the_settings_package():
 #: the methods that serve them; view: a camera, by every method)
 COMMAND_SECTIONS = {
     "main": {"common", "studio", "texels", "rays", "discs", "hemicube", "file"},
-    "view": {"common", "studio", "rays", "discs", "hemicube", "file", "ssao", "crytek", "gtao",
-             "heightfield"}}
+    "view": {"common", "studio", "view", "rays", "discs", "hemicube", "file", "ssao", "crytek",
+             "gtao", "heightfield"}}
 
 
 @pytest.mark.parametrize("command", ["main", "view"])

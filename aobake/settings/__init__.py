@@ -3,8 +3,9 @@ frozen, validated, serialisable ``BakeConfig``.
 
 ``CommonOptions`` here (what every method and target reads: the quantities, the scene, the
 AO's definition); ``rays`` (the ray-traced method), ``file``, ``discs``, ``hemicube``,
-``screen`` (the screen-space methods and the height field), ``texels`` (the lightmap
-target) and ``studio`` (high-to-low and occluder groups) each hold one section's record.
+``screen`` (the screen-space methods and the height field), ``view`` (the camera
+target), ``texels`` (the lightmap target) and ``studio`` (high-to-low and occluder groups)
+each hold one section's record.
 Every field is made by ``aobake.settings.spec.setting``: its default, check, CLI flag,
 choices and help in one place (the CLI generates its options from them).  Settings are
 values only: this package imports no method, target or command (the plugins import their
@@ -34,6 +35,7 @@ from aobake.repair import MODES as FIX_NORMALS
 from aobake.settings.studio import StudioOptions
 from aobake.settings.texels import (BENT_SPACES, DEFAULT_RESOLUTION,  # noqa: F401
                                            SEAMS, UNWRAP, LightmapOptions, parse_resolution)
+from aobake.settings.view import PIXEL_FILTERS, ViewOptions  # noqa: F401
 from aobake.warp import WEIGHTINGS
 
 NORMALS = ("file", "angle", "area")
@@ -132,19 +134,25 @@ class CommonOptions:
         "robust", "choice", "Embree's traversal: robust (watertight: no ray slips between two "
         "triangles sharing an edge) or fast (Embree's default flags). The report says which "
         "ran (docs/performance.md).", choices=("robust", "fast"), panel="run")
+    uv_set: int = setting(
+        0, "int", "Which UV set of the input a lightmap belongs to: glTF TEXCOORD_N (1 is the "
+        "lightmap set engines use). A lightmap bake bakes into it (a .glb output puts the map "
+        "on that set, occlusionTexture.texCoord = N, and keeps the others); --ao-from "
+        "LIGHTMAP looks the lightmap up at it. OBJ and the other formats have set 0 only.",
+        low=0, high=255, panel="texels")
 
 
 @dataclass(frozen=True)
-class BakeConfig(StudioOptions, LightmapOptions, HeightfieldOptions, GtaoOptions,
-                 CrytekOptions, SsaoOptions, HemicubeOptions, DiscsOptions, FileOptions,
-                 RaysOptions, CommonOptions):
+class BakeConfig(StudioOptions, LightmapOptions, ViewOptions, HeightfieldOptions,
+                 GtaoOptions, CrytekOptions, SsaoOptions, HemicubeOptions, DiscsOptions,
+                 FileOptions, RaysOptions, CommonOptions):
     """Everything that decides a bake's numbers (threads, executors and chunking do not): the
     common settings, the ray-traced method's, the file method's, the disc method's, the
-    hemicube method's, the screen-space methods' (aobake.settings.screen), the lightmap
-    target's and the studio's (high-to-low, groups), in that order (each
-    section's record documents its fields; ``python -c "from aobake.settings import
-    BakeConfig; help(BakeConfig)"`` or ``aobake --help`` shows them).  The one source of
-    every default: the CLI reads them from here.
+    hemicube method's, the screen-space methods' (aobake.settings.screen), the view
+    target's (aobake.settings.view), the lightmap target's and the studio's (high-to-low,
+    groups), in that order (each section's record documents its fields; ``python -c "from
+    aobake.settings import BakeConfig; help(BakeConfig)"`` or ``aobake --help`` shows them).
+    The one source of every default: the CLI reads them from here.
     """
 
     def __post_init__(self):

@@ -76,11 +76,8 @@ class LightmapOptions:
         "auto", "choice", "Always make a new xatlas atlas / never (fail without usable UVs). "
         "Default: the mesh's own UVs when valid for baking, else a new atlas.",
         section="texels", choices=UNWRAP, flags=("--unwrap/--no-unwrap",))
-    uv_set: int = setting(
-        0, "int", "Which UV set of the input to bake into: glTF TEXCOORD_N (1 is the lightmap "
-        "set engines use); a .glb output puts the map on that set (occlusionTexture.texCoord "
-        "= N) and keeps the others. OBJ and the other formats have set 0 only.",
-        section="texels", low=0, high=255)
+    # uv_set is a common setting (aobake.settings.CommonOptions): the lightmap is baked
+    # into it, and a view looks a lightmap up through it (--ao-from LIGHTMAP)
     uv_overlap: str = setting(
         "atlas", "choice", "When the own UVs overlap (a texel covered by two faces, e.g. a "
         "mirrored half sharing an island): atlas (bake a new xatlas atlas), refuse (exit 1 "
