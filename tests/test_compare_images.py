@@ -427,3 +427,14 @@ def test_broken_colour_chunks_are_refused_naming_the_file(tmp_path, ao):
         with pytest.raises(InputError, match=rf"^{path}: its .*--candidate-transfer"):
             read(path, "ao", role="candidate")
         assert read(path, "ao", role="candidate", transfer="linear").transfer == "linear"
+
+
+def test_a_stated_transfer_applies_to_per_vertex_numbers_too(tmp_path):
+    """Per-vertex files hold numbers, read as linear; sRGB-encoded vertex colours (another
+    tool's PLY) are linearised when stated."""
+    ao = np.linspace(0.0, 1.0, 11)
+    np.savez(tmp_path / "ref.npz", ao=ao, ao_stderr=np.full(11, 0.01))
+    np.savez(tmp_path / "cand.npz", ao=srgb_encode(ao))
+    assert compare(tmp_path / "ref.npz", tmp_path / "cand.npz")["bias"] > 0.1
+    m = compare(tmp_path / "ref.npz", tmp_path / "cand.npz", candidate_transfer="srgb")
+    assert m["max_error"] <= 1e-12 and m["candidate_transfer"] == "srgb"

@@ -181,3 +181,23 @@ def test_a_view_scores_z_in_the_combined_error(tmp_path):
     assert raw["z_rms"] == pytest.approx(0.03 / math.hypot(0.02, 0.04), rel=1e-4)
     assert alone["screen"]["regions"]["all"]["raw"]["z_rms"] == pytest.approx(0.03 / 0.02,
                                                                               rel=1e-4)
+
+
+def test_candidate_stderr_image_beside_another_tools_image(tmp_path):
+    """Mitsuba's way: the mean of N renders in one EXR, its standard error in another."""
+    rng = np.random.default_rng(7)
+    ao = rng.uniform(0.2, 0.8, (5, 7))
+    write_exr(tmp_path / "ref.exr", {"ao": ao, "ao_stderr": np.full((5, 7), 0.03),
+                                     "coverage": np.ones((5, 7))}, {"config": {}})
+    write_exr(tmp_path / "mean.exr", {"Y": ao + 0.05})
+    write_exr(tmp_path / "se.exr", {"Y": np.full((5, 7), 0.04)})
+    res = run_cli("compare", tmp_path / "ref.exr", tmp_path / "mean.exr", "--candidate-stderr",
+                  tmp_path / "se.exr", "--json")
+    assert res.exit_code == 0, res.output
+    m = json.loads(res.stdout)
+    assert m["error"] == "combined" and m["candidate_noise_rms"] == pytest.approx(0.04)
+    assert m["z_rms"] == pytest.approx(0.05 / 0.05, rel=1e-5)  # 0.05 / hypot(0.03, 0.04)
+    write_exr(tmp_path / "small.exr", {"Y": np.full((4, 7), 0.04)})
+    res = run_cli("compare", tmp_path / "ref.exr", tmp_path / "mean.exr", "--candidate-stderr",
+                  tmp_path / "small.exr")
+    assert res.exit_code == 1 and "holds 7x4 values, the candidate" in res.output
