@@ -16,7 +16,10 @@ Truth: ``aobake.bake_points(..., rays=--truth-rays, seed=1001, quantities=(ao, i
 albedo=0.5)`` at those points, written to an NPZ.  Every candidate is written to an NPZ
 too and scored with ``aobake.compare.compare`` (docs/compare.md): RMSE, bias (candidate
 minus truth), max error, ``rmse_in_reference_se`` (the RMSE in units of the truth's own rms
-stderr) and ``excess_rmse`` (the part the truth's noise does not explain).
+stderr) and ``rmse_without_reference_noise`` (the candidate's own error against the exact
+values, its noise included: the truth's noise taken out; compare's ``excess_rmse`` also
+takes out the noise a candidate states, which for a rays bake is the whole point of the
+curve).
 
 Candidates:
 - ``rays`` at 4 .. 1024 rays (seed 1): the baseline curve, for ``ao`` and ``indirect``;
@@ -155,7 +158,7 @@ class Bench:
         row = {"mesh": self.name, "family": family, "setting": setting, "quantity": quantity,
                "n": m["n"], "seconds": seconds, "rmse": m["rmse"], "bias": m["bias"],
                "max_error": m["max_error"], "rmse_in_se": m["rmse_in_reference_se"],
-               "excess_rmse": m["excess_rmse"], "note": note}
+               "excess_rmse": m["rmse_without_reference_noise"], "note": note}
         self.rows.append(row)
         return row
 
@@ -331,7 +334,8 @@ def table(rows, compact: bool = False) -> str:
 
 
 def plot(rows, path, meshes):
-    """Error (RMSE with the truth's own noise taken out: ``excess_rmse``) against seconds,
+    """Error (RMSE with the truth's own noise taken out: compare's
+    ``rmse_without_reference_noise``, stored here as ``excess_rmse``) against seconds,
     per mesh (rows) for ao and indirect (columns); the ray-traced curve on every panel."""
     import matplotlib
 
