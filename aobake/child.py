@@ -7,6 +7,8 @@ as a ``Worker``: a function ``module.function(inputs) -> outputs`` (dicts of arr
 through .npz files) called in a child Python with a time limit and retries (``run``), so a
 crash, a hang or an exception there becomes a ``ChildError`` here.  A child can be started
 ahead (``prestart``) so that its interpreter start and imports overlap the parent's own work.
+A child never outlives its parent: it ends itself when the parent is gone (``watch_parent``),
+and a prestarted one when its standard input closes.
 
 The same ``aobake``: ``python -c CODE`` puts the current directory first on the child's
 ``sys.path``, so a child started from a checkout's root imports the checkout's source tree,
@@ -29,11 +31,13 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import tempfile
 import threading
+import time
 from pathlib import Path
 from typing import NamedTuple
 
@@ -109,7 +113,8 @@ def worker(name: str, module: str, function: str, warm_up: str = "") -> Worker:
             "    stub = types.ModuleType(name)\n"
             "    stub.__path__ = importlib.util.find_spec(name).submodule_search_locations\n"
             "    sys.modules[name] = stub\n"
-            "from aobake.child import serve\n"
+            "from aobake.child import serve, watch_parent\n"
+            "watch_parent()\n"
             f"from {module} import {function} as work\n")
     code = head + "serve(work, sys.argv[1:])\n"
     warm = (head + "import json\n" + warm_up
@@ -120,9 +125,56 @@ def worker(name: str, module: str, function: str, warm_up: str = "") -> Worker:
 def serve(function, paths) -> None:
     """The child's side of ``run``: ``function`` of the arrays in ``paths[0]`` (.npz), its
     outputs written to ``paths[1]`` (.npz)."""
+    _serving[:] = [str(path) for path in paths]
+    if _orphaned():  # the parent died before this child read its work
+        _abandon()
     with np.load(paths[0]) as data:
         inputs = {key: data[key] for key in data.files}
     np.savez(paths[1], **function(inputs))
+
+
+#: the environment variable that gives a child its parent's process id (``_command``)
+PARENT_VARIABLE = "AOBAKE_CHILD_PARENT"
+#: seconds between a child's looks at whether its parent is still there
+WATCH_SECONDS = 0.25
+#: the paths a child is serving (in a temporary directory its parent made), and the
+#: process id of that parent (empty: not watched)
+_serving: list = []
+_parent: list = []
+
+
+def watch_parent() -> None:
+    """In a child: end this process when the parent that started it is gone (its parent
+    process id changes: the child was handed to init or a subreaper).  A parent killed
+    outright (a pool worker ended by its pool on an interrupt, the out-of-memory killer)
+    cannot end its children, and a child drawing hemicubes would go on for minutes.  The
+    temporary directory of the work it serves, which that parent can no longer remove,
+    goes with it.  A child still starting is left to find out itself: a prestarted one
+    reads the end of its standard input, or its work (``serve`` looks first)."""
+    expected = os.environ.get(PARENT_VARIABLE)
+    if not expected or not expected.isdigit():
+        return
+    _parent[:] = [int(expected)]
+
+    def watch():
+        while not (_orphaned() and _serving):
+            time.sleep(WATCH_SECONDS)
+        _abandon()
+
+    threading.Thread(target=watch, name="aobake-watch-parent", daemon=True).start()
+
+
+def _orphaned() -> bool:
+    return bool(_parent) and os.getppid() != _parent[0]
+
+
+def _abandon() -> None:
+    """End this orphaned child, removing its parent's temporary directory of the work."""
+    if _serving:
+        folder = Path(_serving[0]).parent
+        if folder.name.startswith("aobake-"):
+            shutil.rmtree(folder, ignore_errors=True)
+    os._exit(1)
 
 
 class ChildError(Exception):
@@ -159,6 +211,7 @@ class Failed(ChildError):
 def _command(code: str, args=()) -> Child:
     """``python_child`` of a worker's ``code``, with its allocator tuned."""
     argv, env = python_child(code, args)
+    env[PARENT_VARIABLE] = str(os.getpid())  # the child ends when this process is gone
     # glibc: reuse freed memory rather than fault fresh pages in (see aobake.cli's
     # _keep_freed_memory): the child's own process, so its allocator is ours to tune
     env.setdefault("MALLOC_MMAP_THRESHOLD_", str(32 << 20))
@@ -171,23 +224,26 @@ _waiting_lock = threading.Lock()
 _waiting: dict[str, subprocess.Popen] = {}
 
 
-def prestart(worker: Worker) -> None:
+def prestart(worker: Worker) -> subprocess.Popen | None:
     """Start a child for ``worker`` now (its interpreter start and imports, ~0.15 s for the
     unwrap's, then overlap whatever the caller does next); the next ``run`` of a worker of
     that name hands it its work.  At most one waits per name; ``discard`` ends it when no
-    work comes."""
+    work comes.  Returns the waiting child (None where it could not start), so that its
+    owner can end exactly that one (``discard(worker, proc)``)."""
     with _waiting_lock:
         proc = _waiting.get(worker.name)
         if proc is not None and proc.poll() is None:
-            return
+            return proc
         _reap(_waiting.pop(worker.name, None))
         try:
             argv, env = _command(worker.warm)
-            _waiting[worker.name] = subprocess.Popen(argv, env=env, stdin=subprocess.PIPE,
-                                                     stdout=subprocess.PIPE,
-                                                     stderr=subprocess.PIPE, text=True)
+            proc = _waiting[worker.name] = subprocess.Popen(
+                argv, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE, text=True)
         except OSError as exc:  # only a head start: the work starts its own child
             log.debug("could not prestart the %s child: %s", worker.name, exc)
+            return None
+        return proc
 
 
 def waiting(worker: Worker) -> subprocess.Popen | None:
@@ -196,9 +252,15 @@ def waiting(worker: Worker) -> subprocess.Popen | None:
         return _waiting.get(worker.name)
 
 
-def discard(worker: Worker) -> None:
-    """End a prestarted child of ``worker`` that no work will use."""
-    _reap(_take(worker))
+def discard(worker: Worker, proc: subprocess.Popen | None = None) -> None:
+    """End a prestarted child of ``worker`` that no work will use: the one waiting, or only
+    ``proc`` if that is the one still waiting (not one another caller started since)."""
+    with _waiting_lock:
+        waiting = _waiting.get(worker.name)
+        if waiting is None or (proc is not None and waiting is not proc):
+            return
+        del _waiting[worker.name]
+    _reap(waiting)
 
 
 def _reap(proc: subprocess.Popen | None) -> None:

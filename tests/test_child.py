@@ -1,11 +1,13 @@
 """A child Python process imports exactly the aobake its parent runs (issue 21): not one
 that happens to sit in its current directory, as a checkout's source tree does when the
-installed aobake is run from the checkout's root."""
+installed aobake is run from the checkout's root.  And it never outlives that parent
+(issue 35)."""
 
 import json
 import os
 import subprocess
 import sys
+import time
 
 import pytest
 import trimesh
@@ -79,3 +81,51 @@ def test_unwrap_from_a_directory_holding_another_aobake(shadowing_dir, monkeypat
         assert child.waiting(unwrapping.WORKER) is None  # taken (when prestarted) and gone
     finally:
         unwrapping.discard_prestarted()
+
+
+SLEEPY = "import time\n\n\ndef work(inputs):\n    time.sleep(600)\n    return {}\n"
+
+MIDDLE = """\
+import numpy as np
+from aobake import child
+print("started", flush=True)
+child.run(child.worker("sleepy", "sleepy", "work"), {"x": np.zeros(1)}, 600)
+"""
+
+
+@pytest.mark.slow
+def test_a_child_ends_when_its_parent_is_killed(tmp_path):
+    """A parent killed outright (a pool worker ended by its pool, the out-of-memory killer)
+    cannot end the child it runs work in: the child sees its parent gone within
+    ``WATCH_SECONDS``, removes the parent's temporary directory of the work and ends,
+    instead of working on for the rest of its time limit."""
+    psutil = pytest.importorskip("psutil")
+    kids = []
+    (tmp_path / "sleepy.py").write_text(SLEEPY)
+    temp = tmp_path / "temp"
+    temp.mkdir()
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(tmp_path), *filter(None, [os.environ.get("PYTHONPATH")])]), TMPDIR=str(temp))
+    middle = subprocess.Popen([sys.executable, "-c", MIDDLE], env=env,
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert middle.stdout.readline() == "started\n"
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (kids and list(temp.iterdir())):
+            kids = psutil.Process(middle.pid).children()
+            time.sleep(0.05)
+        assert len(kids) == 1 and [p.name for p in temp.iterdir()][0].startswith(
+            "aobake-sleepy-"), "the child never started"
+        time.sleep(0.5)  # past its imports: it is in the work
+        middle.kill()
+        middle.wait(10)
+        gone = kids[0].wait(child.WATCH_SECONDS + 5)  # raises psutil.TimeoutExpired
+        assert gone is None or gone == 1
+        assert list(temp.iterdir()) == [], "the work's directory was left"
+    finally:
+        if middle.poll() is None:
+            middle.kill()
+            middle.wait()
+        for orphan in kids:  # handed to init: not among this process's children
+            if orphan.is_running():
+                orphan.kill()

@@ -160,3 +160,17 @@ def test_approximations_are_the_same_for_every_split_and_executor(method):
         other = aobake.bake(mesh, **options, **run)
         _same(base.values, other.values)
         assert base.rays is None and other.rays is None
+
+
+@pytest.mark.parametrize("executor", ["threads", "processes"])
+def test_every_executor_releases_what_the_method_started_here(monkeypatch, executor):
+    """What a method holds for estimating in this process (``close``: the hemicube's GL
+    child started ahead) is released when the executor's estimate returns: no process a
+    bake started outlives it, whichever executor ran it (issue 35)."""
+    from aobake.methods.discs import DiscsMethod
+
+    closed = []
+    monkeypatch.setattr(DiscsMethod, "close", lambda self: closed.append(self),
+                        raising=False)
+    aobake.bake(_scene(), method="discs", executor=executor, workers=2, chunk_points=9)
+    assert len(closed) >= 1 and all(isinstance(m, DiscsMethod) for m in closed)

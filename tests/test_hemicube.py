@@ -421,3 +421,28 @@ def test_a_crashing_child_is_an_error_here(gl, monkeypatch):
     with pytest.raises(HemicubeError, match="SIGABRT"):
         method.estimate(_points([0, 0, 0], [0, 0, 1]), 1, 4096)
     assert gl  # the probe still answers: nothing of the crash reached this process
+
+
+def test_the_child_started_ahead_ends_with_its_method():
+    """``prepare`` starts the GL child ahead for the first estimate; if none takes it,
+    ``close`` (which every executor calls) ends it, and so does the method's collection:
+    no process a bake started outlives it (issue 35: ``--executor processes`` draws in
+    its workers, and the caller's child was left running)."""
+    import gc
+
+    pytest.importorskip("moderngl")
+    from aobake.methods import hemicube
+
+    scene = load_scene(quad([0, 0, 0], 1, 1))
+    method = HemicubeMethod.prepare(scene, BakeConfig(), None, 0, options=HemicubeOptions(4))
+    ahead = child.waiting(hemicube.WORKER)
+    assert ahead is not None and ahead.poll() is None
+    method.close()
+    assert child.waiting(hemicube.WORKER) is None and ahead.poll() is not None
+    method.close()  # nothing left to end: no error
+    method = HemicubeMethod.prepare(scene, BakeConfig(), None, 0, options=HemicubeOptions(4))
+    ahead = child.waiting(hemicube.WORKER)
+    assert ahead is not None
+    del method
+    gc.collect()
+    assert child.waiting(hemicube.WORKER) is None and ahead.poll() is not None

@@ -59,6 +59,16 @@ class WorkItem:
                             faces=self.faces, bary=self.bary, image=self.image)
 
 
+def release(method) -> None:
+    """End what ``method`` holds for estimating in this process (the hemicube's OpenGL child
+    started ahead, ``close``): every executor calls it as its ``estimate`` returns or fails,
+    and before handing the work to workers elsewhere, so no process a bake started
+    outlives it."""
+    close = getattr(method, "close", None)
+    if close is not None:
+        close()
+
+
 def ranges(n: int, per_item: int) -> list:
     """[(start, stop), ...] cutting 0..n-1 into consecutive ranges of ``per_item`` points."""
     per_item = max(1, int(per_item))

@@ -9,7 +9,7 @@ import os
 import numpy as np
 
 from aobake.records import merge
-from aobake.executors.base import items
+from aobake.executors.base import items, release
 
 
 class ThreadsExecutor:
@@ -22,17 +22,20 @@ class ThreadsExecutor:
 
     def estimate(self, job, method, plan, threads: int, chunk_rays: int, progress=None):
         """Estimates of every point of ``plan`` (``SamplePoints``) by ``method``."""
-        if not self.chunk_points:
-            return method.estimate(plan, threads, chunk_rays, progress)
-        # An explicit split runs item by item here too (the same bits: tested).
-        parts, done = [], 0
-        for item in items(job, plan, self.chunk_points):
-            part = method.estimate(item.sample_points(), threads, chunk_rays)
-            parts.append((np.arange(item.start, item.stop), part))
-            done += item.stop - item.start
-            if progress:
-                progress(done, len(plan.points))
-        return merge(parts, len(plan.points))
+        try:
+            if not self.chunk_points:
+                return method.estimate(plan, threads, chunk_rays, progress)
+            # An explicit split runs item by item here too (the same bits: tested).
+            parts, done = [], 0
+            for item in items(job, plan, self.chunk_points):
+                part = method.estimate(item.sample_points(), threads, chunk_rays)
+                parts.append((np.arange(item.start, item.stop), part))
+                done += item.stop - item.start
+                if progress:
+                    progress(done, len(plan.points))
+            return merge(parts, len(plan.points))
+        finally:
+            release(method)
 
 
 def default_workers() -> int:

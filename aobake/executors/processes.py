@@ -1,19 +1,39 @@
 """The ``processes`` executor: a pool of worker processes, each single-threaded, over work
-items of point ranges."""
+items of point ranges.
+
+Interrupts: the pool starts and stops with SIGINT, SIGTERM and SIGHUP held
+(``executors.signals``), so no worker reads half a job and no pool is left half-built; the
+workers leave interrupts to this process (a terminal's Ctrl-C reaches them too), which
+ends them with SIGTERM on an interrupt or a failed item (their unfinished items are not
+wanted; a child a worker started ends itself: ``aobake.child.watch_parent``).
+"""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import multiprocessing
+import os
+import pickle
+import shutil
+import signal
+import tempfile
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 
 import numpy as np
 
+from aobake.errors import AobakeError
 from aobake.records import merge
-from aobake.executors import worker
-from aobake.executors.base import items
+from aobake.executors import signals, worker
+from aobake.executors.base import items, release
 
 log = logging.getLogger(__name__)
+
+
+class PoolError(AobakeError):
+    """A worker process of the pool died (killed, out of memory, a crash in native code)."""
+
 
 #: work items per worker when the split is not given: enough that a slow item does not
 #: leave the other workers idle at the end, few enough that each carries real tracing
@@ -22,9 +42,9 @@ ITEMS_PER_WORKER = 4
 
 class ProcessesExecutor:
     """A local pool of ``workers`` processes (default: one per thread asked for), each
-    tracing single-threaded; the scene is sent to each worker once (the pool's
-    initializer), which builds its occluders and method once and keeps them for all its
-    items.  Work items are ``chunk_points`` points (default: the points split into
+    tracing single-threaded; the scene is sent to each worker once (a file the pool's
+    initializer reads), which builds its occluders and method once and keeps them for all
+    its items.  Work items are ``chunk_points`` points (default: the points split into
     ITEMS_PER_WORKER items per worker)."""
 
     name = "processes"
@@ -38,28 +58,85 @@ class ProcessesExecutor:
         per_item = self.chunk_points or max(1, -(-n // (workers * ITEMS_PER_WORKER)))
         work = items(job, plan, per_item)
         if not work:
-            return method.estimate(plan, threads, chunk_rays, progress)
+            try:
+                return method.estimate(plan, threads, chunk_rays, progress)
+            finally:
+                release(method)
+        release(method)  # each worker prepares its own; what was started ahead here is not used
         # "spawn": a clean interpreter (no copy of this process's threads or Embree state);
         # the worker imports aobake by name, exactly the package this process runs, since
         # multiprocessing hands the child this process's sys.path.
         context = multiprocessing.get_context("spawn")
-        parts, done = [], 0
-        pool = ProcessPoolExecutor(max_workers=min(workers, len(work)), mp_context=context,
-                                   initializer=worker.install, initargs=(job,))
+        if hasattr(signal, "pthread_sigmask"):
+            # multiprocessing's resource tracker is started once, before the signals are
+            # blocked below: starting it unblocks SIGINT and SIGTERM in the thread that does
+            from multiprocessing import resource_tracker
+
+            resource_tracker.ensure_running()
+        parts, done, pool = [], 0, None
+        folder = tempfile.mkdtemp(prefix="aobake-job-")
         try:
-            pending = {pool.submit(worker.run_item, item, 1, chunk_rays): item
-                       for item in work}
+            # The job goes to the workers through a file: multiprocessing writes a worker's
+            # start-up data into a pipe whose reading end the parent keeps open until the
+            # write is done, so a worker that died before reading more than the pipe holds
+            # (64 KiB) would leave this process blocked in that write for ever.
+            path = os.path.join(folder, "job.pickle")
+            with open(path, "wb") as stream:
+                pickle.dump(job, stream, protocol=pickle.HIGHEST_PROTOCOL)
+            # Each worker is spawned by a submit: an interrupt waits until all have been
+            # (a few milliseconds each; the workers start with it blocked, signals.held)
+            with signals.held(children=True):
+                pool = ProcessPoolExecutor(max_workers=min(workers, len(work)),
+                                           mp_context=context, initializer=_start_worker,
+                                           initargs=(path,))
+                pending = {pool.submit(worker.run_item, item, 1, chunk_rays): item
+                           for item in work}
             while pending:
                 finished, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for future in finished:
-                    pending.pop(future)
-                    start, stop, part = future.result()
+                    item = pending.pop(future)
+                    try:
+                        start, stop, part = future.result()
+                    except BrokenProcessPool:
+                        raise PoolError(
+                            f"a worker process died while points {item.start}..{item.stop - 1} "
+                            "were estimated (killed, out of memory, or a crash in native "
+                            "code); the bake was stopped") from None
                     parts.append((np.arange(start, stop), part))
                     done += stop - start
                     if progress:
                         progress(done, n)
+        except BaseException:
+            if pool is not None:  # an interrupt or a failed item: the rest is not wanted
+                _end_workers(pool)
+            raise
         finally:
-            pool.shutdown(wait=True, cancel_futures=True)
+            try:
+                if pool is not None:
+                    with signals.held():  # a pool closed halfway leaves semaphores behind
+                        pool.shutdown(wait=True, cancel_futures=True)
+            finally:
+                shutil.rmtree(folder, ignore_errors=True)
         log.info("processes executor: %d items of <= %d points on %d workers", len(work),
                  per_item, min(workers, len(work)))
         return merge(parts, n)
+
+
+def _start_worker(path: str) -> None:
+    """Pool initializer: interrupts left to the parent (``signals.worker_ready``), then the
+    job read from ``path`` and remembered (``worker.install``)."""
+    signals.worker_ready()
+    with open(path, "rb") as stream:
+        worker.install(pickle.load(stream))
+
+
+def _end_workers(pool) -> None:
+    """End the pool's worker processes now (SIGTERM), their items unfinished."""
+    terminate = getattr(pool, "terminate_workers", None)  # Python 3.14
+    if terminate is not None:
+        with contextlib.suppress(Exception):
+            terminate()
+        return
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        with contextlib.suppress(Exception):
+            process.terminate()

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import weakref
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict
 
@@ -131,6 +132,7 @@ class HemicubeMethod:
         self.weighting, self.backfaces = weighting, backfaces
         self.max_distance = float(max_distance)
         self.ray_offset = float(ray_offset)
+        self._close = None  # ends the GL child started ahead (``prepare``, ``close``)
 
     @classmethod
     def prepare(cls, scene, config, occluders, rays_per_point: int,
@@ -166,8 +168,20 @@ class HemicubeMethod:
                      config.weighting, config.resolve_max_distance(scene.diagonal),
                      getattr(config, "backfaces", "occlude"),
                      getattr(config, "ray_offset", _default_ray_offset()))
-        child.prestart(WORKER)
+        # The child started ahead is this method's until its first estimate takes it: an
+        # executor whose workers estimate elsewhere ends it (``close``), and so does the
+        # method's collection or the interpreter's exit, whichever comes first.
+        worker = WORKER
+        ahead = child.prestart(worker)
+        if ahead is not None:
+            method._close = weakref.finalize(method, child.discard, worker, ahead)
         return method
+
+    def close(self) -> None:
+        """End the GL child started ahead for this method if no estimate took it (an
+        executor calls it when the estimates are done, or made elsewhere); idempotent."""
+        if self._close is not None:
+            self._close()
 
     def _limit(self, n_points: int) -> float:
         pixels = 3 * self.resolution * self.resolution
