@@ -248,3 +248,16 @@ def test_a_scheduler_is_reached_with_dasks_tls_settings(session, monkeypatch):
         split = aobake.bake(mesh, rays=8, seed=1, executor="dask", chunk_points=9)
         assert remote.tls and remote.cluster is None and len(remote.stats) == 1
     _same(aobake.bake(mesh, rays=8, seed=1, threads=1), split)
+
+
+def test_the_dask_executor_releases_what_the_method_started_here(session, monkeypatch):
+    """As every executor: what the method holds for estimating in this process (``close``:
+    the hemicube's GL child started ahead) is released before the items go to the
+    cluster, and when the estimate returns (issue 35)."""
+    from aobake.methods.discs import DiscsMethod
+
+    closed = []
+    monkeypatch.setattr(DiscsMethod, "close", lambda self: closed.append(self),
+                        raising=False)
+    aobake.bake(_scene(), method="discs", executor="dask", chunk_points=9)
+    assert len(closed) >= 1

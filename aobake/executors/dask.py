@@ -4,7 +4,12 @@ Where: an existing cluster (``scheduler="tls://host:8786"``, reached with Dask's
 settings: docs/scale.md), the session a caller opened (:func:`cluster`, which ``aobake
 batch`` opens once for all its assets), or a ``LocalCluster`` started for this bake: one
 worker process per core, one thread each, listening on 127.0.0.1 only, no dashboard, its
-connections mutual TLS with throw-away credentials when ``cryptography`` is installed.
+connections mutual TLS with throw-away credentials when ``cryptography`` is installed.  A
+named scheduler is checked before any work (:func:`probe`: its Dask handshake, read with a
+plain socket within ``CONNECT_SECONDS``): another service at the address, or a port that
+accepts and stays silent, is an InputError saying what answered, not a 3 EiB allocation
+or a wait without end; a client that fails to start is closed at once (not at the
+interpreter's exit).
 
 How: the job (scene, configuration, method name; ``executors.base.Job``) is scattered once
 and replicated to every worker (worker to worker, a tree: the client uploads it once);
@@ -41,6 +46,7 @@ import contextlib
 import contextvars
 import logging
 import math
+import struct
 import threading
 import time
 import uuid
@@ -51,7 +57,7 @@ import numpy as np
 from aobake.errors import AobakeError, InputError
 from aobake.records import merge
 from aobake.executors import worker
-from aobake.executors.base import items
+from aobake.executors.base import items, release
 
 log = logging.getLogger(__name__)
 
@@ -73,9 +79,20 @@ ALLOWED_FAILURES = 2
 RETRIES = 0
 #: times the job is scattered again after every worker holding it died
 MAX_RESHIPS = 2
-#: seconds to wait for a scheduler to answer, and for its first workers
-CONNECT_SECONDS = 30.0
+#: seconds a named scheduler has to answer: the probe's connection (retried while it is
+#: refused, as Dask retries a scheduler still starting) and Dask's handshake, then the
+#: client's own connection.  A scheduler writes its handshake as it accepts (milliseconds);
+#: what is still silent after this long is not one.
+CONNECT_SECONDS = 10.0
+#: seconds to wait for a named scheduler's first workers
 WAIT_WORKERS_SECONDS = 60.0
+#: the most bytes a Dask handshake may announce (one is ~60: three msgpack fields); a
+#: larger length prefix is another protocol's bytes read as a frame length
+HANDSHAKE_BYTES = 1 << 16
+#: seconds a failed client has to close (it holds no work)
+CLOSE_SECONDS = 5.0
+#: the length prefixes of Dask's TCP frames (``distributed.comm.tcp``: native uint64)
+_LENGTH = struct.Struct("Q")
 #: fields of a WorkItem holding one row per point (cut with the items; the rest is whole)
 _PER_POINT = ("points", "normals", "ids", "sizes", "faces", "bary")
 
@@ -93,6 +110,209 @@ def require():
         raise InputError("--executor dask needs Dask: pip install 'aobake[dask]' (or "
                          "'dask[distributed]')") from None
     return distributed
+
+
+def _security(scheduler: str, security=None):
+    """The ``distributed.Security`` a client of ``scheduler`` uses (default: Dask's
+    configuration); ClusterError for a ``tls://`` address it has no client credentials for."""
+    from distributed import Security
+
+    security = security or Security()  # Dask's configuration
+    if str(scheduler).startswith("tls://") and \
+            security.get_connection_args("client").get("ssl_context") is None:
+        raise ClusterError(
+            f"cannot reach the Dask scheduler at {scheduler}: it speaks TLS and Dask's "
+            "configuration has no credentials for a client (distributed.comm.tls.ca-file, "
+            ".client.cert, .client.key; docs/scale.md)")
+    return security
+
+
+def probe(address: str, security=None, timeout: float | None = None) -> dict:
+    """The handshake the Dask comm at ``address`` sends as it accepts a connection (a dict:
+    ``compression``, ``python``, ``pickle-protocol``), read within ``timeout`` seconds
+    (default CONNECT_SECONDS) with a plain socket, before ``distributed.Client`` is let near
+    the address.  Client reads the first 8 bytes of any reply as a frame length (an HTTP
+    server's ``HTTP/1.1`` is 3.07 EiB: MemoryError) and waits for a silent peer's handshake
+    with no time limit.
+
+    As Dask's ``connect``, the probe writes its own handshake first (so an HTTP server
+    answers at once), then reads one frame: an 8-byte length of at most HANDSHAKE_BYTES,
+    the frame count and lengths, a msgpack map with a ``python`` entry.  Raises InputError
+    ("no Dask scheduler answered at ADDRESS (got ...)") for silence, a closed connection or
+    another protocol's bytes; ClusterError where nothing accepts the connection within the
+    time (a refusal is retried, as Dask retries a scheduler that is still starting), or a
+    ``tls://`` address has no client credentials.  Addresses of Dask's other comms
+    (inproc, ucx, ws) are not probed: {}.
+    """
+    import socket
+    import ssl
+
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    timeout = CONNECT_SECONDS if timeout is None else float(timeout)
+    try:
+        scheme, location = parse_address(str(address), strict=False)
+        host, port = parse_host_port(location)
+    except (ValueError, TypeError) as exc:
+        raise InputError(f"scheduler {address!r} is not a Dask address ({exc}): give "
+                         "tcp://HOST:PORT or tls://HOST:PORT") from None
+    if scheme not in ("tcp", "tls"):
+        return {}
+    context = None
+    if scheme == "tls":
+        context = _security(address, security).get_connection_args("client")["ssl_context"]
+    deadline = time.monotonic() + timeout
+
+    def refuse(got: str):
+        return InputError(f"no Dask scheduler answered at {address} (got {got})")
+
+    sock = _dial(address, host, port, deadline, timeout)
+    try:
+        if context is not None:
+            try:
+                sock.settimeout(max(1e-3, deadline - time.monotonic()))
+                sock = context.wrap_socket(
+                    sock, server_hostname=host if context.check_hostname else None)
+            except socket.timeout:
+                raise refuse(f"no TLS handshake in {timeout:g} s") from None
+            except (ssl.SSLError, OSError) as exc:
+                raise refuse(f"a failed TLS handshake: {_reason(exc)}") from None
+        with contextlib.suppress(OSError):  # a peer that closed at once says so when read
+            sock.settimeout(max(1e-3, deadline - time.monotonic()))
+            sock.sendall(_handshake_frame())
+        head, end = _receive(sock, 8, deadline)
+        if len(head) < 8:
+            hint = " (a TLS scheduler? its address starts tls://)" if scheme == "tcp" else ""
+            said = f"{_preview(head)}, then " if head else ""
+            raise refuse(f"{said}nothing in {timeout:g} s" if end == "silent" else
+                         f"{said}a closed connection{hint}")
+        (size,) = _LENGTH.unpack(head)
+        if not 2 * _LENGTH.size <= size <= HANDSHAKE_BYTES:
+            more, _ = _receive(sock, 64, min(deadline, time.monotonic() + 0.2), some=True)
+            raise refuse(f"{_preview(head + more)}, not a Dask handshake ({size} bytes "
+                         "announced)")
+        body, end = _receive(sock, size, deadline)
+        if len(body) < size:
+            raise refuse(f"{_preview(head + body)}, then "
+                         + (f"nothing in {timeout:g} s" if end == "silent" else
+                            "a closed connection") + f" ({len(body)} of {size} bytes)")
+        message = _handshake(body)
+        if message is None:
+            raise refuse(f"{_preview(head + body)}, not a Dask handshake")
+        return message
+    finally:
+        with contextlib.suppress(OSError):
+            sock.close()
+
+
+def _dial(address: str, host: str, port: int, deadline: float, timeout: float):
+    """A TCP connection to host:port, retried while refused until ``deadline``."""
+    import socket
+
+    pause, last = 0.01, None
+    while (left := deadline - time.monotonic()) > 0:
+        try:
+            return socket.create_connection((host, port), timeout=left)
+        except socket.gaierror as exc:
+            raise ClusterError(f"cannot reach the Dask scheduler at {address}: unknown host "
+                               f"{host!r} ({_reason(exc)})") from None
+        except OSError as exc:
+            last = exc
+            time.sleep(max(0.0, min(pause, deadline - time.monotonic())))
+            pause = min(2 * pause, 0.5)
+    raise ClusterError(f"cannot reach the Dask scheduler at {address}: "
+                       f"{_reason(last) if last else 'no connection'} (tried for {timeout:g} s)")
+
+
+def _receive(sock, n: int, deadline: float, some: bool = False) -> tuple:
+    """(bytes, how it ended): ``n`` bytes from ``sock`` by ``deadline`` ("done"), or fewer
+    when the peer closed ("closed") or stayed silent ("silent"); ``some``: the first
+    chunk that arrives before ``deadline`` (at most ``n`` bytes, maybe none)."""
+    import socket
+
+    data = b""
+    while len(data) < n:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return data, ("done" if some else "silent")
+        try:
+            sock.settimeout(left)
+            chunk = sock.recv(n - len(data))
+        except socket.timeout:
+            return data, ("done" if some else "silent")
+        except OSError:
+            return data, "closed"
+        if not chunk:
+            return data, "closed"
+        data += chunk
+        if some:
+            break
+    return data, "done"
+
+
+def _handshake_frame() -> bytes:
+    """This side's Dask handshake as ``distributed.comm.tcp`` frames it: the length of
+    what follows, the frame count (1), the frame's length, the msgpack map.  Its extra
+    entry ends in a blank line (a Dask peer ignores entries it does not read): an HTTP
+    server, which waits for the end of a request's head, answers at once."""
+    import pickle
+    import sys
+
+    import msgpack
+
+    body = msgpack.dumps({"compression": None, "python": tuple(sys.version_info)[:3],
+                          "pickle-protocol": pickle.HIGHEST_PROTOCOL,
+                          "aobake-probe": "\r\n\r\n"}, use_bin_type=True)
+    return (_LENGTH.pack(2 * _LENGTH.size + len(body)) + _LENGTH.pack(1)
+            + _LENGTH.pack(len(body)) + body)
+
+
+def _handshake(body: bytes) -> dict | None:
+    """The handshake in a frame's bytes (after its length): the frame count, the frames'
+    lengths, the first frame a msgpack map with a ``python`` entry; None if it is not one."""
+    import msgpack
+
+    try:
+        (count,) = _LENGTH.unpack_from(body)
+        if not 1 <= count <= (len(body) - _LENGTH.size) // _LENGTH.size:
+            return None
+        first = _LENGTH.unpack_from(body, _LENGTH.size)[0]
+        start = _LENGTH.size * (1 + count)
+        if start + first > len(body):
+            return None
+        message = msgpack.loads(body[start:start + first], raw=False)
+    except Exception:  # noqa: BLE001 - any bytes at all may arrive here
+        return None
+    return message if isinstance(message, dict) and "python" in message else None
+
+
+def _preview(data: bytes) -> str:
+    """What a reply began with, for a message: an HTTP status line, printable text, or
+    the first bytes in hex."""
+    if data.startswith(b"HTTP/"):
+        line = data.split(b"\r\n", 1)[0].split(b"\n", 1)[0][:60]
+        return f"an HTTP reply, {line.decode('latin-1')!r}"
+    text = data[:40]
+    if text and all(32 <= b < 127 or b in (9, 10, 13) for b in text):
+        return f"the text {text.decode('ascii')!r}"
+    return f"the bytes {text[:16].hex(' ')}" + (" ..." if len(data) > 16 else "")
+
+
+def _reason(exc: BaseException) -> str:
+    """An exception's words (its strerror where an OSError has one), or its type's name."""
+    words = getattr(exc, "strerror", None) or getattr(exc, "reason", None) or str(exc)
+    return str(words) if str(words) else type(exc).__name__
+
+
+def _close_failed(client) -> None:
+    """Close a client whose start or first wait failed, within CLOSE_SECONDS.  A client
+    that will not close is marked closed: its ``__del__`` at the interpreter's exit would
+    wait 60 s for an event loop that no longer runs, then print a traceback."""
+    with contextlib.suppress(Exception):
+        client.close(timeout=CLOSE_SECONDS)
+    if getattr(client, "status", "closed") != "closed":
+        with contextlib.suppress(Exception):
+            client.status = "closed"
 
 
 class Session:
@@ -115,6 +335,15 @@ class Session:
         self.cluster = self._client = self.address = self.tls = None
         self.stats: list = []
         self._loggers: list = []  # (logger, level) to restore when the session closes
+        self._checked = False  # the named scheduler answered the probe
+
+    def check(self) -> None:
+        """A named scheduler answers Dask's handshake within CONNECT_SECONDS (:func:`probe`;
+        once per session, before anything is sent to it); nothing to check for a
+        LocalCluster."""
+        if self.scheduler and not self._checked:
+            probe(self.scheduler, self.security)
+            self._checked = True
 
     @property
     def opened(self) -> bool:
@@ -134,8 +363,10 @@ class Session:
     def _open(self) -> None:
         distributed = require()
         # a remote cluster's warnings stay (its workers are someone's to look after); a
-        # local one is this module's to report
-        self._loggers = _quiet(logging.WARNING if self.scheduler else logging.CRITICAL)
+        # local one is this module's to report: all of it, as its scheduler logs at
+        # CRITICAL, with a traceback, a finished item it can no longer tell a client an
+        # interrupt closed
+        self._loggers = _quiet(logging.WARNING if self.scheduler else logging.CRITICAL + 1)
         try:
             if self.scheduler:
                 self._connect(distributed)
@@ -146,27 +377,34 @@ class Session:
             raise
 
     def _connect(self, distributed) -> None:
-        """Connect to the scheduler, and wait for its first workers."""
+        """Connect to the scheduler (checked first: :meth:`check`), and wait for its first
+        workers."""
         scheduler, wanted = self.scheduler, self.n_workers or 1
-        security = self.security or distributed.Security()  # Dask's configuration
-        if str(scheduler).startswith("tls://") and \
-                security.get_connection_args("client").get("ssl_context") is None:
-            raise ClusterError(
-                f"cannot reach the Dask scheduler at {scheduler}: it speaks TLS and Dask's "
-                "configuration has no credentials for a client (distributed.comm.tls.ca-file, "
-                ".client.cert, .client.key; docs/scale.md)")
+        security = _security(scheduler, self.security)
+        self.check()
+        # Made in two steps so that a client whose start fails is still in hand to close
+        # here: left to Client.__del__, it is closed at the interpreter's exit, when its
+        # event loop's thread no longer runs (60 s of waiting, then a traceback).
+        client = distributed.Client.__new__(distributed.Client)
         try:
-            client = distributed.Client(scheduler, security=security,
-                                        timeout=CONNECT_SECONDS, set_as_default=False)
-        except (OSError, TimeoutError, ValueError, TypeError) as exc:
+            client.__init__(scheduler, security=security, timeout=CONNECT_SECONDS,
+                            set_as_default=False)
+        except Exception as exc:  # noqa: BLE001 - whatever Dask raised, the client is closed
+            _close_failed(client)
             raise ClusterError(f"cannot reach the Dask scheduler at {scheduler}: "
-                                  f"{exc}") from None
+                               f"{_reason(exc)}") from None
+        except BaseException:
+            _close_failed(client)
+            raise
         try:
             client.wait_for_workers(wanted, timeout=WAIT_WORKERS_SECONDS)
         except (OSError, TimeoutError) as exc:
-            client.close()
+            _close_failed(client)
             raise ClusterError(f"the Dask scheduler at {scheduler} has fewer than {wanted} "
                                   f"workers after {WAIT_WORKERS_SECONDS:g} s ({exc})") from None
+        except BaseException:
+            _close_failed(client)
+            raise
         self._client, self.address = client, str(scheduler)
         self.tls = self.address.startswith("tls://")
 
@@ -262,7 +500,6 @@ def _signals_deferred():
 _ACTIVE: contextvars.ContextVar = contextvars.ContextVar("aobake_dask_session", default=None)
 
 
-@contextlib.contextmanager
 def cluster(scheduler: str | None = None, workers: int | None = None, security=None):
     """A :class:`Session` every ``--executor dask`` bake inside the block runs on (opened
     by the first bake that needs it, closed at the end of the block).
@@ -272,14 +509,21 @@ def cluster(scheduler: str | None = None, workers: int | None = None, security=N
     127.0.0.1; with a scheduler, ``workers`` is how many to wait for (default 1).
     security : a ``distributed.Security`` for a remote scheduler (default: Dask's
     configuration, ``distributed.comm.tls.*``).  Inside a session of the same scheduler (or
-    of any, when none is named), that session is used.
+    of any, when none is named), that session is used.  A named scheduler is checked here,
+    when the context manager is made (:meth:`Session.check`: its handshake within
+    CONNECT_SECONDS), so a wrong address fails before any work.
     """
     active = _ACTIVE.get()
     if active is not None and (scheduler is None or (
             active.scheduler is not None and _same_address(scheduler, active.scheduler))):
-        yield active
-        return
+        return contextlib.nullcontext(active)
     session = Session(scheduler, workers, security)
+    session.check()
+    return _active(session)
+
+
+@contextlib.contextmanager
+def _active(session):
     token = _ACTIVE.set(session)
     try:
         yield session
@@ -365,10 +609,19 @@ class DaskExecutor:
 
     def estimate(self, job, method, plan, threads: int, chunk_rays: int, progress=None):
         """Estimates of every point of ``plan`` (``SamplePoints``), merged by index."""
+        try:
+            return self._estimate(job, method, plan, threads, chunk_rays, progress)
+        finally:
+            release(method)  # what the method started ahead here (the pilot may not use it)
+
+    def _estimate(self, job, method, plan, threads, chunk_rays, progress):
         n = len(plan.points)
         if n == 0:
             return method.estimate(plan, threads, chunk_rays, progress)
         require()
+        # a named scheduler is checked before any work (a wrong address fails in
+        # milliseconds, a silent one in CONNECT_SECONDS), even where the pilot finishes
+        session_here = cluster(self.scheduler, self.workers, self.security)
         wall = time.perf_counter()
         # a key no other client of a shared cluster has (it names the workers' cache entry)
         job = replace(job, key=f"{job.key}-{uuid.uuid4().hex[:12]}")
@@ -391,7 +644,8 @@ class DaskExecutor:
                 log.info("dask executor: %d points, all estimated here (less than %g s of "
                          "tracing left after the pilot)", n, MIN_ITEM_SECONDS)
                 return merge(parts, n)
-        with cluster(self.scheduler, self.workers, self.security) as session:
+        release(method)  # the rest is estimated on the cluster
+        with session_here as session:
             if self.chunk_points:
                 size = self.chunk_points
                 ranges = [(a, min(n, a + size)) for a in range(0, n, size)]
