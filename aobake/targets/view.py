@@ -523,11 +523,10 @@ def pool(config, footprint: Footprint, state: dict, estimates, n: int,
     if rays is None:
         return fields, None
     per_pixel = np.bincount(at, weights=rays, minlength=k).astype(np.int64)
-    # The interval's floor (the rule of three) and a zero spread's stderr count positions,
-    # not rays: a pixel whose every ray escaped may hold a sliver none of its positions
-    # landed on (P(all n positions read 1) <= v^n, v the covered mean: each position's
-    # jitter is independent, and a position reads 1 with probability at most the AO
-    # around it).
+    # The interval's floor (the rule of three) counts positions, not rays: a pixel whose
+    # every ray escaped may hold a sliver none of its positions landed on (P(all n
+    # positions read 1) <= v^n, v the covered mean: each position's jitter is independent,
+    # and a position reads 1 with probability at most the AO around it).
     units = np.maximum(counted, 1)
     exact = config.resolve_max_distance(diagonal) == 0  # every ray gives the same answer
     for quantity in config.quantities:
@@ -557,6 +556,8 @@ def pool(config, footprint: Footprint, state: dict, estimates, n: int,
             error = stats.exact(mean)
         else:
             error = stats.error_bars(mean, se, units, dof, config.confidence)
+            # a zero spread's stderr: the resolution of the pixel's rays, as a point's is
+            error = (np.where(se > 0, se, 1.0 / np.maximum(per_pixel, 1)),) + error[1:]
         for name, array in zip(names[1:], error):
             fields[name] = np.where(blind, fields[name], array)
     return fields, per_pixel
