@@ -79,7 +79,8 @@ METHODS = {
         what="Bunnell's disc approximation (GPU Gems 2 ch. 14)"),
     "file": MethodCapabilities(
         ("ao", "obscurance"), needs=("points", "triangles"), sections=("file",),
-        what="a per-vertex bake's values (--ao-from), interpolated on the triangles"),
+        what="a bake's values (--ao-from): a per-vertex bake interpolated on the triangles, "
+             "or a lightmap looked up at their UVs"),
     "hemicube": MethodCapabilities(
         ("ao",), ground_plane=False, sections=("hemicube",),
         what="rasterised hemicubes (OpenGL)"),

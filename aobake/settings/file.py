@@ -1,4 +1,5 @@
-"""The ``file`` method's settings (section "file"): which per-vertex bake it reads."""
+"""The ``file`` method's settings (section "file"): which bake (per vertex, or a lightmap) it
+reads."""
 
 from __future__ import annotations
 
@@ -21,7 +22,8 @@ class FileOptions:
 
     ao_from: str | None = setting(
         None, "parsed", "--method file: read the values (ao, and obscurance with -q "
-        "obscurance) from this per-vertex bake of the same mesh (.npz, .ply, .glb) and "
-        "interpolate them at every pixel or texel, e.g. to look at a bake with 'aobake "
-        "view MESH --ao-from ao.ply --out look.png'.", section="file", optional=True,
-        parse=_path, show_default=False)
+        "obscurance) from this per-vertex bake of the same mesh (.npz, .ply, .glb: "
+        "interpolated on the triangles) or this lightmap of it (.exr, .png, .tif: looked up "
+        "bilinearly at the mesh's UVs, --uv-set), at every pixel or texel, e.g. to look at a "
+        "bake with 'aobake view MESH --ao-from ao.ply --out look.png'.", section="file",
+        optional=True, parse=_path, show_default=False)
