@@ -26,6 +26,7 @@ from aobake.backends.cutout import cutout_faces
 from aobake.settings import BakeConfig
 from aobake.errors import InputError
 from aobake.executors import EXECUTORS, Job
+from aobake.executors.base import release
 from aobake.methods import METHODS
 from aobake.records import BakeResult, TexelResult, ViewResult
 from aobake.scene import load_scene
@@ -117,6 +118,7 @@ def run(
     # finds its points (a lightmap's unwrap, in a child process, and rasterisation):
     # neither needs the other unless the target asks for the occluders.
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="aobake-occluders")
+    prepared = None
     try:
         building = pool.submit(_native.carried(_timed), occluder_stage.build, scene, config)
         prepared = pool.submit(_native.carried(_timed), _prepare, building, scene, config,
@@ -128,6 +130,13 @@ def run(
         plan = target.sample(scene, config, occluders, threads, timings, warnings, phase)
         timings["occluders_s"] = building.result()[1]
         the_method, timings["method_s"] = prepared.result()
+    except BaseException:
+        # a method prepared while the target failed holds what it started (the hemicube's
+        # GL child): end it now, not when the method is collected
+        if prepared is not None and prepared.done() and not prepared.cancelled() \
+                and prepared.exception() is None:
+            release(prepared.result()[0])
+        raise
     finally:  # an error or interrupt in sample() does not wait for the build
         pool.shutdown(wait=False, cancel_futures=True)
     if hasattr(the_method, "check_points"):
@@ -137,8 +146,11 @@ def run(
     job = Job(scene, config, method, rays_per_point, compiled,
               key=f"{id(scene):x}-{time.monotonic_ns():x}")
     extra = {} if scheduler is None else {"scheduler": scheduler}
-    runner = EXECUTORS[executor](workers=workers, chunk_points=chunk_points, **extra)
-    estimates = runner.estimate(job, the_method, plan, threads, chunk_rays, progress)
+    try:
+        runner = EXECUTORS[executor](workers=workers, chunk_points=chunk_points, **extra)
+        estimates = runner.estimate(job, the_method, plan, threads, chunk_rays, progress)
+    finally:  # the executor releases it as it returns; a failure before that does not
+        release(the_method)
     timings["trace_s"] = time.perf_counter() - clock
     done = target.finish(scene, config, plan, estimates, timings, warnings)
     if not hasattr(getattr(target, "inner", target), "receivers"):

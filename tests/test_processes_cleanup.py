@@ -169,3 +169,46 @@ def test_a_worker_killed_is_one_line(tmp_path):
         and err.count("\n") == 1, err
     assert not out.exists()
     assert _left(family) == [], "processes left behind"
+
+
+_FAILING_TARGET = """\
+import json, sys, time
+import psutil, trimesh
+import aobake
+from aobake.targets import TARGETS
+
+class Failing(TARGETS["vertices"]):
+    def sample(self, scene, config, occluders, *args, **kwargs):
+        occluders()        # the build is done; the method prepares right after it
+        time.sleep(2.0)    # ... and has started its GL child ahead by now
+        raise aobake.InputError("the target failed after the method was prepared")
+
+if __name__ == "__main__":
+    try:
+        aobake.run(aobake.BakeConfig(hemicube_resolution=8), trimesh.creation.icosphere(2),
+                   Failing(), method="hemicube")
+    except aobake.InputError as exc:
+        said = str(exc)
+        # a caller that keeps the error (a log, a retry loop) keeps the frames: the method
+        # is not collected, so only the composition root can end its child
+        kept = exc.__traceback__
+    time.sleep(0.5)
+    left = [" ".join(p.cmdline())[-60:] for p in psutil.Process().children(recursive=True)
+            if p.status() != psutil.STATUS_ZOMBIE]
+    print(json.dumps({"said": said, "left": left}))
+"""
+
+
+@pytest.mark.slow
+def test_a_target_failing_after_the_method_was_prepared_leaves_no_gl_child(tmp_path):
+    """The composition root ends what a prepared method started (the hemicube's GL child)
+    when the bake fails after the preparation, not when the method is collected."""
+    _gl()
+    script = tmp_path / "failing.py"
+    script.write_text(_FAILING_TARGET)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=120, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    record = json.loads(done.stdout.strip().splitlines()[-1])
+    assert record["said"].startswith("the target failed")
+    assert record["left"] == [], record["left"]
