@@ -2,10 +2,16 @@
  *
  * Why it exists (benchmarks/bench_backend.py, docs/performance.md): embreex's run() traces
  * one ray at a time (rtcOccluded1), no faster than a bare C loop of it.  An AO point's rays
- * leave one origin, so consecutive ones make coherent packets: rtcOccluded16 answers them
- * 1.6x faster on the bunny and 1.2x on the ogre (8 lanes: 1.4x, 1.1x), with the same hits.  Occlusion is a per-ray boolean (does any triangle cross the
- * segment?), so a packet's answer for a ray does not depend on the rays beside it: the
- * packing cannot make results depend on chunking.  Closest-hit queries stay one ray at a
+ * leave one origin, so consecutive ones make coherent packets, with the same hits.  Which
+ * width is fastest depends on the CPU (docs/performance.md, benchmarks/bench_packet_width.py):
+ * on an AVX-512 machine rtcOccluded16 answered the bunny's rays 1.6x faster than embreex
+ * and the ogre's 1.2x (8 lanes: 1.4x, 1.1x); on an AVX2 AMD EPYC, where Embree traces 8
+ * lanes natively and splits a packet of 16 into two, 8 lanes were the fastest (bunny 1.19x
+ * one ray at a time, 1.39x 16 lanes; the ogre within a few percent at every width).  So the
+ * queries use the width Embree reports as native (aobake/backends/native.py chooses).
+ * Occlusion is a per-ray boolean (does any triangle cross the segment?), so a packet's
+ * answer for a ray does not depend on the rays beside it: the packing cannot make results
+ * depend on chunking or width.  Closest-hit queries stay one ray at a
  * time (rtcIntersect1, as embreex), so their tie-breaking never depends on packet mates.
  *
  * No link-time dependency: the headers are Embree's own (third_party/embree4, Apache-2.0,
@@ -36,6 +42,9 @@ EMBREE_FUNCTIONS(DECLARE)
 static void *library;
 static RTCDevice device;
 static int packet_width; /* 16, 8, 4 or 1: the widest packet this CPU's Embree answers */
+/* 16, 8, 4 or 1: the widest packet Embree traces natively here (its device properties); a
+ * wider one works but is split into native ones inside Embree (16 on AVX2: two of 8). */
+static int native_width;
 
 #define SCENE_CAPSULE "aobake._embree.scene"
 
@@ -106,8 +115,9 @@ static int probe_width(RTCScene probe, int width)
     PROBE(4, 16);
 }
 
-/* open(path) -> (version, packet width): load libembree4 (the file embreex loaded), make the
- * device and find the widest occlusion packet that works here. */
+/* open(path) -> (version, widest packet, native packet): load libembree4 (the file embreex
+ * loaded), make the device, find the widest occlusion packet that works here and the widest
+ * Embree traces natively on this CPU. */
 static PyObject *open_library(PyObject *self, PyObject *args)
 {
     const char *path;
@@ -162,10 +172,19 @@ static PyObject *open_library(PyObject *self, PyObject *args)
         else if (probe_width(probe, 4))
             packet_width = 4;
         p_rtcReleaseScene(probe);
+        native_width = 1;
+        if (p_rtcGetDeviceProperty(device, RTC_DEVICE_PROPERTY_NATIVE_RAY16_SUPPORTED))
+            native_width = 16;
+        else if (p_rtcGetDeviceProperty(device, RTC_DEVICE_PROPERTY_NATIVE_RAY8_SUPPORTED))
+            native_width = 8;
+        else if (p_rtcGetDeviceProperty(device, RTC_DEVICE_PROPERTY_NATIVE_RAY4_SUPPORTED))
+            native_width = 4;
+        if (native_width > packet_width)
+            native_width = packet_width;
         library = handle;
     }
-    return Py_BuildValue("(li)", (long)p_rtcGetDeviceProperty(device, RTC_DEVICE_PROPERTY_VERSION),
-                         packet_width);
+    return Py_BuildValue("(lii)", (long)p_rtcGetDeviceProperty(device, RTC_DEVICE_PROPERTY_VERSION),
+                         packet_width, native_width);
 }
 
 /* scene(vertices float32 (nv*3), faces uint32 (nf*3), robust) -> capsule */
@@ -507,7 +526,7 @@ done:
 
 static PyMethodDef methods[] = {
     {"open", open_library, METH_VARARGS,
-     "open(path) -> (version, packet width): load libembree4 from path (once)."},
+     "open(path) -> (version, widest packet, native packet): load libembree4 from path (once)."},
     {"scene", new_scene, METH_VARARGS,
      "scene(vertices f32, nv, faces u32, nf, robust) -> a committed triangle scene."},
     {"occluded", occluded, METH_VARARGS,

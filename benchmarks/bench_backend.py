@@ -7,7 +7,8 @@ embreex (one ray at a time): speed, and whether any output differs.
 
 Per mesh and quantity, per-vertex bakes with the same seed through each binding
 (``aobake._native.embreex_only`` forces embreex), alternated, ``--repeats`` times each:
-per packet width of ``--widths`` (``aobake.backends.native.PACKET_WIDTH``; 1 = one ray at a
+per packet width of ``--widths`` (``aobake.backends.native.PACKET_WIDTH``, default the width
+aobake chooses here; 1 = one ray at a
 time through aobake._embree), the median trace seconds (the report's ``trace_s``: ray generation, tracing, estimation)
 and of the whole in-process bake (``total_s``: loading, the scene's build, sampling,
 tracing), their ratios, and whether every output array is bit-identical.  Obscurance
@@ -36,7 +37,7 @@ MESHES = {"still_life": ROOT / "assets" / "still_life.obj",
           "bunny": SHARED / "stanford-bunny.obj", "ogre": SHARED / "ogre.obj"}
 
 
-def bake(mesh, rays, threads, quantities, embreex, width=8):
+def bake(mesh, rays, threads, quantities, embreex, width):
     native.PACKET_WIDTH = width
     if embreex:
         with _native.embreex_only():
@@ -54,12 +55,13 @@ def main(argv=None):
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--meshes", nargs="+", default=list(MESHES), choices=list(MESHES))
     parser.add_argument("--quantities", nargs="+", default=["ao", "obscurance"])
-    parser.add_argument("--widths", nargs="+", type=int, default=[native.PACKET_WIDTH],
-                        choices=[1, 4, 8, 16])
+    parser.add_argument("--widths", nargs="+", type=int, choices=[1, 4, 8, 16],
+                        help="packet widths (default: the one aobake chooses on this CPU)")
     args = parser.parse_args(argv)
     found = native.binding()
     if found is None:
         sys.exit("aobake._embree is not available here: nothing to compare")
+    args.widths = args.widths or [native.packet_width(found[1])[0]]
     print(f"rays per vertex {args.rays}, threads {args.threads}, median of {args.repeats}, "
           f"widest packet here {found[1]}")
     print("| mesh | quantity | width | rays cast | embreex trace s | compiled trace s | trace ratio | "

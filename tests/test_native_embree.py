@@ -152,3 +152,53 @@ def test_a_refused_library_falls_back_with_its_reason(compiled, monkeypatch, cap
     with caplog.at_level(logging.INFO, logger="aobake.backends.native"):
         assert native.binding() is None
     assert "not 4.x" in caplog.text
+
+
+def test_packet_widths_give_the_same_bake_and_the_report_names_the_width(compiled, tmp_path,
+                                                                         monkeypatch):
+    """The packet width is a speed choice only: 16 lanes and 8 (and 4, and one ray at a
+    time) give the same bits in every output of a whole bake, with bent normals (whose
+    directions are averaged over the unoccluded rays) and a max distance; the report's
+    parameters.embree_binding names the width and what chose it."""
+    _, widest = compiled
+    mesh = trimesh.creation.annulus(r_min=0.3, r_max=1.0, height=0.6, sections=24)
+    path = tmp_path / "ring.obj"
+    mesh.export(path)
+    bakes = {}
+    for width in (16, 8, 4, 1):
+        if width > widest:
+            continue
+        monkeypatch.setenv(native.WIDTH_VARIABLE, str(width))
+        bakes[width] = aobake.bake(str(path), rays=96, seed=5, max_distance=0.8,
+                                   quantities=["ao", "bent_normal"])
+        binding = bakes[width].report["parameters"]["embree_binding"]
+        assert f"packets of {width}: {native.WIDTH_VARIABLE}" in binding, binding
+    assert 8 in bakes and 16 in bakes
+    first = bakes[8].fields()
+    for width, result in bakes.items():
+        fields = result.fields()
+        assert set(fields) == set(first)
+        for name, value in fields.items():
+            assert np.array_equal(value, first[name], equal_nan=True), (width, name)
+    # unset: Embree's native width on this CPU (16 with AVX-512, 8 with AVX2, 4 with SSE)
+    monkeypatch.delenv(native.WIDTH_VARIABLE)
+    chosen = native.native_width()
+    assert chosen in (4, 8, 16) and native.packet_width(widest) == (chosen, "native")
+    result = aobake.bake(str(path), rays=96, seed=5, max_distance=0.8,
+                         quantities=["ao", "bent_normal"])
+    assert (f"packets of {chosen}: Embree's native width"
+            in result.report["parameters"]["embree_binding"])
+    assert np.array_equal(result.ao, bakes[8].ao)
+
+
+@pytest.mark.parametrize("text", ["3", "32", "eight", "-8"])
+def test_a_bad_packet_width_is_refused(compiled, monkeypatch, text):
+    from aobake.errors import InputError
+
+    monkeypatch.setenv(native.WIDTH_VARIABLE, text)
+    with pytest.raises(InputError, match=native.WIDTH_VARIABLE):
+        native.packet_width(compiled[1])
+    monkeypatch.setenv(native.WIDTH_VARIABLE, "16")
+    if compiled[1] < 16:  # wider than this Embree answers
+        with pytest.raises(InputError, match="at most"):
+            native.packet_width(compiled[1])
