@@ -250,3 +250,21 @@ def test_the_interval_covers_the_pixel_mean(sampler, positions, rays, f, g):
         covered = np.mean(above.astype(bool) & below.astype(bool))
         assert covered >= 0.95 - 3.5 * math.sqrt(0.05 * 0.95 / n), (region, covered)
         assert np.mean(error ** 2) <= 1.3 * np.mean(se ** 2), region
+
+
+def test_pixels_on_faces_that_only_occlude_get_no_information_quietly():
+    """--occluder-only faces cast no rays: a pixel whose positions all land there holds the
+    no-information values (0.5, stderr 0.5, interval [0, 1]), with no warning on the way."""
+    import warnings
+    from pathlib import Path
+
+    still_life = Path(__file__).resolve().parents[1] / "assets" / "still_life.obj"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        view = aobake.bake_view(still_life, size=(24, 18), rays=8, pixel_filter="box",
+                                pixel_samples=4, occluder_only=("floor",))
+    ch = view.channels
+    blind = view.covered & (ch["rays"] == 0)
+    assert blind.any() and (view.covered & (ch["rays"] > 0)).any()
+    assert (ch["ao"][blind] == 0.5).all() and (ch["ao_stderr"][blind] == 0.5).all()
+    assert (ch["ao_ci_low"][blind] == 0).all() and (ch["ao_ci_high"][blind] == 1).all()

@@ -547,8 +547,8 @@ def pool(config, footprint: Footprint, state: dict, estimates, n: int,
             c = np.bincount(key, minlength=k * groups).reshape(k, groups)
             z = y - mean[:, None] * c
             c_bar = c.sum(axis=1) / groups
-            var = np.square(z).sum(axis=1) / (groups * max(groups - 1, 1)
-                                              * np.maximum(c_bar, 1e-300) ** 2)
+            c_bar = np.where(c_bar > 0, c_bar, 1.0)  # (a blind pixel's value is not this)
+            var = np.square(z).sum(axis=1) / (groups * max(groups - 1, 1) * np.square(c_bar))
             se = np.sqrt(var)
             dof = np.where(np.count_nonzero(c, axis=1) >= 2, groups - 1, 0)
         se = np.where(dof >= 1, se, 0.5 / np.sqrt(units))  # nothing to measure: worst case
