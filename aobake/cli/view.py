@@ -89,6 +89,17 @@ def _output_options() -> list:
                      type=click.Choice(["8", "16"]),
                      help="PNG/TIFF integer depth: value = round(clip(x, 0, 1) * "
                           "(2^bits - 1))."),
+        click.Option(["--export-camera", "export_camera"],
+                     type=click.Path(dir_okay=False, path_type=Path), default=None,
+                     help="Also write the mesh and the view's camera as a glTF (.gltf or "
+                          ".glb) other tools import: a camera node with yfov, aspectRatio, "
+                          "znear/zfar; `aobake view FILE --camera first` reads the same "
+                          "camera back (docs/renderers.md)."),
+        click.Option(["--export-mitsuba", "export_mitsuba"],
+                     type=click.Path(dir_okay=False, path_type=Path), default=None,
+                     help="Also write a Mitsuba 3 scene (.xml, the mesh beside it as "
+                          "<stem>.ply) that renders this view's AO: box filter, "
+                          "fov_axis y, face normals (docs/renderers.md)."),
     ])
 
 
@@ -111,7 +122,7 @@ def view_command() -> click.Command:
 
 def _view(mesh, out, look_from, look_at, up, fov, size, camera, truths, threads, half,
           bit_depth, report_path, quiet, quantities, method, executor, workers, chunk_points,
-          scheduler, **config):
+          scheduler, export_camera, export_mitsuba, **config):
     if (look_from is None) != (look_at is None):
         raise click.UsageError("give --look-from and --look-at together")
     if camera is not None and look_from is not None:
@@ -131,8 +142,9 @@ def _view(mesh, out, look_from, look_at, up, fov, size, camera, truths, threads,
     request = dict(view=view, truths=truths, method=method, report=report_path, half=half,
                    bit_depth=int(bit_depth), threads=threads, executor=executor,
                    workers=workers, chunk_points=chunk_points, scheduler=scheduler)
+    exports = dict(gltf=export_camera, mitsuba=export_mitsuba)
     guarded(quiet, _run, mesh, out, request, quiet,
-            checked(given(dict(config, quantities=quantities))))
+            checked(given(dict(config, quantities=quantities))), exports)
 
 
 def _check_truths(out: Path, method: str, quantities) -> None:
@@ -150,10 +162,26 @@ def _check_truths(out: Path, method: str, quantities) -> None:
         raise click.UsageError("--truths bakes ao only")
 
 
-def _run(mesh, out, request, quiet, config):
+def _run(mesh, out, request, quiet, config, exports):
     from aobake import job
+    from aobake.outputs import camera_export
+    from aobake.outputs.atomic import transaction
 
-    result, written = job.bake_file(mesh, out, config, **request)
+    planned = job.plan(mesh, out, config, **request)
+    where = planned.outputs  # the exports may not overwrite these, nor the input
+    from aobake.settings import INPUT_FILES
+
+    taken = {"--out": where.out, "--report": where.report,
+             "the camera file (<out>.camera.json)": where.camera, "the input mesh": mesh,
+             **{f"the input {flag}": getattr(planned.config, name)
+                for name, flag in INPUT_FILES.items()}}
+    exports = camera_export.plan(**exports, config=planned.config, taken=taken)
+    result = planned.bake()
+    # the exports join the transaction of the image, its camera file and the report:
+    # all appear together, or none (write() nests inside this one)
+    with transaction():
+        written = planned.save(result)
+        written += camera_export.write_view(result, mesh, exports)
     if not quiet:
         report = result.report
         cam = report["camera"]
