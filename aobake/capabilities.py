@@ -195,5 +195,8 @@ def check(method: str, target: str, config) -> None:
     if config.source is not None and not target.startswith("projected_"):
         raise UsageError(f"--from (source) bakes a high mesh onto a low mesh's vertices or "
                          f"lightmap: {where.what} ({target}) is not one")
+    if getattr(config, "pixel_filter", "center") == "box" and "gbuffer" in can.needs:
+        raise UsageError(f"--method {method} reads one G-buffer sample per pixel centre: not "
+                         "with --pixel-filter box (which averages over the pixel's area)")
     if method == "file" and config.ao_from is None:
         raise UsageError("--method file needs --ao-from FILE (a per-vertex bake of the mesh)")

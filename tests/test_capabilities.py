@@ -250,3 +250,11 @@ def test_the_library_bakes_high_to_low_as_the_command_line_does(tmp_path):
                            source=str(high))
     with pytest.raises(UsageError, match="camera view"):
         aobake.bake_view(str(tmp_path / "missing.obj"), source=str(high), size=(4, 4))
+
+
+def test_a_screen_space_method_is_refused_a_box_filtered_view_at_once(scene, tmp_path):
+    mesh, _ = scene
+    result = run_cli("view", mesh, "--out", tmp_path / "v.exr", "--method", "crytek",
+                     "--pixel-filter", "box", "--size", "8x8")
+    assert result.exit_code == 2, result.output
+    assert "--pixel-filter box" in result.output and list(tmp_path.iterdir()) == []
