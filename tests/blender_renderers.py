@@ -4,6 +4,7 @@ report its camera, or render its AO pass with Cycles or EEVEE.  Run with a Pytho
 it ``AOBAKE_BLENDER_PYTHON``):
 
     $AOBAKE_BLENDER_PYTHON tests/blender_renderers.py camera view.glb
+    $AOBAKE_BLENDER_PYTHON tests/blender_renderers.py camera-record mesh.obj view.camera.json
     $AOBAKE_BLENDER_PYTHON tests/blender_renderers.py cycles view.glb cycles.exr \\
         --samples 256 --seed 1 --filter box
     $AOBAKE_BLENDER_PYTHON tests/blender_renderers.py eevee view.glb eevee.exr
@@ -34,16 +35,22 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
+import tempfile
 import time
 
 
-def _import(path: str):
-    """The glTF imported into an empty scene: (scene, camera object, mesh objects)."""
+def _import(path: str, blend: bool = False):
+    """The glTF (or a saved .blend) opened in an empty scene: (scene, camera object, mesh
+    objects)."""
     import bpy
 
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.import_scene.gltf(filepath=path)
+    if blend:
+        bpy.ops.wm.open_mainfile(filepath=path)
+    else:
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.import_scene.gltf(filepath=path)
     scene = bpy.context.scene
     cameras = [o for o in bpy.data.objects if o.type == "CAMERA"]
     if not cameras:
@@ -71,11 +78,11 @@ def _unclipped(camera, meshes) -> None:
     camera.data.clip_end = max(camera.data.clip_end, 1.01 * reach)
 
 
-def camera(path: str, points: int = 200) -> dict:
+def camera(path: str, points: int = 200, blend: bool = False) -> dict:
     """What Blender made of the file's camera, and where it puts up to ``points`` of the
     mesh's vertices (Blender world coordinates and their pixel positions: x right from the
     left edge, y down from the top edge, in pixels)."""
-    scene, cam, meshes = _import(path)
+    scene, cam, meshes = _import(path, blend)
     from bpy_extras.object_utils import world_to_camera_view  # importable once bpy is
 
     width, height = scene.render.resolution_x, scene.render.resolution_y
@@ -97,18 +104,55 @@ def camera(path: str, points: int = 200) -> dict:
             "world": world, "pixels": pixels}
 
 
-def _ao_setup(scene, meshes, distance: float):
+def camera_from_record(path: str, record_path: str, axes: str = "keep",
+                       points: int = 200) -> dict:
+    """The OBJ route: import the mesh ``path`` (an OBJ) and make the camera from aobake's
+    camera record (``<out>.camera.json``), then report as :func:`camera` does.
+
+    axes 'keep': the OBJ importer with forward_axis='Y', up_axis='Z', which leaves the
+    file's coordinates as they are, so the record's matrices hold in Blender unchanged;
+    'default': the importer's default conversion (Y up -> Z up), which turns the mesh and
+    not the camera: the view breaks (the test shows it).
+    """
+    import bpy
+    from mathutils import Matrix
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    if axes == "keep":
+        bpy.ops.wm.obj_import(filepath=path, forward_axis="Y", up_axis="Z")
+    else:
+        bpy.ops.wm.obj_import(filepath=path)
+    with open(record_path) as handle:
+        record = json.load(handle)["camera"]
+    data = bpy.data.cameras.new("aobake_view")
+    data.sensor_fit = "VERTICAL"
+    data.angle_y = math.radians(record["fov_y_deg"])
+    data.clip_start, data.clip_end = record["near"], record["far"]
+    cam = bpy.data.objects.new("aobake_view", data)
+    bpy.context.scene.collection.objects.link(cam)
+    # Blender's camera looks down its -Z with +Y up: aobake's view space, so the camera's
+    # world matrix is inverse(world_to_view) as it is
+    cam.matrix_world = Matrix(record["world_to_view"]).inverted()
+    data["width"], data["height"] = record["width"], record["height"]
+    with tempfile.TemporaryDirectory() as work:  # reuse camera()'s report on a saved file
+        saved = os.path.join(work, "scene.blend")
+        bpy.ops.wm.save_as_mainfile(filepath=saved)
+        return camera(saved, points, blend=True)
+
+
+def _ao_setup(scene, meshes, distance: float, smooth: bool = False):
     import bpy
 
     _unclipped(scene.camera, meshes)
     for obj in meshes:  # the AO pass uses the shading normal: make it the geometric one
-        for polygon in obj.data.polygons:
-            polygon.use_smooth = False
+        for polygon in obj.data.polygons:  # (smooth: the pitfall, for docs/renderers.md)
+            polygon.use_smooth = smooth
     world = scene.world or bpy.data.worlds.new("aobake_world")
     scene.world = world
     world.light_settings.distance = distance
     layer = scene.view_layers[0]
     layer.use_pass_ambient_occlusion = True
+    layer.use_pass_z = True  # Cycles' depth: aobake's `depth` (along the view axis)
     scene.render.film_transparent = True  # alpha = coverage
     settings = scene.render.image_settings
     if hasattr(settings, "media_type"):  # Blender 5: multi-layer is a media type
@@ -127,7 +171,8 @@ def _outputs(out: str, renders: int) -> list:
 
 
 def cycles(path: str, out: str, samples: int, seed: int, pixel_filter: str,
-           distance: float, threads: int, renders: int = 1, cheap: bool = False) -> dict:
+           distance: float, threads: int, renders: int = 1, cheap: bool = False,
+           smooth: bool = False) -> dict:
     """Render the AO pass with Cycles on the CPU into the multi-layer EXR ``out``; with
     ``renders`` > 1, that many independent images (seeds seed, seed + 1, ...) into
     out_0.exr, out_1.exr, ... (one import for all).  cheap: the Combined pass Cycles always
@@ -135,7 +180,7 @@ def cycles(path: str, out: str, samples: int, seed: int, pixel_filter: str,
     import bpy
 
     scene, _, meshes = _import(path)
-    _ao_setup(scene, meshes, distance)
+    _ao_setup(scene, meshes, distance, smooth)
     scene.render.engine = "CYCLES"
     c = scene.cycles
     if cheap:
@@ -185,9 +230,12 @@ def eevee(path: str, out: str, samples: int, distance: float) -> dict:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("what", choices=["camera", "cycles", "eevee"])
+    parser.add_argument("what", choices=["camera", "camera-record", "cycles", "eevee"])
     parser.add_argument("gltf")
-    parser.add_argument("out", nargs="?")
+    parser.add_argument("out", nargs="?", help="the EXR to write; camera-record: the "
+                                                 "camera record (<out>.camera.json)")
+    parser.add_argument("--axes", choices=["keep", "default"], default="keep",
+                        help="camera-record: the OBJ importer's axes")
     parser.add_argument("--samples", type=int, default=64)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--filter", choices=["box", "center"], default="box")
@@ -198,15 +246,21 @@ def main(argv=None) -> int:
     parser.add_argument("--bench", action="store_true",
                         help="Cycles: no bounces and a black world (the Combined pass it "
                              "renders anyway made cheap), for timing the AO pass")
+    parser.add_argument("--smooth", action="store_true",
+                        help="Cycles: smooth shading (what not to do: the AO pass then uses "
+                             "interpolated normals, not the view's geometric one)")
     parser.add_argument("--renders", type=int, default=1,
                         help="independent images (seeds seed, seed + 1, ...): out_0, ...")
     args = parser.parse_args(argv)
     try:
         if args.what == "camera":
             result = camera(args.gltf)
+        elif args.what == "camera-record":
+            result = camera_from_record(args.gltf, args.out, args.axes)
         elif args.what == "cycles":
             result = cycles(args.gltf, args.out, args.samples, args.seed, args.filter,
-                            args.distance, args.threads, args.renders, args.bench)
+                            args.distance, args.threads, args.renders, args.bench,
+                            args.smooth)
         else:
             result = eevee(args.gltf, args.out, args.samples, args.distance)
         import bpy

@@ -411,6 +411,37 @@ def test_blender_imports_the_camera_and_reproduces_the_view(tmp_path):
     np.testing.assert_allclose(blender[:, 2], depth, rtol=1e-5, atol=1e-5)
 
 
+@pytest.mark.slow
+@needs_blender
+def test_the_obj_route_keeps_the_record_only_with_the_axes_kept(tmp_path):
+    """An OBJ and <out>.camera.json in Blender: forward_axis='Y', up_axis='Z' leaves the
+    coordinates alone and the record's inverse(world_to_view) is the camera's matrix_world;
+    the importer's default (Y up -> Z up) turns the mesh and not the camera."""
+    mesh = tmp_path / "scene.obj"
+    trimesh.load(_scene(tmp_path), process=False).export(mesh)
+    result = run_cli("view", mesh, "--out", tmp_path / "v.exr", *LOOK, "--size",
+                     f"{SIZE[0]}x{SIZE[1]}", "--rays", 4)
+    assert result.exit_code == 0, result.output
+    record = json.loads((tmp_path / "v.camera.json").read_text())["camera"]
+    cam = cameras.look_at(record["eye"], record["target"], record["up"],
+                          record["fov_y_deg"], SIZE)
+    moved = {}
+    for axes in ("keep", "default"):
+        got = _blender("camera-record", mesh, tmp_path / "v.camera.json", "--axes", axes)
+        assert got["resolution"] == list(SIZE)
+        np.testing.assert_allclose(got["matrix_world"], np.linalg.inv(record["world_to_view"]),
+                                   atol=1e-6)
+        world = np.array(got["world"])  # Blender's coordinates of the vertices
+        if axes == "default":  # where they came from in the file (Y up -> Z up undone)
+            world = world @ GLTF_TO_BLENDER[:3, :3]
+        truth, depth = cam.project(world)
+        front = depth > 0
+        blender = np.array(got["pixels"])[front, :2]
+        moved[axes] = np.abs(blender - truth[front]).max()
+    assert moved["keep"] < 2e-3, moved
+    assert moved["default"] > 1.0, moved  # the same vertices, elsewhere in the image
+
+
 def _cycles(tmp_path, pixel_filter):
     report = _reference(tmp_path, pixel_filter)
     got = _blender("cycles", tmp_path / "view.glb", tmp_path / "cycles.exr", "--samples", 64,
@@ -420,7 +451,8 @@ def _cycles(tmp_path, pixel_filter):
         table = image.read(path)
         images.append(np.asarray(table.columns["ViewLayer.Ambient Occlusion.R"]))
         alphas.append(np.asarray(table.columns["ViewLayer.Combined.A"]))
-    return report, _agreement(tmp_path, images, alphas, "cycles")
+    depth = np.asarray(image.read(got["out"][0]).columns["ViewLayer.Depth.Z"])
+    return report, _agreement(tmp_path, images, alphas, "cycles"), depth
 
 
 @pytest.mark.slow
@@ -428,9 +460,14 @@ def _cycles(tmp_path, pixel_filter):
 @pytest.mark.parametrize("pixel_filter", ["box", "center"])
 def test_cycles_ao_pass_agrees_with_the_view(tmp_path, pixel_filter):
     """Box filter against --pixel-filter box; Blackman-Harris of width 0.01 against the
-    pixel centres (a box would ignore its width)."""
-    _, m = _cycles(tmp_path, pixel_filter)
+    pixel centres (a box would ignore its width).  At the centres, Cycles' depth pass is
+    aobake's ``depth`` (along the view axis, not the ray)."""
+    _, m, depth = _cycles(tmp_path, pixel_filter)
     _assert_agrees(m, SIZE[0] * SIZE[1])
+    if pixel_filter == "center":
+        view = read_values(tmp_path / "view.exr").columns
+        np.testing.assert_allclose(depth.reshape(SIZE[::-1]), view["depth"], rtol=1e-3)
+        assert np.abs(depth.reshape(SIZE[::-1]) - view["distance"]).max() > 0.01
 
 
 @pytest.mark.slow
