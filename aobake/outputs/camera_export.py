@@ -469,10 +469,14 @@ def write_mitsuba(path, vertices, faces, camera, *, ground=None, spp: int = 64,
     return [path, mesh]
 
 
-def mitsuba_differences(config) -> list[str]:
-    """What in a view's settings (a BakeConfig or the report's ``config`` dict) the Mitsuba
-    scene does not reproduce: one sentence each, [] when it renders the same AO."""
+def mitsuba_differences(config, method: str = "rays") -> list[str]:
+    """What in a view's settings (a BakeConfig or the report's ``config`` dict) and method
+    the Mitsuba scene does not reproduce: one sentence each, [] when it renders the same
+    AO."""
     notes = []
+    if method != "rays":
+        notes.append(f"method {method}: the scene renders the ray-traced AO, not this "
+                     "method's estimate")
     distance = _setting(config, "max_distance", math.inf)
     try:
         finite = math.isfinite(float(distance))
@@ -549,7 +553,8 @@ def write_view(result, mesh, exports: Exports) -> list[Path]:
                                       metadata=meta))
         if exports.mitsuba is not None:
             config = result.report.get("config", {})
-            differences = mitsuba_differences(config)
+            differences = mitsuba_differences(
+                config, result.report.get("parameters", {}).get("method", "rays"))
             for note in differences:
                 log.warning("%s: %s", exports.mitsuba, note)
             if record and record.get("pixel_filter", "center") != "box":
