@@ -39,9 +39,9 @@ class MethodCapabilities:
     and interval (``--denoise`` and ``--tolerance`` weigh by them); traces_scene : it casts
     rays through the scene's faces (what ``--alpha-cutout``, ``--receive-only``,
     ``--tolerance`` and ``--keep-distances`` act on); ground_plane : it honours
-    ``--ground-plane``; weightings : the AO conventions it computes; sections : the
-    settings sections it reads beside the common ones (what its report records); what :
-    one line for ``--help``.
+    ``--ground-plane``; weightings : the AO conventions it computes; max_distance : it
+    honours a finite ``--max-distance``; sections : the settings sections it reads beside
+    the common ones (what its report records); what : one line for ``--help``.
     """
 
     quantities: tuple
@@ -50,6 +50,7 @@ class MethodCapabilities:
     traces_scene: bool = False
     ground_plane: bool = True
     weightings: tuple = ("cosine", "uniform")
+    max_distance: bool = True
     sections: tuple = ()
     what: str = ""
 
@@ -93,6 +94,9 @@ METHODS = {
     "heightfield": MethodCapabilities(
         **_SCREEN, error_bars=True, sections=("rays", "ssao", "heightfield"),
         what="rays against the G-buffer's height field (the screen methods' own truth)"),
+    "depthmaps": MethodCapabilities(
+        ("ao", "bent_normal"), max_distance=False, sections=("depthmaps",),
+        what="K shared orthographic depth maps (OpenGL): the pre-ray-tracing GPU bake"),
 }
 
 #: target name -> its declaration (``aobake.targets.TARGETS`` names the class)
@@ -171,6 +175,10 @@ def check(method: str, target: str, config) -> None:
     if config.ground_plane and not can.ground_plane:
         raise UsageError(f"--method {method} has no ground plane (it builds from the mesh's "
                          "faces only): drop --ground-plane or use --method rays")
+    distance = config.max_distance
+    if not can.max_distance and (isinstance(distance, str) or distance != float("inf")):
+        raise UsageError(f"--max-distance {distance}: --method {method} has no finite max "
+                         "distance (it sees the whole scene): drop it or use --method rays")
     rays_only = [(config.tolerance is not None, "--tolerance sets a per-point ray count"),
                  (config.keep_distances, "--keep-distances keeps every ray's distance"),
                  (config.alpha_cutout, "--alpha-cutout lets rays through cut-out texels"),

@@ -55,7 +55,8 @@ NEEDS = {"cage_offset": {"source": "high.obj"}, "cage": {"source": "high.obj"},
 
 #: a section's method, for the settings only one method reads
 SECTION_METHOD = {"discs": "discs", "hemicube": "hemicube", "file": "file", "ssao": "crytek",
-                  "crytek": "crytek", "gtao": "gtao", "heightfield": "heightfield"}
+                  "crytek": "crytek", "gtao": "gtao", "heightfield": "heightfield",
+                  "depthmaps": "depthmaps"}
 
 
 def _candidates(name, spec):

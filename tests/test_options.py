@@ -45,9 +45,9 @@ def test_every_section_record_lives_in_the_settings_package():
 #: the settings sections each command can use (main and batch: a lightmap or vertices, by
 #: the methods that serve them; view: a camera, by every method)
 COMMAND_SECTIONS = {
-    "main": {"common", "studio", "texels", "rays", "discs", "hemicube", "file"},
+    "main": {"common", "studio", "texels", "rays", "discs", "hemicube", "file", "depthmaps"},
     "view": {"common", "studio", "view", "rays", "discs", "hemicube", "file", "ssao", "crytek",
-             "gtao", "heightfield"}}
+             "gtao", "heightfield", "depthmaps"}}
 
 
 @pytest.mark.parametrize("command", ["main", "view"])

@@ -72,6 +72,7 @@ def test_config_round_trips_through_a_report_with_every_field_changed():
                          discs_passes=3, discs_weight=0.5, discs_kappa=2.0,
                          discs_traversal="brute", discs_indirect_passes=3,
                          discs_indirect_weight=0.5, hemicube_resolution=32,
+                         depthmaps_directions=64, depthmaps_resolution=512, depthmaps_bias=0.75,
                          ssao_radius=0.25, ssao_samples=8, ssao_rotate=False, ssao_blur=False,
                          ssao_pattern=2, ssao_depth="opengl", ssao_normals="shading",
                          ssao_blur_depth=2.0, ssao_blur_normal=20.0, crytek_normalise="none",

@@ -14,7 +14,8 @@ METHODS = LazyRegistry({
     "rays": "aobake.methods.rays:RaysMethod", "discs": "aobake.methods.discs:DiscsMethod",
     "file": "aobake.methods.file:FileMethod", "hemicube": "aobake.methods.hemicube:HemicubeMethod",
     "crytek": "aobake.methods.ssao:CrytekMethod", "shanmugam": "aobake.methods.ssao:ShanmugamMethod",
-    "gtao": "aobake.methods.ssao:GtaoMethod", "heightfield": "aobake.methods.ssao:HeightfieldMethod"})
+    "gtao": "aobake.methods.ssao:GtaoMethod", "heightfield": "aobake.methods.ssao:HeightfieldMethod",
+    "depthmaps": "aobake.methods.depthmaps:DepthmapsMethod"})
 
 __getattr__ = lazy_attributes(__name__, {"RaysMethod": "aobake.methods.rays"})
 

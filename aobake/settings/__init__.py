@@ -22,6 +22,7 @@ from dataclasses import asdict, dataclass, fields
 from aobake.backends import BACKENDS
 from aobake.constants import AXES, OFFSET_ULPS  # noqa: F401  (re-exported)
 from aobake.errors import InputError
+from aobake.settings.depthmaps import DepthmapsOptions
 from aobake.settings.discs import DiscsOptions
 from aobake.settings.file import FileOptions
 from aobake.settings.hemicube import HemicubeOptions
@@ -144,8 +145,8 @@ class CommonOptions:
 
 @dataclass(frozen=True)
 class BakeConfig(StudioOptions, LightmapOptions, ViewOptions, HeightfieldOptions,
-                 GtaoOptions, CrytekOptions, SsaoOptions, HemicubeOptions, DiscsOptions,
-                 FileOptions, RaysOptions, CommonOptions):
+                 GtaoOptions, CrytekOptions, SsaoOptions, DepthmapsOptions,
+                 HemicubeOptions, DiscsOptions, FileOptions, RaysOptions, CommonOptions):
     """Everything that decides a bake's numbers (threads, executors and chunking do not): the
     common settings, the ray-traced method's, the file method's, the disc method's, the
     hemicube method's, the screen-space methods' (aobake.settings.screen), the view
