@@ -34,6 +34,7 @@ from aobake.methods.hemicube import (NO_INFORMATION_AO, HemicubeError, HemicubeM
                                      HemicubeOptions, available)
 from aobake.scene import load_scene
 from aobake.records import SamplePoints
+from aobake.trace import point_offsets
 from aobake.warp import frames
 
 from analytic import (floor_and_ceiling, floor_points, polygon, polygon_form_factor,
@@ -446,3 +447,94 @@ def test_the_child_started_ahead_ends_with_its_method():
     del method
     gc.collect()
     assert child.waiting(hemicube.WORKER) is None and ahead.poll() is not None
+
+
+# ------------------------------------------------------------------ the culled draw
+
+def _surface_case(n=60, seed=4, torus=(48, 24)):
+    """A torus over a floor (clipped triangles at every face's edges, the horizon and the
+    near plane) and n points drawn by area on it with their triangles' normals: (vertices
+    (v, 3) float32 local units, faces (f, 3) int64, eyes (n, 3) float32, frames (n, 3, 3)
+    float32 rows t, b, n, near (n,) float32), as the method hands them to its GL child."""
+    mesh = combine(trimesh.creation.torus(1.0, 0.4, major_sections=torus[0],
+                                          minor_sections=torus[1]),
+                   quad([0, 0, -0.45], 2.5, 2.5))
+    scene = load_scene(mesh)
+    rng = np.random.default_rng(seed)
+    areas = scene.areas()
+    face = rng.choice(len(areas), size=n, p=areas / areas.sum())
+    u = rng.random((n, 2))
+    u[u.sum(axis=1) > 1] = 1 - u[u.sum(axis=1) > 1]
+    corners = scene.vertices[scene.faces[face]]
+    points = corners[:, 0] + u[:, :1] * (corners[:, 1] - corners[:, 0]) \
+        + u[:, 1:] * (corners[:, 2] - corners[:, 0])
+    normals = scene.face_normals[face]
+    # the method's eyes (HemicubeMethod.eyes) in a local frame of scale 1/2
+    local = (scene.vertices * 0.5).astype(np.float32)
+    near = point_offsets(points * 0.5, np.full(n, 0.025), 1e-4)
+    eyes = points * 0.5 + near[:, None] * normals
+    t, b = frames(normals)
+    basis = np.stack([t, b, normals], axis=1).astype(np.float32)
+    return local, np.asarray(scene.faces, np.int64), eyes.astype(np.float32), basis, \
+        near.astype(np.float32)
+
+
+def test_cull_skips_only_triangles_the_clipper_removes():
+    """``cull_commands`` (numpy, no GL): every triangle of a cluster skipped for a face has
+    all three vertices outside one of that face's clip planes in the vertex shader's own
+    float32 arithmetic (so it makes no fragment), the commands cover exactly the kept
+    clusters, sorted by point, and the cull keeps little of the 5 x triangles."""
+    from aobake.methods import hemicube_gl
+
+    vertices, faces, eyes, basis, near = _surface_case(n=12)
+    order = hemicube_gl.morton_order(vertices.astype(np.float64)[faces].mean(axis=1))
+    faces = faces[order]
+    clusters = hemicube_gl.cluster_boxes(vertices, faces, 8)
+    starts, ends = clusters[0], clusters[1]
+    commands, records, point = hemicube_gl.cull_commands(
+        clusters, eyes.astype(np.float64), basis.astype(np.float64), near.astype(np.float64))
+    assert (np.diff(point) >= 0).all() and (commands[:, 4] == np.arange(len(commands))).all()
+    planes, axes = hemicube_gl._PLANES.astype(np.float32), hemicube_gl._AXES.astype(np.float32)
+    drawn = 0
+    for k in range(len(eyes)):
+        # the shader's q = (p - eye) * frame in float32, then each face's clip values
+        q = (vertices - eyes[k]) @ basis[k].T
+        distance = np.einsum("vi,fqi->fqv", q, planes)          # (5, 4, v)
+        w = np.einsum("vi,fi->fv", q, axes)
+        outside = np.concatenate([distance < 0, (w - 2 * near[k] + w < 0)[:, None]], axis=1)
+        for f in range(5):
+            mine = (point == k) & (records[:, 0] == f)
+            kept = np.zeros(len(faces), bool)
+            for first, count in zip(records[mine, 1], commands[mine, 0] // 3):
+                kept[first:first + count] = True
+            drawn += kept.sum()
+            # runs are whole clusters
+            assert np.isin(np.flatnonzero(np.diff(kept.astype(int)) != 0) + 1,
+                           np.r_[starts, ends]).all()
+            skipped = faces[~kept]
+            # every skipped triangle: some plane with all three vertices outside
+            assert outside[f][:, skipped].all(axis=2).any(axis=0).all()
+    assert drawn < 0.5 * 5 * len(faces) * len(eyes)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("max_distance,backfaces", [(math.inf, "occlude"), (1.2, "occlude"),
+                                                    (1.2, "ignore")])
+def test_culled_draw_is_the_whole_draw_bit_for_bit(gl, max_distance, backfaces):
+    """The culled draw (runs of clusters per point and face, triangles in Morton order)
+    against the whole draw (every triangle, five instances per point): the same tiles, bit
+    for bit, with clipped triangles everywhere, a max distance (the per-pixel distance test
+    reads the triangle through the command's base + gl_PrimitiveID) and back faces culled;
+    so the same values.  40 points: three cull groups in one framebuffer."""
+    from aobake.methods import hemicube
+
+    vertices, faces, eyes, basis, near = _surface_case(n=40)
+    inputs = dict(vertices=vertices, faces=faces, eyes=eyes, frames=basis, near=near,
+                  resolution=np.array(16), max_distance=np.array(max_distance * 0.5),
+                  weighting=np.array("cosine"), backfaces=np.array(backfaces),
+                  threads=np.array(1), keep_tiles=np.array(True))
+    whole = child.run(hemicube.WORKER, {**inputs, "cull": np.array(0)}, 120.0)
+    culled = child.run(hemicube.WORKER, {**inputs, "cull": np.array(1)}, 120.0)
+    np.testing.assert_array_equal(culled["tiles"], whole["tiles"])
+    np.testing.assert_array_equal(culled["ao"], whole["ao"])
+    assert (whole["blocked_pixels"] > 0).mean() > 0.8  # the scene is in view

@@ -3,10 +3,34 @@ child process (``aobake.child``), never in the baker's own: a driver can take it
 down.  One context per child; its function ``render(inputs) -> outputs`` takes and returns
 arrays (see :func:`render`).  Imports numpy, moderngl and ``hemicube_cells`` only.
 
-Per point, one instanced draw of the mesh: instance f = 0..4 is the hemicube's face f
-(``hemicube_cells``: the front face and the four half side faces), laid out in the point's
-3R x R tile of one framebuffer; a batch of points fills the framebuffer's tiles, then the
-tiles are read back together.
+Per point, the mesh is drawn once for each of the hemicube's five faces (``hemicube_cells``:
+the front face and the four half side faces), laid out in the point's 3R x R tile of one
+framebuffer; a batch of points fills the framebuffer's tiles, then the tiles are read back
+together.  Two ways, the same pixels:
+
+- whole (small meshes, and the reference): one instanced draw per point, instance f = 0..4
+  is face f, every triangle drawn five times;
+- culled (meshes of at least ``CULL_MIN_TRIANGLES``): the triangles are kept in clusters of
+  ``CLUSTER_TRIANGLES`` neighbours (sorted along a Morton curve of their centroids), and per
+  point and face only the runs of clusters that may reach that face are drawn, as one
+  multi-draw (``glMultiDrawElementsIndirect``, one command per run).  On llvmpipe, whose
+  geometry work (vertex shading, clipping, binning) is single-threaded and costs about the
+  same for a triangle the clipper rejects as for one it draws, a point on the 69k-triangle
+  bunny then draws ~8% of the 5 x 69k triangle-faces (docs/hemicube.md: the cost per point
+  falls ~5x on the bunny).  A cluster is skipped for a face only when its bounding box lies
+  wholly beyond one of that face's clip planes (its four gl_ClipDistance planes or the near
+  plane) by a margin far above float32 rounding (``cull_commands``), so every skipped
+  triangle is one the GL clips away entirely: it makes no fragment either way.
+
+Why the pixels are the same bits: a pixel's colour is 1 ("blocked") exactly when at least one
+fragment that is not discarded covers its centre, whatever the order of the triangles (with
+the depth test '<=' a fragment can only fail against an earlier one that passed and wrote 1;
+a discarded fragment writes nothing), and each drawn triangle is rasterised from the same
+float32 vertices through the same shader arithmetic (the culled shaders are the whole ones
+with the face taken from a per-command attribute instead of gl_InstanceID, and the triangle
+from a per-command base + gl_PrimitiveID); the triangles a cull skips make no fragments.
+``tests/test_hemicube.py`` compares the two ways' tiles bit for bit (clipped triangles, a
+max distance, back faces culled).
 
 What a pixel says: whether the ray through its centre from the eye (the point moved along its
 normal by the ray offset, as the ray-traced method's origins) meets a triangle within the
@@ -48,6 +72,20 @@ MIN_HALF = 1024
 MARGIN = 1
 #: texels per row of the triangle texture (two RGBA32F texels per triangle)
 TEXTURE_WIDTH = 4096
+#: triangles per cluster of the culled draw: a box per cluster, a command per run of
+#: clusters (measured on the bunny, benchmarks/bench_hemicube_batched.py: 16-64 cost about
+#: the same; fewer triangles make more commands, more make looser boxes)
+CLUSTER_TRIANGLES = 32
+#: meshes with fewer triangles are drawn whole: their per-point cost is the draw call's,
+#: not the triangles' (docs/hemicube.md), and culling does not pay
+CULL_MIN_TRIANGLES = 4096
+#: points whose clusters are culled in one numpy pass
+CULL_GROUP = 16
+#: the cull's margin, relative to the |coordinates| of the box in the point's frame: a
+#: cluster is skipped for a plane only when its box lies beyond it by more than this.  The
+#: GL computes the same clip distances in float32 (relative error ~1e-7 of those
+#: coordinates), so 2^-12 leaves a factor ~2000 of room
+CULL_SLACK = 2.0 ** -12
 
 VERTEX_SHADER = """
 #version 410
@@ -126,6 +164,121 @@ void main() {
 """
 
 
+def _replace(text: str, old: str, new: str) -> str:
+    """text with old replaced by new; old must be there (the culled shaders are the whole
+    ones with these lines changed, so the arithmetic they share stays one text)."""
+    if old not in text:
+        raise AssertionError(f"shader text changed: {old!r} not found")
+    return text.replace(old, new)
+
+
+#: the culled draw's shaders: the face comes from a per-command attribute (the command's
+#: baseInstance selects it) instead of gl_InstanceID, and the triangle for the distance test
+#: is the command's first triangle + gl_PrimitiveID (the primitive's index in its command)
+CULLED_VERTEX_SHADER = _replace(_replace(_replace(
+    VERTEX_SHADER,
+    "flat out int face;",
+    "in int in_face;   // per command: the face\n"
+    "in int in_base;   // per command: its first triangle\n"
+    "flat out int face;\nflat out int base;"),
+    "int f = gl_InstanceID;", "int f = in_face;"),
+    "    face = f;\n", "    face = f;\n    base = in_base;\n")
+CULLED_FRAGMENT_SHADER = _replace(_replace(_replace(
+    FRAGMENT_SHADER,
+    "flat in int face;", "flat in int face;\nflat in int base;"),
+    "fetch(2 * gl_PrimitiveID)", "fetch(2 * (base + gl_PrimitiveID))"),
+    "fetch(2 * gl_PrimitiveID + 1)", "fetch(2 * (base + gl_PrimitiveID) + 1)")
+
+
+def _face_planes() -> tuple:
+    """(planes (5, 4, 3), axes (5, 3)) float64 in (t, b, n) coordinates: for each face (the
+    vertex shader's order) the four clip planes a . q >= 0 that cut it to its rectangle
+    (gl_ClipDistance[0..3]: w + x, w - x, w - y, y - ylo w) and its axis w (the near plane
+    is w >= near)."""
+    frames = hemicube_cells.face_frames()  # rows right, up, forward
+    planes, axes = [], []
+    for f, (x, y, w) in enumerate(frames):
+        ylo = -1.0 if f == 0 else 0.0
+        planes.append(np.stack([w + x, w - x, w - y, y - ylo * w]))
+        axes.append(w)
+    return np.array(planes), np.array(axes)
+
+
+_PLANES, _AXES = _face_planes()
+
+
+def morton_order(centroids: np.ndarray) -> np.ndarray:
+    """(f,) int64: the triangles ordered along a Morton (Z-order) curve of their centroids
+    (f, 3) float64, 10 bits per axis over their bounding box: neighbours end up in the same
+    clusters."""
+    lo, hi = centroids.min(axis=0), centroids.max(axis=0)
+    cells = ((centroids - lo) / np.where(hi > lo, hi - lo, 1.0) * 1023.0).astype(np.uint64)
+    code = np.zeros(len(centroids), dtype=np.uint64)
+    for bit in range(10):
+        for axis in range(3):
+            code |= ((cells[:, axis] >> np.uint64(bit)) & np.uint64(1)) \
+                << np.uint64(3 * bit + axis)
+    return np.argsort(code, kind="stable")
+
+
+def cluster_boxes(vertices: np.ndarray, faces: np.ndarray, size: int) -> tuple:
+    """(starts (c,) int64, ends (c,) int64, centre (c, 3) float64, half (c, 3) float64): the
+    clusters of ``size`` consecutive triangles of faces (f, 3) and the bounding boxes of
+    their float32 vertices (v, 3) (exact in float64)."""
+    starts = np.arange(0, len(faces), size, dtype=np.int64)
+    ends = np.minimum(starts + size, len(faces))
+    corners = np.asarray(vertices, dtype=np.float64)[faces]
+    lo = np.minimum.reduceat(corners.min(axis=1), starts, axis=0)
+    hi = np.maximum.reduceat(corners.max(axis=1), starts, axis=0)
+    return starts, ends, (lo + hi) / 2.0, (hi - lo) / 2.0
+
+
+def cull_commands(clusters: tuple, eyes: np.ndarray, frames: np.ndarray, near: np.ndarray
+                  ) -> tuple:
+    """The culled draw's commands for k points: eyes (k, 3), frames (k, 3, 3) (rows t, b,
+    n) and near (k,), the float32 values the shaders get (float64 arrays holding them),
+    clusters from ``cluster_boxes``.
+
+    A cluster is skipped for a face when its box lies beyond one of the face's planes by
+    more than CULL_SLACK x (the box's |coordinates| in the point's frame + near): exactly,
+    every point q of the box has a . q below that.  The GL's float32 clip distance of a
+    vertex differs from the exact one by far less, so every vertex of every skipped triangle
+    is outside that plane in the GL too: the triangle is clipped away whole.
+
+    Returns (commands (m, 5) uint32: count, 1, first index, 0, base instance = the
+    command's row; records (m, 2) int32: face, first triangle; point (m,) int64: the
+    point's index in 0..k-1), sorted by (point, face, first triangle)."""
+    starts, ends, centre, half = clusters
+    k = len(eyes)
+    # the box in each point's frame: centre c and half extents e (|frame| . half)
+    c = np.einsum("pij,cj->pci", frames, centre) \
+        - np.einsum("pij,pj->pi", frames, eyes)[:, None, :]            # (k, C, 3)
+    e = np.einsum("pij,cj->pci", np.abs(frames), half)                  # (k, C, 3)
+    reach = np.abs(c).sum(axis=2) + e.sum(axis=2)                       # (k, C)
+    slack = CULL_SLACK * (reach[:, None, :] + near[:, None, None])      # (k, 1, C)
+    # the largest a . q over the box, per face and plane
+    top = np.einsum("pci,fqi->pfqc", c, _PLANES) \
+        + np.einsum("pci,fqi->pfqc", e, np.abs(_PLANES))                # (k, 5, 4, C)
+    beyond = (top < -slack[:, :, None, :]).any(axis=2)                  # (k, 5, C)
+    w = np.einsum("pci,fi->pfc", c, _AXES) + np.einsum("pci,fi->pfc", e, np.abs(_AXES))
+    beyond |= w < near[:, None, None] - slack
+    # runs of kept clusters per (point, face) row
+    kept = np.zeros((k * 5, len(starts) + 2), dtype=np.int8)
+    kept[:, 1:-1] = ~beyond.reshape(k * 5, -1)
+    step = np.diff(kept, axis=1)
+    row, first = np.nonzero(step == 1)
+    _, stop = np.nonzero(step == -1)  # the same rows in the same order
+    lo, hi = starts[first], ends[stop - 1]
+    m = len(row)
+    commands = np.zeros((m, 5), dtype=np.uint32)
+    commands[:, 0] = 3 * (hi - lo)
+    commands[:, 1] = 1
+    commands[:, 2] = 3 * lo
+    commands[:, 4] = np.arange(m)
+    records = np.stack([row % 5, lo], axis=1).astype(np.int32)
+    return commands, records, row // 5
+
+
 def half_size(resolution: int) -> int:
     """S: the power of two at least MIN_HALF whose [S + MARGIN, 2S - MARGIN) holds a tile."""
     need = 3 * resolution + 2 * MARGIN
@@ -158,16 +311,27 @@ def _triangle_texture(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 class Rasteriser:
     """One GL context and the scene's buffers; ``draw(eyes, frames, near, weight)`` renders
     hemicubes.  vertices (v, 3) float32 local units, faces (f, 3) int64, resolution R (even),
-    max_distance local units (inf: none), backfaces 'occlude' | 'ignore'."""
+    max_distance local units (inf: none), backfaces 'occlude' | 'ignore', cull: draw culled
+    runs of clusters (True) or the whole mesh per point (False); None: culled from
+    CULL_MIN_TRIANGLES triangles.  The values are the same bits either way.
+
+    When culling, the triangles are held in Morton order (``order``: drawn triangle i is
+    faces[order[i]]; ``ibo``, the triangle texture and ``vao`` follow it)."""
 
     def __init__(self, vertices, faces, resolution: int, max_distance: float,
-                 backfaces: str = "occlude"):
+                 backfaces: str = "occlude", cull: bool | None = None):
         import moderngl
 
         self.resolution = hemicube_cells.check_resolution(resolution)
-        self.ctx = ctx = moderngl.create_standalone_context(backend="egl")
         vertices = np.ascontiguousarray(vertices, dtype=np.float32)
+        faces = np.asarray(faces, dtype=np.int64)
+        self.cull = len(faces) >= CULL_MIN_TRIANGLES if cull is None else bool(cull)
+        self.order = None
+        if self.cull:
+            self.order = morton_order(vertices.astype(np.float64)[faces].mean(axis=1))
+            faces = faces[self.order]
         faces = np.ascontiguousarray(faces, dtype=np.uint32)
+        self.ctx = ctx = moderngl.create_standalone_context(backend="egl")
         self.program = ctx.program(
             vertex_shader=VERTEX_SHADER,
             fragment_shader=FRAGMENT_SHADER.replace("%(width)d", str(TEXTURE_WIDTH)))
@@ -205,6 +369,68 @@ class Rasteriser:
         elif backfaces != "occlude":
             raise ValueError(f"backfaces must be 'occlude' or 'ignore', got {backfaces!r}")
         self.info = {key: str(ctx.info.get(key)) for key in ("GL_RENDERER", "GL_VERSION")}
+        if self.cull:
+            self.culled_program = ctx.program(
+                vertex_shader=CULLED_VERTEX_SHADER,
+                fragment_shader=CULLED_FRAGMENT_SHADER.replace("%(width)d",
+                                                               str(TEXTURE_WIDTH)))
+            for name in ("triangles", "resolution", "limited", "max_distance"):
+                self.culled_program[name].value = self.program[name].value
+            self.clusters = cluster_boxes(vertices, faces.astype(np.int64),
+                                          CLUSTER_TRIANGLES)
+            self._buffers(5 * CULL_GROUP * 16)
+
+    def _buffers(self, commands: int) -> None:
+        """The culled draw's command and record buffers, room for ``commands``, and its vertex
+        array (the records are per-instance attributes: a command's baseInstance picks its
+        record)."""
+        self.commands = self.ctx.buffer(reserve=20 * commands)
+        self.records = self.ctx.buffer(reserve=8 * commands)
+        self.culled_vao = self.ctx.vertex_array(
+            self.culled_program,
+            [(self.vbo, "3f", "in_position"), (self.records, "1i 1i /i", "in_face", "in_base")],
+            index_buffer=self.ibo, index_element_size=4)
+
+    def _set_point(self, program, eye, frame, near, x: int, y: int) -> None:
+        """Viewport, scissor and uniforms of the point whose tile is at (x, y)."""
+        r = self.resolution
+        self.ctx.viewport = (x, y, 3 * r, r)
+        self.ctx.scissor = (x, y, 3 * r, r)
+        program["eye"].value = tuple(float(c) for c in eye)
+        # GLSL's mat3 from 9 floats is column-major: columns t, b, n
+        program["frame"].write(np.ascontiguousarray(frame, dtype=np.float32))
+        program["near"].value = float(near)
+        program["origin"].value = (float(x), float(y))
+
+    def _draw_whole(self, eyes, frames, near, tiles_at) -> None:
+        """Each point's five faces as one instanced draw of every triangle."""
+        for i, (x, y) in tiles_at:
+            self._set_point(self.program, eyes[i], frames[i], near[i], x, y)
+            self.vao.render(instances=5)
+
+    def _draw_culled(self, eyes, frames, near, tiles_at) -> None:
+        """Each point's five faces as one multi-draw of the runs of clusters that may reach
+        them (``cull_commands``; CULL_GROUP points culled at a time)."""
+        import moderngl
+
+        program = self.culled_program
+        for g in range(0, len(tiles_at), CULL_GROUP):
+            group = tiles_at[g:g + CULL_GROUP]
+            index = np.array([i for i, _ in group])
+            commands, records, point = cull_commands(
+                self.clusters, eyes[index].astype(np.float64),
+                frames[index].astype(np.float64), near[index].astype(np.float64))
+            if len(commands) > self.commands.size // 20:
+                self._buffers(2 * len(commands))
+            self.commands.write(commands.tobytes())
+            self.records.write(records.tobytes())
+            bounds = np.searchsorted(point, np.arange(len(group) + 1))
+            for k, (i, (x, y)) in enumerate(group):
+                count = int(bounds[k + 1] - bounds[k])
+                if count:
+                    self._set_point(program, eyes[i], frames[i], near[i], x, y)
+                    self.culled_vao.render_indirect(self.commands, moderngl.TRIANGLES,
+                                                    count, int(bounds[k]))
 
     def draw(self, eyes, frames, near, weight, keep_tiles: bool = False) -> dict:
         """Hemicubes of the points with eyes (n, 3) float32, frames (n, 3, 3) float32 (rows t,
@@ -219,7 +445,8 @@ class Rasteriser:
         ao = np.empty(n)
         blocked = np.empty(n, dtype=np.int64)
         tiles = np.empty((n, r, 3 * r), dtype=np.uint8) if keep_tiles else None
-        program, base = self.program, self.half + MARGIN
+        base = self.half + MARGIN
+        draw = self._draw_culled if self.cull else self._draw_whole
         for start in range(0, n, per_batch):
             count = min(per_batch, n - start)
             used_rows = -(-count // columns)
@@ -227,17 +454,10 @@ class Rasteriser:
                       used_rows * r)
             self.ctx.scissor = None
             self.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=region)
-            for k in range(count):
-                i = start + k
-                x, y = base + (k % columns) * 3 * r, base + (k // columns) * r
-                self.ctx.viewport = (x, y, 3 * r, r)
-                self.ctx.scissor = (x, y, 3 * r, r)
-                program["eye"].value = tuple(float(c) for c in eyes[i])
-                # GLSL's mat3 from 9 floats is column-major: columns t, b, n
-                program["frame"].write(np.ascontiguousarray(frames[i], dtype=np.float32))
-                program["near"].value = float(near[i])
-                program["origin"].value = (float(x), float(y))
-                self.vao.render(instances=5)
+            # (point, its tile's lower-left corner): tiles row-major from (base, base)
+            draw(eyes, frames, near,
+                 [(start + k, (base + (k % columns) * 3 * r, base + (k // columns) * r))
+                  for k in range(count)])
             self.ctx.scissor = None
             data = np.frombuffer(self.fbo.read(viewport=region, components=1), dtype=np.uint8)
             # (rows of tiles, R, columns of tiles, 3R) -> (tile, R, 3R), tiles row-major
@@ -271,14 +491,17 @@ def render(inputs: dict) -> dict:
     """The child's work.  inputs: vertices (v, 3) float32 and faces (f, 3) int64 (local
     units), eyes (n, 3) float32, frames (n, 3, 3) float32 (rows t, b, n), near (n,) float32,
     resolution, max_distance (local units, inf: none), weighting ('cosine' | 'uniform'),
-    backfaces ('occlude' | 'ignore'), threads (llvmpipe's), keep_tiles (bool).  outputs: ao
+    backfaces ('occlude' | 'ignore'), threads (llvmpipe's), keep_tiles (bool), optionally
+    cull (1 culled, 0 whole, -1 or absent: by the mesh's size; the same values).  outputs: ao
     (n,) float64 the weight of the open pixels (1 = open), blocked_pixels (n,) int64,
     renderer and gl_version (str), and with keep_tiles the tiles (n, R, 3R) uint8."""
     _threads(inputs)
     resolution = int(inputs["resolution"])
     weight = hemicube_cells.weights(resolution, str(inputs["weighting"]))
+    cull = inputs.get("cull")
+    cull = None if cull is None or int(cull) < 0 else bool(cull)
     raster = Rasteriser(inputs["vertices"], inputs["faces"], resolution,
-                        float(inputs["max_distance"]), str(inputs["backfaces"]))
+                        float(inputs["max_distance"]), str(inputs["backfaces"]), cull)
     try:
         out = raster.draw(inputs["eyes"], inputs["frames"], inputs["near"], weight,
                           bool(inputs.get("keep_tiles", False)))
