@@ -10,13 +10,13 @@ together.  Two ways, the same pixels:
 
 - whole (small meshes, and the reference): one instanced draw per point, instance f = 0..4
   is face f, every triangle drawn five times;
-- culled (meshes of at least ``CULL_MIN_TRIANGLES``): the triangles are kept in clusters of
+- culled (meshes of ``CULL_MIN_TRIANGLES`` or more): the triangles are kept in clusters of
   ``CLUSTER_TRIANGLES`` neighbours (sorted along a Morton curve of their centroids), and per
   point and face only the runs of clusters that may reach that face are drawn, as one
   multi-draw (``glMultiDrawElementsIndirect``, one command per run).  On llvmpipe, whose
   geometry work (vertex shading, clipping, binning) is single-threaded and costs about the
   same for a triangle the clipper rejects as for one it draws, a point on the 69k-triangle
-  bunny then draws ~8% of the 5 x 69k triangle-faces (docs/hemicube.md: the cost per point
+  bunny then draws ~9% of the 5 x 69k triangle-faces (docs/hemicube.md: the cost per point
   falls ~5x on the bunny).  A cluster is skipped for a face only when its bounding box lies
   wholly beyond one of that face's clip planes (its four gl_ClipDistance planes or the near
   plane) by a margin far above float32 rounding (``cull_commands``), so every skipped
@@ -73,12 +73,13 @@ MARGIN = 1
 #: texels per row of the triangle texture (two RGBA32F texels per triangle)
 TEXTURE_WIDTH = 4096
 #: triangles per cluster of the culled draw: a box per cluster, a command per run of
-#: clusters (measured on the bunny, benchmarks/bench_hemicube_batched.py: 16-64 cost about
-#: the same; fewer triangles make more commands, more make looser boxes)
-CLUSTER_TRIANGLES = 32
-#: meshes with fewer triangles are drawn whole: their per-point cost is the draw call's,
-#: not the triangles' (docs/hemicube.md), and culling does not pay
-CULL_MIN_TRIANGLES = 4096
+#: clusters (benchmarks/bench_hemicube_batched.py --cluster: 32 and 64 cost about the same
+#: on the bunny, 64 culls in less time; 16 makes the numpy cull cost more than it saves)
+CLUSTER_TRIANGLES = 64
+#: meshes with fewer triangles are drawn whole: their per-point cost is mostly the draw
+#: call's, not the triangles', and culling does not pay (bench_hemicube_batched: an
+#: 80-triangle icosphere 0.9x, a 626-triangle torus 1.2x, spot's 5,856 triangles 2.4x)
+CULL_MIN_TRIANGLES = 512
 #: points whose clusters are culled in one numpy pass
 CULL_GROUP = 16
 #: the cull's margin, relative to the |coordinates| of the box in the point's frame: a
@@ -205,6 +206,11 @@ def _face_planes() -> tuple:
 
 
 _PLANES, _AXES = _face_planes()
+#: (6, 25): [c, e] @ _BOUNDS is the largest value of each plane a . q over a box with centre
+#: c and half extents e (a . c + |a| . e); columns 5 j + f: plane j of face f (j = 0..3 the
+#: clip planes, j = 4 the axis w, compared with the near plane)
+_BOUNDS = (lambda a: np.concatenate([a, np.abs(a)], axis=1).T)(
+    np.concatenate([_PLANES.transpose(1, 0, 2).reshape(20, 3), _AXES]))
 
 
 def morton_order(centroids: np.ndarray) -> np.ndarray:
@@ -251,17 +257,17 @@ def cull_commands(clusters: tuple, eyes: np.ndarray, frames: np.ndarray, near: n
     starts, ends, centre, half = clusters
     k = len(eyes)
     # the box in each point's frame: centre c and half extents e (|frame| . half)
-    c = np.einsum("pij,cj->pci", frames, centre) \
-        - np.einsum("pij,pj->pi", frames, eyes)[:, None, :]            # (k, C, 3)
-    e = np.einsum("pij,cj->pci", np.abs(frames), half)                  # (k, C, 3)
+    c = centre @ frames.transpose(0, 2, 1) - (frames @ eyes[:, :, None])[:, None, :, 0]
+    e = half @ np.abs(frames).transpose(0, 2, 1)                        # (k, C, 3)
     reach = np.abs(c).sum(axis=2) + e.sum(axis=2)                       # (k, C)
-    slack = CULL_SLACK * (reach[:, None, :] + near[:, None, None])      # (k, 1, C)
-    # the largest a . q over the box, per face and plane
-    top = np.einsum("pci,fqi->pfqc", c, _PLANES) \
-        + np.einsum("pci,fqi->pfqc", e, np.abs(_PLANES))                # (k, 5, 4, C)
-    beyond = (top < -slack[:, :, None, :]).any(axis=2)                  # (k, 5, C)
-    w = np.einsum("pci,fi->pfc", c, _AXES) + np.einsum("pci,fi->pfc", e, np.abs(_AXES))
-    beyond |= w < near[:, None, None] - slack
+    slack = CULL_SLACK * (reach + near[:, None])                        # (k, C)
+    # the largest a . q over the box of each plane a: a . c + |a| . e, one product
+    top = np.concatenate([c, e], axis=2) @ _BOUNDS                      # (k, C, 25)
+    lowest = np.minimum(np.minimum(top[:, :, 0:5], top[:, :, 5:10]),
+                        np.minimum(top[:, :, 10:15], top[:, :, 15:20]))  # (k, C, 5)
+    beyond = lowest < -slack[:, :, None]
+    beyond |= top[:, :, 20:] < near[:, None, None] - slack[:, :, None]
+    beyond = beyond.transpose(0, 2, 1)                                  # (k, 5, C)
     # runs of kept clusters per (point, face) row
     kept = np.zeros((k * 5, len(starts) + 2), dtype=np.int8)
     kept[:, 1:-1] = ~beyond.reshape(k * 5, -1)
