@@ -374,12 +374,20 @@ def test_mitsuba_with_a_gaussian_filter_does_not_agree(tmp_path):
     assert m["z_rms"] > 1.5, m
 
 
-def _blender(*args, timeout=900) -> dict:
+#: what Blender says when it has no GPU backend for EEVEE (no OpenGL/EGL context)
+NO_GPU = ("egl", "opengl", "gpu", "context", "display")
+
+
+def _blender(*args, timeout=900, gpu=False) -> dict:
     done = subprocess.run([BLENDER, str(BLENDER_SCRIPT), *map(str, args)],
                           capture_output=True, text=True, timeout=timeout)
     lines = done.stdout.strip().splitlines()
-    assert lines, done.stderr[-3000:]
-    result = json.loads(lines[-1])
+    result = json.loads(lines[-1]) if lines and lines[-1].startswith("{") else None
+    if gpu and (result is None or not result["ok"]):
+        said = (result or {}).get("error", "") + done.stderr[-2000:]
+        if any(word in said.lower() for word in NO_GPU):
+            pytest.skip(f"EEVEE cannot render here (no GPU context): {said.strip()[-300:]}")
+    assert result is not None, done.stderr[-3000:]
     assert done.returncode == 0 and result["ok"], result
     return result
 
@@ -477,7 +485,7 @@ def test_eevee_ao_pass_renders_the_view(tmp_path):
     the same pixels; its bias is measured (docs/renderers.md), not bounded by the noise."""
     _reference(tmp_path)
     got = _blender("eevee", tmp_path / "view.glb", tmp_path / "eevee.exr", "--samples", 4,
-                   timeout=1800)
+                   timeout=1800, gpu=True)
     table = image.read(got["out"])
     ao = np.asarray(table.columns["ViewLayer.Ambient Occlusion.R"]).reshape(-1)
     alpha = np.asarray(table.columns["ViewLayer.Combined.A"]).reshape(-1)
