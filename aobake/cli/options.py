@@ -37,6 +37,7 @@ PANELS = {
     "file": "--method file",
     "discs": "--method discs",
     "hemicube": "--method hemicube",
+    "depthmaps": "--method depthmaps",
     "ssao": "Screen-space methods (crytek, shanmugam, gtao, heightfield)",
     "crytek": "--method crytek",
     "gtao": "--method gtao",
@@ -230,6 +231,11 @@ def in_panel(panel: str, options: list) -> list:
     return options
 
 
+def _title(panel: str) -> str:
+    """A panel's title: :data:`PANELS`', else a method's section named after the method."""
+    return PANELS.get(panel, f"--method {panel}")
+
+
 class PanelCommand(click.Command):
     """A click command whose help lists its options in panels (:data:`PANELS`): those of
     ``shown`` in full, the others by name with their option counts, each behind
@@ -252,9 +258,10 @@ class PanelCommand(click.Command):
                 if m not in PANELS]
 
     def panels(self) -> list:
-        """The panels this command's options fall in, in :data:`PANELS` order."""
+        """The panels this command's options fall in, in :data:`PANELS` order, then any
+        other (a new method's section is its own panel the day it is added)."""
         have = {getattr(p, "panel", "output") for p in self.params if isinstance(p, click.Option)}
-        return [name for name in PANELS if name in have]
+        return [name for name in PANELS if name in have] + sorted(have - set(PANELS))
 
     def _help_on(self, ctx, param, value):
         if value is None or ctx.resilient_parsing:
@@ -278,7 +285,7 @@ class PanelCommand(click.Command):
                     if isinstance(p, click.Option) and getattr(p, "panel", "output") == panel]
             rows = [r for r in rows if r is not None]
             if rows:
-                with formatter.section(PANELS[panel]):
+                with formatter.section(_title(panel)):
                     formatter.write_dl(rows)
 
     def format_options(self, ctx, formatter) -> None:
@@ -289,7 +296,7 @@ class PanelCommand(click.Command):
             counts = {p: sum(getattr(o, "panel", "output") == p for o in self.params
                              if isinstance(o, click.Option)) for p in rest}
             with formatter.section("More options (--help-on PANEL, or --help-on all)"):
-                formatter.write_dl([(p, f"{PANELS[p]}: {counts[p]} option"
+                formatter.write_dl([(p, f"{_title(p)}: {counts[p]} option"
                                         f"{'s' if counts[p] != 1 else ''}") for p in rest])
 
     def shown_options(self) -> list:
