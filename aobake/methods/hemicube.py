@@ -27,12 +27,13 @@ of the pixels the silhouette crosses, which the tests derive for closed-form sce
 The GL context runs in a child process (``aobake.child``: time limit, retry, a crash becomes
 an error here), one context per child; the bake's points go to children in pieces of at
 most ``CHILD_POINTS`` (the first child is started ahead, when the method is prepared).
-Cost: each point draws the whole mesh five times, so a point costs about
-``5 x triangles`` of llvmpipe's geometry work, single-threaded, and little more as R grows
-up to 128 (docs/hemicube.md: 14-17 ms per point on the 37k-triangle still life, 20 ms on
-the 69k-triangle bunny, on a loaded 2-core machine; a child starts in ~0.5 s).  Several
-children run at once on ``threads`` cores, and ``--executor processes`` gives each worker
-its own.
+Cost: llvmpipe's geometry work is single-threaded and grows with the triangles drawn,
+little with R up to 128.  A mesh of 512 triangles or more is drawn culled
+(``hemicube_gl``: per point and face only the runs of triangle clusters that may reach that
+face, ~9% of the 5 x triangles on the bunny; the same pixels bit for bit), a smaller one
+whole (every triangle five times per point).  docs/hemicube.md measures both: the bunny's
+cost per point falls ~5x.  A child starts in ~0.5 s.  Several children run at once on
+``threads`` cores, and ``--executor processes`` gives each worker its own.
 """
 
 from __future__ import annotations
