@@ -14,6 +14,13 @@
  * depend on chunking or width.  Closest-hit queries stay one ray at a
  * time (rtcIntersect1, as embreex), so their tie-breaking never depends on packet mates.
  *
+ * Instances (aobake/instances.py, backends/instanced.py): one committed child scene per
+ * unique mesh and a top-level scene of RTC_GEOMETRY_TYPE_INSTANCE geometries, one per
+ * placement (rtcSetGeometryInstancedScene, rtcSetGeometryTransform), so the acceleration
+ * structures grow with the unique triangles and the placements, not with their product.
+ * The same occlusion packets answer on the top-level scene; intersect_instanced also says
+ * which instance a hit is in.
+ *
  * No link-time dependency: the headers are Embree's own (third_party/embree4, Apache-2.0,
  * for the types and constants), and open() takes the path of the libembree4 that embreex
  * loaded and finds each function with dlsym.  Arrays arrive through the buffer protocol.
@@ -33,7 +40,8 @@
     X(rtcNewScene) X(rtcSetSceneFlags) X(rtcNewGeometry) X(rtcSetNewGeometryBuffer)       \
     X(rtcCommitGeometry) X(rtcAttachGeometry) X(rtcReleaseGeometry) X(rtcCommitScene)     \
     X(rtcReleaseScene) X(rtcOccluded1) X(rtcOccluded4) X(rtcOccluded8) X(rtcOccluded16)   \
-    X(rtcIntersect1)
+    X(rtcIntersect1) X(rtcSetGeometryInstancedScene) X(rtcSetGeometryTransform)          \
+    X(rtcAttachGeometryByID)
 
 #define DECLARE(name) static __typeof__(&name) p_##name;
 EMBREE_FUNCTIONS(DECLARE)
@@ -226,6 +234,104 @@ done:
     return result;
 }
 
+/* instances(meshes, mesh_of i32 (n), transforms f32 (n*12), robust) -> capsule: a
+ * committed top-level scene of n instances; meshes is a sequence of (vertices f32 (nv*3),
+ * nv, faces u32 (nf*3), nf), each committed once as a child scene; instance i (geometry id
+ * i) places mesh mesh_of[i] by the 3x4 row-major matrix transforms[12 i ..] (object ->
+ * the tracer's local frame).  A negative mesh_of leaves id i empty (a degenerate
+ * placement: it would occlude nothing). */
+static PyObject *new_instances(PyObject *self, PyObject *args)
+{
+    PyObject *meshes;
+    Py_buffer mb = {0}, xb = {0};
+    int robust;
+    if (library == NULL) {
+        PyErr_SetString(PyExc_RuntimeError, "aobake._embree.open() was not called");
+        return NULL;
+    }
+    if (!PyArg_ParseTuple(args, "Oy*y*p", &meshes, &mb, &xb, &robust))
+        return NULL;
+    PyObject *result = NULL, *sequence = NULL;
+    RTCScene *children = NULL, top = NULL;
+    Py_ssize_t k = 0, n = mb.len / 4;
+    if (check(&mb, "mesh_of", 4, n) || check(&xb, "transforms", 4, 12 * n))
+        goto done;
+    sequence = PySequence_Fast(meshes, "meshes must be a sequence");
+    if (sequence == NULL)
+        goto done;
+    k = PySequence_Fast_GET_SIZE(sequence);
+    const int32_t *mesh_of = mb.buf;
+    for (Py_ssize_t i = 0; i < n; i++)
+        if (mesh_of[i] >= k) {
+            PyErr_Format(PyExc_ValueError, "mesh_of: %d of %zd meshes", mesh_of[i], k);
+            goto done;
+        }
+    children = PyMem_Calloc(k ? (size_t)k : 1, sizeof(RTCScene));
+    if (children == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    for (Py_ssize_t j = 0; j < k; j++) {
+        Py_buffer vb = {0}, fb = {0};
+        Py_ssize_t nv, nf;
+        if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(sequence, j), "y*ny*n", &vb, &nv, &fb,
+                              &nf))
+            goto done;
+        int bad = check(&vb, "vertices", sizeof(float), 3 * nv) || check(&fb, "faces", 4, 3 * nf);
+        for (Py_ssize_t i = 0; !bad && i < 3 * nf; i++) {
+            uint32_t corner = ((const uint32_t *)fb.buf)[i];
+            if ((Py_ssize_t)corner >= nv) {
+                PyErr_Format(PyExc_ValueError, "mesh %zd faces: index %u of %zd vertices", j,
+                             corner, nv);
+                bad = 1;
+            }
+        }
+        if (!bad) {
+            Py_BEGIN_ALLOW_THREADS
+            children[j] = build(vb.buf, nv, fb.buf, nf, robust);
+            Py_END_ALLOW_THREADS
+        }
+        PyBuffer_Release(&vb);
+        PyBuffer_Release(&fb);
+        if (bad || device_error("building an instanced mesh"))
+            goto done;
+    }
+    const float *xf = xb.buf;
+    Py_BEGIN_ALLOW_THREADS
+    top = p_rtcNewScene(device);
+    if (robust)
+        p_rtcSetSceneFlags(top, RTC_SCENE_FLAG_ROBUST);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        if (mesh_of[i] < 0)
+            continue;
+        RTCGeometry instance = p_rtcNewGeometry(device, RTC_GEOMETRY_TYPE_INSTANCE);
+        p_rtcSetGeometryInstancedScene(instance, children[mesh_of[i]]);
+        p_rtcSetGeometryTransform(instance, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, xf + 12 * i);
+        p_rtcCommitGeometry(instance);
+        p_rtcAttachGeometryByID(top, instance, (unsigned int)i);
+        p_rtcReleaseGeometry(instance);
+    }
+    p_rtcCommitScene(top);
+    Py_END_ALLOW_THREADS
+    if (device_error("building the instances")) {
+        p_rtcReleaseScene(top);
+        goto done;
+    }
+    result = PyCapsule_New(top, SCENE_CAPSULE, release_scene);
+    if (result == NULL)
+        p_rtcReleaseScene(top);
+done:
+    /* the instances hold their child scenes (Embree counts references): ours go */
+    for (Py_ssize_t j = 0; children != NULL && j < k; j++)
+        if (children[j])
+            p_rtcReleaseScene(children[j]);
+    PyMem_Free(children);
+    Py_XDECREF(sequence);
+    PyBuffer_Release(&mb);
+    PyBuffer_Release(&xb);
+    return result;
+}
+
 /* Lane k of a packet from ray i: origin, direction, segment (0, tfar]. */
 #define FILL_LANE(r, k, i)                                          \
     do {                                                            \
@@ -367,6 +473,55 @@ done:
     PyBuffer_Release(&tb);
     PyBuffer_Release(&rt);
     PyBuffer_Release(&rp);
+    return result;
+}
+
+/* intersect_instanced(scene, origins, directions, tfar, t out f32 (n), prim out i32 (n),
+ * instance out i32 (n)): the nearest hit within (0, tfar] of an instances() scene, as
+ * intersect() (one ray at a time), with the instance it is in (-1 on a miss). */
+static PyObject *intersect_instanced(PyObject *self, PyObject *args)
+{
+    PyObject *capsule;
+    Py_buffer ob = {0}, db = {0}, tb = {0}, rt = {0}, rp = {0}, ri = {0};
+    if (!PyArg_ParseTuple(args, "Oy*y*y*w*w*w*", &capsule, &ob, &db, &tb, &rt, &rp, &ri))
+        return NULL;
+    PyObject *result = NULL;
+    RTCScene scene = scene_of(capsule);
+    Py_ssize_t n = tb.len / 4;
+    if (scene == NULL || check(&ob, "origins", 4, 3 * n) || check(&db, "directions", 4, 3 * n)
+        || check(&tb, "tfar", 4, n) || check(&rt, "t", 4, n) || check(&rp, "prim", 4, n)
+        || check(&ri, "instance", 4, n))
+        goto done;
+    const float *org = ob.buf, *dir = db.buf, *tfar = tb.buf;
+    float *t = rt.buf;
+    int32_t *prim = rp.buf, *inst = ri.buf;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const float *o = org + 3 * i, *d = dir + 3 * i;
+        struct RTCRayHit rh;
+        rh.ray = (struct RTCRay){o[0], o[1], o[2], 0.0f, d[0], d[1], d[2], 0.0f, tfar[i],
+                                 0xFFFFFFFFu, 0, 0};
+        rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+        rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
+        rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+        p_rtcIntersect1(scene, &rh, NULL);
+        t[i] = rh.ray.tfar;
+        int hit = rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+        prim[i] = hit ? (int32_t)rh.hit.primID : -1;
+        inst[i] = hit ? (int32_t)rh.hit.instID[0] : -1;
+    }
+    Py_END_ALLOW_THREADS
+    if (device_error("rtcIntersect1"))
+        goto done;
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    PyBuffer_Release(&ob);
+    PyBuffer_Release(&db);
+    PyBuffer_Release(&tb);
+    PyBuffer_Release(&rt);
+    PyBuffer_Release(&rp);
+    PyBuffer_Release(&ri);
     return result;
 }
 
@@ -529,6 +684,12 @@ static PyMethodDef methods[] = {
      "open(path) -> (version, widest packet, native packet): load libembree4 from path (once)."},
     {"scene", new_scene, METH_VARARGS,
      "scene(vertices f32, nv, faces u32, nf, robust) -> a committed triangle scene."},
+    {"instances", new_instances, METH_VARARGS,
+     "instances(meshes [(vertices f32, nv, faces u32, nf)], mesh_of i32, transforms f32 (n*12 "
+     "row-major 3x4), robust) -> a committed scene of instances of committed child scenes."},
+    {"intersect_instanced", intersect_instanced, METH_VARARGS,
+     "intersect_instanced(scene, origins, directions, tfar, t, prim, instance): the nearest "
+     "hit and its instance (-1: none)."},
     {"occluded", occluded, METH_VARARGS,
      "occluded(scene, origins, directions, tfar, out, width): out[i] = any hit in (0, tfar[i]]."},
     {"intersect", intersect, METH_VARARGS,

@@ -10,6 +10,7 @@ worker process rebuilds exactly the same occluders from the same inputs.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -23,6 +24,8 @@ from aobake.backends.union import Union
 from aobake.constants import AXES, OFFSET_ULPS
 from aobake.errors import InputError
 from aobake.vectors import distinct
+
+log = logging.getLogger(__name__)
 
 #: Embree's largest finite ray length (float32), in local units
 _FAR = np.float32(3.0e38)
@@ -42,7 +45,12 @@ class Occluders:
     extras : the report's record of ``Scene.extra_occluders`` (members of ``union`` only:
     primary and cage rays never see them); cutout : the ``CutoutOccluder`` of the
     alpha-tested faces (``--alpha-cutout``: then not in ``backend``), or None;
-    traversal : ``embree_mode`` (robust | fast) of an Embree backend, None for the others.
+    traversal : ``embree_mode`` (robust | fast) of an Embree backend, None for the others;
+    instanced : the report's record of ``Scene.instances`` (how they were traced, the baked
+    instances' layout), or None for a scene loaded flat.  With instances traced as such
+    (``backends.instanced``) or flattened for tracing, ``backend`` holds every instance and
+    its ``prim`` numbers their faces in instance order (the scene's own faces when every
+    instance is baked).
     """
 
     center: np.ndarray
@@ -57,6 +65,7 @@ class Occluders:
     extras: tuple = ()
     cutout: object = None
     traversal: str | None = None
+    instanced: dict | None = None
 
     def to_local(self, points: np.ndarray) -> np.ndarray:
         """(n, 3) float64 scene units -> (n, 3) float64 local units."""
@@ -126,6 +135,8 @@ class Occluders:
                 "rule": "glTF alphaMode MASK: a hit passes where alpha < alphaCutoff; alpha = "
                         "baseColorTexture alpha (bilinear, repeat) x baseColorFactor alpha",
                 "max_layers": MAX_LAYERS}
+        if self.instanced is not None:
+            params["instances"] = self.instanced
         return params
 
 
@@ -152,6 +163,9 @@ def build(scene, config) -> Occluders:
     faces alone.  The ground plane stays under the whole scene.
     """
     check(scene)
+    how = _instancing(scene, config)
+    if how is not None and how != "scene":
+        return _build_instanced(scene, config, how)
     lo, hi = scene.bounds
     faces, subset = scene.faces, None
     if scene.occluding is not None and not np.all(scene.occluding):
@@ -204,9 +218,23 @@ def build(scene, config) -> Occluders:
                 faces, normals = np.zeros((1, 3), dtype=np.int64), np.zeros((1, 3))
                 subset = np.full(1, -1, dtype=np.int64)
     backend = _triangles(config, local, faces, normals, step)
-    members, ground, extras = [backend], None, []
+    members = [backend]
     if cutout is not None:
         members.append(cutout)
+    extras, ground = _others(scene, config, center, scale, step, members)
+    traversal = getattr(config, "embree_mode", "robust") if config.backend == "embree" else None
+    return Occluders(center, scale, step, scene.diagonal, backend, Union(members),
+                     config.backend, ground, subset, tuple(extras), cutout, traversal,
+                     None if how is None else _instanced_record(
+                         scene, "flattened: the scene's own faces are every instance's ("
+                         + _why_flat(scene, config) + ")"))
+
+
+def _others(scene, config, center, scale, step, members) -> tuple[list, dict | None]:
+    """Append the scene's extra occluders and the ground plane to ``members`` (in that
+    order: ``nearest`` takes the plane last); (their report records, the ground record)."""
+    lo = scene.bounds[0]
+    ground, extras = None, []
     for extra in scene.extra_occluders:  # before the ground plane: ``nearest`` takes it last
         faces_extra = np.asarray(extra.faces, dtype=np.int64)
         vertices_extra = np.asarray(extra.vertices, dtype=np.float64)
@@ -225,6 +253,97 @@ def build(scene, config) -> Occluders:
         axis = AXES.index(config.up_axis)
         ground = {"axis": config.up_axis, "height": float(lo[axis])}
         members.append(PlaneOccluder(axis, (ground["height"] - center[axis]) * scale))
+    return extras, ground
+
+
+def _why_flat(scene, config) -> str:
+    """Why instances are traced flattened rather than as Embree instances (a phrase)."""
+    from aobake.backends.instanced import available
+
+    if getattr(config, "instances", "trace") == "flatten":
+        return "--instances flatten"
+    if config.backend != "embree":
+        return f"--backend {config.backend} has no instances"
+    if getattr(config, "alpha_cutout", False):
+        return "--alpha-cutout tests the faces' own materials"
+    if scene.occluding is not None:
+        return "--receive-only leaves some faces out of the occluders"
+    if not available():
+        return "embreex traces (aobake._embree not built or not opened): it has no instances"
+    return "as asked"
+
+
+def _instancing(scene, config) -> str | None:
+    """How a scene's instances are traced: None (a scene loaded flat), "embree" (Embree
+    instances: ``backends.instanced``), "scene" (the scene's own faces, which are every
+    instance's: nothing baked is left out) or "flatten" (every instance's triangles copied
+    into one triangle backend: a backend without instances, with some instances not baked).
+    InputError where a ``--bake`` selection cannot be honoured."""
+    from aobake.backends.instanced import available
+
+    instances = scene.instances
+    patterns = tuple(getattr(config, "bake", ()) or ())
+    if patterns and (instances is None or tuple(instances.patterns) != patterns):
+        raise InputError(f"{scene.source}: --bake {' '.join(patterns)}: the scene was loaded "
+                         "without it (aobake.scene.load_scene(path, bake=...) chooses the "
+                         "baked instances; this caller did not pass the setting on)")
+    if instances is None:
+        return None
+    embree = (config.backend == "embree" and getattr(config, "instances", "trace") == "trace"
+              and not getattr(config, "alpha_cutout", False) and scene.occluding is None)
+    if embree and available():
+        return "embree"
+    if instances.everything:
+        return "scene"
+    if getattr(config, "alpha_cutout", False) or scene.occluding is not None:
+        raise InputError(f"{scene.source}: --alpha-cutout and --receive-only act on the baked "
+                         "instances' faces only: not with --bake")
+    return "flatten"
+
+
+def _instanced_record(scene, traced_as: str) -> dict:
+    """The report's ``parameters.instances``: how they were traced, the counts, and the
+    baked instances' layout (each one's vertex and face ranges in the outputs)."""
+    instances = scene.instances
+    return {"traced_as": traced_as, **instances.record(), "layout": instances.layout()}
+
+
+def _build_instanced(scene, config, how: str) -> Occluders:
+    """The occluders of a scene whose every instance occludes while only the baked ones
+    are its faces (``how`` "embree" or "flatten", see :func:`_instancing`).
+
+    The frame is rebased on the baked instances' vertices (their median: where the rays
+    start) and scaled by a power of two to span every instance (``Scene.bounds`` is the
+    whole scene's): with every instance baked, the flattened scene's frame exactly."""
+    instances = scene.instances
+    lo, hi = scene.bounds
+    center = np.median(scene.vertices[scene.used], axis=0)
+    reach = float(np.maximum(np.abs(hi - center), np.abs(lo - center)).max())
+    scale = 2.0 ** -math.frexp(reach)[1]
+    step = OFFSET_ULPS * float(np.spacing(np.float32(reach * scale)))
+    robust = getattr(config, "embree_mode", "robust") == "robust"
+    if how == "embree":
+        from aobake.backends.instanced import InstancedEmbree
+
+        backend = InstancedEmbree(instances, center, scale, step, robust=robust)
+        traced_as = ("embree instances: one child scene per unique mesh, one instance "
+                     "geometry per placement")
+    else:
+        from aobake.instances import flattened
+        from aobake.scene import face_normals
+
+        vertices, faces = flattened(instances)
+        why = _why_flat(scene, config)
+        log.warning("%s: %d instances traced flattened (%s): %d triangles in memory where "
+                    "Embree instances would hold %d", scene.source, len(instances), why,
+                    len(faces), sum(len(f) for _, f in instances.meshes))
+        backend = _triangles(config, (vertices - center) * scale, faces,
+                             face_normals(vertices, faces), step)
+        traced_as = f"flattened for tracing ({why}): every instance's triangles copied"
+        del vertices
+    members = [backend]
+    extras, ground = _others(scene, config, center, scale, step, members)
     traversal = getattr(config, "embree_mode", "robust") if config.backend == "embree" else None
     return Occluders(center, scale, step, scene.diagonal, backend, Union(members),
-                     config.backend, ground, subset, tuple(extras), cutout, traversal)
+                     config.backend, ground, None, tuple(extras), None, traversal,
+                     _instanced_record(scene, traced_as))

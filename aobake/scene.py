@@ -132,6 +132,11 @@ class Scene:
     #: high-to-low bake's low mesh with ``--low-occludes``): never baked, never hit by a
     #: primary or cage ray, only by the method's rays
     extra_occluders: tuple = field(default=(), repr=False)
+    #: a scene whose meshes stand in many places (``aobake.instances.Instances``: glTF
+    #: nodes sharing a mesh, EXT_mesh_gpu_instancing): every instance occludes, and the
+    #: faces above are the baked instances' (all of them unless ``--bake`` chose some), placed
+    #: in scene units, in instance order; None for a scene loaded flat
+    instances: object = field(default=None, repr=False)
 
     def __post_init__(self):
         """Shapes and index ranges checked, also for a Scene built directly (``make_scene``
@@ -169,7 +174,11 @@ class Scene:
 
     @cached_property
     def bounds(self) -> np.ndarray:
-        """(2, 3) float64 min and max corner over vertices used by faces."""
+        """(2, 3) float64 min and max corner over vertices used by faces (with
+        ``instances`` some of which are not baked: over every instance's, so the diagonal, a
+        relative max distance and the ground plane are the whole scene's)."""
+        if self.instances is not None and not self.instances.everything:
+            return np.array(self.instances.bounds, dtype=np.float64)
         used = self.vertices[self.used]
         return np.stack([used.min(axis=0), used.max(axis=0)])
 
@@ -200,6 +209,7 @@ class Scene:
             "normals_source": self.normals_source,
             "has_uv": self.faces_uv is not None,
             "fix_normals": self.repair if self.repair is not None else repair_record("off"),
+            **({} if self.instances is None else {"instances": self.instances.record()}),
         }
 
 
@@ -684,12 +694,15 @@ def _trimesh_materials(meshes, broken: dict | None = None) -> tuple[list, np.nda
     return materials, np.concatenate(per_mesh)
 
 
-def _load_with_trimesh(path: Path, uv_set: int = 0):
+def _load_with_trimesh(path: Path, uv_set: int = 0, bake: tuple = ()):
     """(vertices, faces, normals | None, uv | None, (materials, face_material) | None, names,
-    uv_sets | None) for non-OBJ formats via trimesh.
+    uv_sets | None, instances | None) for non-OBJ formats via trimesh.
 
     uv_set > 0 (glTF / GLB only): ``uv`` is ``TEXCOORD_<uv_set>`` and ``uv_sets`` every set
     the file's triangle primitives all have, {k: (v, 2) float64} (``aobake.uvsets``).
+    A glTF scene that places a mesh more than once (or given ``bake`` patterns) is read as
+    instances (``aobake.instances``): the arrays are then the baked instances' and
+    ``instances`` the ``Instances`` record; else None.
     """
     import trimesh
 
@@ -717,16 +730,35 @@ def _load_with_trimesh(path: Path, uv_set: int = 0):
                 loaded = trimesh.load(source, process=False)
     except Exception as exc:  # trimesh raises many types for corrupt files
         raise InputError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from None
+    placed = None
+    if bake and not (isinstance(loaded, trimesh.Scene) and path.suffix.lower() in (".gltf", ".glb")):
+        raise InputError(f"{path}: --bake names glTF nodes; this file has none (to bake some "
+                         "objects of it and let the others occlude, give the others "
+                         "--occluder-only)")
     if isinstance(loaded, trimesh.Scene):
         meshes = []
-        try:  # dump() copies each material, decoding its images: a truncated one fails here
-            dumped = loaded.dump()
-        except Exception as exc:  # noqa: BLE001 - PIL raises several types for a bad image
-            raise InputError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from None
-        # dump() applies every node's transform; one entry per node instance.
-        for geom in dumped:
-            if isinstance(geom, trimesh.Trimesh) and len(geom.faces):
-                meshes.append(geom)
+        if not uv_set and path.suffix.lower() in (".gltf", ".glb"):
+            from aobake import instances
+
+            try:  # the placed copies decode their materials' images, as dump() does
+                placed = instances.read(loaded, path, tuple(bake))
+            except InputError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - PIL raises several types for a bad image
+                raise InputError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") \
+                    from None
+        if placed is not None:  # one copy of each mesh; the baked instances placed
+            meshes = placed.receivers
+        else:
+            try:  # dump() copies each material, decoding its images: a truncated one fails here
+                dumped = loaded.dump()
+            except Exception as exc:  # noqa: BLE001 - PIL raises several types for a bad image
+                raise InputError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") \
+                    from None
+            # dump() applies every node's transform; one entry per node instance.
+            for geom in dumped:
+                if isinstance(geom, trimesh.Trimesh) and len(geom.faces):
+                    meshes.append(geom)
         if not meshes:
             raise InputError(f"{path}: mesh has no faces")
     elif isinstance(loaded, trimesh.Trimesh):
@@ -767,7 +799,8 @@ def _load_with_trimesh(path: Path, uv_set: int = 0):
         broken = _gltf_broken_textures(path) if path.suffix.lower() in (".gltf", ".glb") else {}
         materials = _trimesh_materials(meshes, broken)
     return (vertices, faces, np.concatenate(normals) if normals else None,
-            np.concatenate(uvs) if uvs else None, materials, names, sets)
+            np.concatenate(uvs) if uvs else None, materials, names, sets,
+            None if placed is None else placed.instances)
 
 
 def _trimesh_names(meshes) -> dict:
@@ -790,18 +823,32 @@ def _trimesh_names(meshes) -> dict:
 
 
 def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn",
-               uv_set: int = 0) -> Scene:
+               uv_set: int = 0, bake=()) -> Scene:
     """Load a path or an in-memory mesh into a :class:`Scene`.
 
     source : str | PathLike | trimesh.Trimesh | trimesh.Scene | Scene (returned as it is)
     fix_normals : "warn" | "fix" | "off", see :func:`make_scene`
     uv_set : which UV set becomes ``Scene.uv``: glTF ``TEXCOORD_<uv_set>`` (InputError naming
     the sets the file has when it lacks it); every other format has set 0 alone
+    bake : glTF node patterns (``--bake``, ``aobake.instances``): the scene's faces are
+    those instances' alone, every other instance only occludes (``Scene.instances``)
     Raises InputError (naming the file and the problem) for a missing file, an
     unsupported extension, a corrupt or empty file or invalid geometry.
+
+    A glTF file that places a mesh more than once (nodes sharing it, EXT_mesh_gpu_instancing)
+    loads as instances: ``Scene.instances`` holds each mesh once and every placement; the
+    faces are every instance's placed (the flattened scene's, bit for bit) unless ``bake``
+    names some.
     """
+    bake = () if bake is None else (bake,) if isinstance(bake, str) else tuple(bake)
     if isinstance(source, Scene):
+        instances = source.instances
+        if bake and tuple(bake) != (() if instances is None else tuple(instances.patterns)):
+            raise InputError(f"{source.source}: bake {list(bake)}: a Scene is baked as it "
+                             "was loaded; load the file with these patterns")
         return source
+    if bake and not isinstance(source, (str, os.PathLike)):
+        raise InputError("bake names glTF nodes: pass the glTF file's path")
     if uv_set and not isinstance(source, (str, os.PathLike)):
         raise InputError(f"uv_set {uv_set}: an in-memory mesh has one UV set; pass the "
                          "glTF file (or give the Scene its uv)")
@@ -828,6 +875,10 @@ def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn",
         raise InputError(f"{path}: no such file")
     if path.stat().st_size == 0:
         raise InputError(f"{path}: file is empty")
+    if bake and suffix not in (".gltf", ".glb"):
+        raise InputError(f"{path}: --bake names glTF nodes; a {suffix} file has none (to bake "
+                         "some objects of it and let the others occlude, give the others "
+                         "--occluder-only)")
     if uv_set and suffix not in (".gltf", ".glb"):
         raise InputError(f"{path}: a {suffix} file has one UV set (set 0); --uv-set {uv_set} "
                          "needs a glTF or GLB input (TEXCOORD_<N>)")
@@ -844,7 +895,8 @@ def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn",
                           uv=data.uv if has_uv else None, faces_uv=data.faces_uv, source=str(path),
                           warnings=data.warnings, materials=materials, face_material=face_material,
                           fix_normals=fix_normals, names=names)
-    vertices, faces, normals, uv, materials, names, sets = _load_with_trimesh(path, uv_set)
+    vertices, faces, normals, uv, materials, names, sets, instances = _load_with_trimesh(
+        path, uv_set, bake)
     materials, face_material = materials or (None, None)
     if sets is not None:
         uv = sets[uv_set]
@@ -855,4 +907,6 @@ def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn",
                        fix_normals=fix_normals, names=names)
     if sets is not None:
         scene = replace(scene, uv_set=uv_set, uv_sets=sets)
+    if instances is not None:
+        scene = replace(scene, instances=instances)
     return scene

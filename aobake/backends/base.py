@@ -58,6 +58,13 @@ class TriangleBackend:
         self._face_normals = np.asarray(face_normals).astype(np.float32)
         self._step = np.float32(step)
 
+    def intersect_normals(self, origins, directions, tmax):
+        """``intersect`` and the face normal of each hit, (k, 3) (any row on a miss): the
+        front-face test's (a backend whose faces are not one array, Embree instances,
+        computes them per hit)."""
+        t, prim = self.intersect(origins, directions, tmax)
+        return t, prim, self._face_normals[np.maximum(prim, 0)]
+
     def front_distance(self, origins, directions, tmax) -> np.ndarray:
         """(n,) float32 distance to the nearest front-face hit; inf if none within tmax."""
         n = len(origins)
@@ -72,10 +79,10 @@ class TriangleBackend:
             # A ray that stepped past a back face within one step of tmax has no length
             # left: a zero (not negative) limit, which every backend treats as a miss.
             remaining = np.maximum(tmax[active] - travelled[active], np.float32(0))
-            t, prim = self.intersect(org[active], directions[active], remaining)
+            t, prim, normals = self.intersect_normals(org[active], directions[active],
+                                                      remaining)
             hit = prim >= 0
-            facing = np.einsum("ij,ij->i", self._face_normals[np.maximum(prim, 0)],
-                               directions[active])
+            facing = np.einsum("ij,ij->i", normals, directions[active])
             front = hit & (facing <= 0)
             result[active[front]] = travelled[active[front]] + t[front]
             back = hit & ~front

@@ -22,7 +22,19 @@ name                 shape        dtype     meaning
 ``metadata``         ()           str       JSON text: conventions and configuration
 ``ray_distances``    (p, r)       float32   --keep-distances: every ray's hit distance (local units: scene units x ``parameters.trace_scale``; ``RAY_MISS`` = -1 on a miss) of the p traced points
 ``ray_point``        (n,)         int32     --keep-distances: row of ``ray_distances`` of each vertex
+``instance_names``   (k,)         str       a scene of instances (``aobake.instances``): the k baked instances' names
+``instance_nodes``   (k,)         str       the glTF node of each (a copy of EXT_mesh_gpu_instancing: its node)
+``instance_meshes``  (k,)         str       the mesh each places
+``instance_vertices`` (k, 2)      int64     [start, stop) of each instance's vertices in the arrays above (its mesh's vertex order)
+``instance_faces``   (k, 2)       int64     [start, stop) of its faces
+``instance_transforms`` (k, 4, 4) float64   its transform, mesh units -> scene units (rows)
 ==================== ============ ========= =====================================
+
+A scene of instances (glTF nodes sharing a mesh: ``aobake.instances``) stores the baked
+instances' vertices one after the other, in instance order: the per-vertex arrays are laid
+out as the flattened scene's bake of the same nodes (``aobake compare`` scores one against
+the other vertex by vertex), and the ``instance_*`` arrays cut them per instance
+(:func:`instance_slices`).
 
 A miss is stored as ``RAY_MISS`` (-1), never inf: no output holds NaN or inf, and every
 hit's distance is >= 0, so the sentinel cannot be taken for one.  In memory
@@ -201,10 +213,46 @@ def write(
     arrays["metadata"] = np.array(metadata_json(metadata))
     for name, value in (kept or {}).items():
         arrays[name] = encode_ray_distances(value) if name == "ray_distances" else value
+    arrays.update(instance_arrays(metadata, len(positions), len(faces)))
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as handle:
             _savez(handle, arrays)
     log.debug("wrote %s: %d vertices, %d faces, %s", path, len(positions), len(faces), list(fields))
+
+
+def instance_arrays(metadata: Mapping | None, n_vertices: int, n_faces: int) -> dict:
+    """The ``instance_*`` arrays of a bake of instances, from its metadata's
+    ``parameters.instances.layout`` (``aobake.occluders``), or {} for any other bake (or a
+    layout that does not cover these arrays: then nothing is claimed about them)."""
+    layout = ((metadata or {}).get("parameters") or {}).get("instances", {}).get("layout")
+    if not layout:
+        return {}
+    vertices = np.array([entry["vertices"] for entry in layout], dtype=np.int64).reshape(-1, 2)
+    faces = np.array([entry["faces"] for entry in layout], dtype=np.int64).reshape(-1, 2)
+    if vertices[-1, 1] != n_vertices or faces[-1, 1] != n_faces:
+        log.warning("instance layout covers %d vertices and %d faces, the arrays %d and %d: "
+                    "not written", vertices[-1, 1], faces[-1, 1], n_vertices, n_faces)
+        return {}
+    return {"instance_names": np.array([str(e["name"]) for e in layout]),
+            "instance_nodes": np.array([str(e["node"]) for e in layout]),
+            "instance_meshes": np.array([str(e["mesh"]) for e in layout]),
+            "instance_vertices": vertices, "instance_faces": faces,
+            "instance_transforms": np.array([e["transform"] for e in layout],
+                                            dtype=np.float64).reshape(-1, 4, 4)}
+
+
+def instance_slices(path) -> list:
+    """[(instance name, vertex slice, face slice)] of an NPZ bake of instances (the
+    ``instance_*`` arrays), in order ([] for any other bake; a mesh of several primitives
+    gives one entry per primitive, under its node's name).  Faces index the whole arrays:
+    subtract the vertex slice's start for an instance's own.  Raises ``Unreadable``."""
+    arrays = read_npz(path, ("instance_names", "instance_vertices", "instance_faces"))
+    if len(arrays) < 3:
+        return []
+    return [(str(name), slice(int(v0), int(v1)), slice(int(f0), int(f1)))
+            for name, (v0, v1), (f0, f1) in zip(arrays["instance_names"],
+                                                arrays["instance_vertices"],
+                                                arrays["instance_faces"])]
 
 
 # ---------------------------------------------------------------------------------------------

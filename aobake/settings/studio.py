@@ -7,6 +7,10 @@ A record like the others (``aobake.settings.spec``), composed into ``BakeConfig`
 
     aobake LOW.obj --from HIGH.obj --out ao.exr [--cage-offset D | --cage CAGE.obj]
            [--low-occludes] [--alpha-cutout] [--exclude NAME ...] [--receive-only NAME ...] [--occluder-only NAME ...]
+    aobake SET.glb --bake NODE_GLOB --out ao.npz [--instances trace|flatten]
+
+``--bake`` and ``--instances`` shape a scene of instances (``aobake.instances``): which
+glTF nodes are baked while every node occludes, and how the placements are traced.
 
 With ``--from`` the positional mesh is the low mesh (where the values are stored: its UVs
 for an image, its vertices for .ply/.npz/.glb) and ``--from`` the source, the pipeline's
@@ -113,6 +117,16 @@ class StudioOptions:
         "rays pass through them) (repeatable).", section="studio",
         parse=_patterns("occluder_only"),
         multiple=True, show_default=False)
+    bake: tuple = setting(
+        (), "parsed", "glTF nodes to bake (a glob on node names, 'mesh:NAME' for every node of "
+        "a mesh; repeatable): only their vertices are sampled, every other node still "
+        "occludes. Nodes that share a mesh stay instances (docs/scale.md).", section="studio",
+        parse=_patterns("bake"), multiple=True, show_default=False)
+    instances: str = setting(
+        "trace", "choice", "glTF meshes placed more than once: traced as Embree instances "
+        "(trace: one copy of each mesh) or flattened (one copy per placement: the flattened "
+        "scene's bake, memory growing with the placements).", section="studio",
+        choices=("trace", "flatten"))
 
     def __post_init__(self):
         check(self)
@@ -128,3 +142,14 @@ class StudioOptions:
         if self.source is None and self.low_occludes:
             raise InputError("--low-occludes adds the low mesh of --from to the occluders: "
                              "give --from HIGH")
+        if self.bake:
+            # the baked instances are the scene's faces; these act on those faces alone
+            for given, flag in ((self.source, "--from"), (self.alpha_cutout, "--alpha-cutout"),
+                                (self.exclude, "--exclude"), (self.receive_only, "--receive-only"),
+                                (self.occluder_only, "--occluder-only")):
+                if given:
+                    raise InputError(f"--bake chooses the baked glTF nodes and lets every other "
+                                     f"one occlude: not with {flag}")
+            if "indirect" in getattr(self, "quantities", ()):
+                raise InputError("--bake: -q indirect follows paths across every instance's "
+                                 "faces, which a selection does not hold: bake without --bake")
