@@ -65,9 +65,11 @@ CHILD_POINTS = 2048
 MIN_CHILD_POINTS = 64
 #: time limit of one child: base + per (point x triangle) + per (point x pixel).  Measured
 #: on llvmpipe on a loaded 2-core machine: ~4e-7 s per point-triangle (the five faces) and
-#: ~6e-8 s per point-pixel (docs/hemicube.md); the limit is 10-15x that plus 2 minutes, so
-#: only a hung driver reaches it.
-TIMEOUT_BASE_S = 120.0
+#: ~6e-8 s per point-pixel (docs/hemicube.md); the limit is 10-15x that plus a base that
+#: covers starting Python, making the EGL context (0.4-0.6 s here) and uploading the mesh,
+#: 50x over, so only a hung driver reaches it.  The base was 2 minutes: with the retry, a
+#: hung driver cost 4 minutes before its error even for 3 points (issue 35); now 1 minute.
+TIMEOUT_BASE_S = 30.0
 TIMEOUT_PER_POINT_TRIANGLE_S = 4e-6
 TIMEOUT_PER_POINT_PIXEL_S = 1e-6
 #: width of the renderer description kept per point (``extras["hemicube_renderer"]``)
