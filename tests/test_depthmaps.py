@@ -38,7 +38,9 @@ from aobake import capabilities
 from aobake.errors import InputError, UsageError
 from aobake.methods import METHODS
 from aobake.methods.depthmaps import (NO_INFORMATION_AO, DepthmapsError, DepthmapsMethod,
-                                      available, directions, fibonacci, map_axes, rotation)
+                                      available, directions, fibonacci, map_axes, rotation,
+                                      traced)
+from aobake.occluders import build
 from aobake.records import SamplePoints, merge
 from aobake.scene import load_scene
 from aobake.settings import BakeConfig
@@ -144,6 +146,20 @@ def test_the_directions_error_falls_as_k_to_the_minus_three_quarters():
         assert np.abs(errors).max() <= 3.0 * k ** -0.75, k
         rms.append(float(np.sqrt(np.mean(errors ** 2))))
     assert rms[1] < rms[0] / 2.5 and rms[2] < rms[1] / 2.5, rms
+
+
+def test_traced_is_the_quadrature_with_exact_visibility():
+    """``depthmaps.traced`` (each point's K rays through the scene's backend) is the numpy
+    quadrature of the disc scene: the directions' error alone, as the benchmark uses it."""
+    mesh = combine(quad([0, 0, 0], 3, 3), polygon([0, 0, HEIGHT], RADIUS, SIDES))
+    scene = load_scene(mesh)
+    occluders = build(scene, BakeConfig())
+    points, normals = floor_points(10, 0.7, seed=8)
+    for weighting in ("cosine", "uniform"):
+        w = directions(128, 6)
+        want = _disc_quadrature(points, w, weighting)[0]
+        np.testing.assert_allclose(traced(occluders, points, normals, w, weighting), want,
+                                   atol=1e-12)
 
 
 @pytest.mark.slow
