@@ -2,7 +2,7 @@
 
     python benchmarks/bench_approximations.py [--meshes still_life,bunny] [--points N]
         [--truth-rays 2048] [--multi-rays 1024] [--threads 2] [--hemicube-points 1000]
-        [--parts rays,discs,hemicube,multibounce]
+        [--parts rays,discs,hemicube,depthmaps,multibounce]
         [--work /tmp/aobake_approx] [--json PATH] [--plot docs/img/approx_error_vs_time.png]
         [--views docs/img/approx_views.png] [--quick] [--merge RUN.json ...]
 
@@ -31,6 +31,9 @@ Candidates:
   costs milliseconds per point), scored against the truth at those points; its time is
   the fixed cost (a call on 8 points: the GL child's start, the mesh's upload) plus the
   drawing of the subset scaled to all the points;
+- ``depthmaps`` per direction count K (16, 64, 256, 1024) at its default resolution and bias
+  when ``"depthmaps" in aobake.methods.METHODS`` and a GL 4.3 context can be made, on all
+  the points (its cost is K x (triangles + points): the whole call is timed);
 - the GTAO multi-bounce fit (Jimenez et al. 2016) ``a' = max(a, ((a A + B) a + C) a)``,
   A = 2.0404 rho - 0.3324, B = -4.7951 rho + 0.6417, C = 2.7552 rho + 0.6903, applied to the
   truth's own AO, against the ray-traced multi-bounce "visibility" ``ao + indirect`` with
@@ -88,6 +91,7 @@ RAY_COUNTS = (4, 8, 16, 32, 64, 128, 256, 512, 1024)
 KAPPAS = (1.0, 2.0, 4.0, 8.0)
 INDIRECT_KAPPAS = (2.0, 4.0, 8.0)
 RESOLUTIONS = (16, 32, 64)
+DEPTHMAP_DIRECTIONS = (16, 64, 256, 1024)
 ALBEDOS = (0.5, 0.8)
 #: the most elements for which brute force (O(n^2)) is run
 BRUTE_ELEMENTS = 25000
@@ -191,6 +195,8 @@ class Bench:
             self.discs(ref)
         if "hemicube" in parts:
             self.hemicube(truth)
+        if "depthmaps" in parts:
+            self.depthmaps(ref)
         if "multibounce" in parts:
             self.multibounce(truth)
         return self.rows
@@ -275,6 +281,22 @@ class Bench:
             print(f"hemicube R {resolution}: {seconds:.1f} s for {k} points ({fixed:.1f} s "
                   f"for 8); {whole:.1f} s for {n}", flush=True)
 
+    def depthmaps(self, ref):
+        if "depthmaps" not in METHODS:
+            print("depthmaps skipped: not registered", flush=True)
+            return
+        from aobake.methods.depthmaps import available
+
+        ok, why = available()
+        if not ok:
+            print(f"depthmaps skipped: {why}", flush=True)
+            return
+        for k in DEPTHMAP_DIRECTIONS:
+            result, seconds = self.bake(method="depthmaps", depthmaps_directions=k)
+            self.score(ref["ao"], "depthmaps", f"K {k}", "ao", result.ao, seconds,
+                       note="N 1024, b 1 (the defaults)")
+            print(f"depthmaps K {k}: {seconds:.1f} s", flush=True)
+
     def multibounce(self, truth):
         for albedo in ALBEDOS:
             multi, seconds = self.bake(rays=self.args.multi_rays, seed=1002,
@@ -345,14 +367,15 @@ def plot(rows, path, meshes):
     quantities = ("ao", "indirect")
     fig, axes = plt.subplots(len(meshes), 2, figsize=(11, 4.2 * len(meshes)), squeeze=False)
 
-    def shown(r):  # the defaults per kappa (and brute force); hemicube per resolution
+    def shown(r):  # the defaults per kappa (and brute force); hemicube, depthmaps per setting
         if r["family"] == "discs":
             default_indirect = r["quantity"] == "indirect" and r["setting"] in (
                 "kappa 2 pass 2", "kappa 4 pass 2", "kappa 8 pass 2", "brute pass 2")
             return r["setting"].endswith("weighted") or default_indirect
-        return r["family"] == "hemicube"
+        return r["family"] in ("hemicube", "depthmaps")
 
-    style = {"discs": ("s", "tab:orange"), "hemicube": ("^", "tab:green")}
+    style = {"discs": ("s", "tab:orange"), "hemicube": ("^", "tab:green"),
+             "depthmaps": ("D", "tab:purple")}
     for i, mesh in enumerate(meshes):
         for j, quantity in enumerate(quantities):
             ax = axes[i][j]
@@ -465,7 +488,7 @@ def main(argv=None):
     parser.add_argument("--multi-rays", type=int, default=1024)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--hemicube-points", type=int, default=1000)
-    parser.add_argument("--parts", default="rays,discs,hemicube,multibounce")
+    parser.add_argument("--parts", default="rays,discs,hemicube,depthmaps,multibounce")
     parser.add_argument("--work", default="/tmp/aobake_approx")
     parser.add_argument("--json")
     parser.add_argument("--plot")
