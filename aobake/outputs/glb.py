@@ -15,6 +15,13 @@ Two writers, and ``read`` (any GLB's triangle meshes as a ``Table``, what
   normalised integers, so ``_RAYS`` is a float32 count (exact below 2**24).
   The material is white (``baseColorFactor`` 1, metallic 0, roughness 1) so
   the vertex colours show as they are.
+  A bake of instances (``aobake.instances``: its metadata's
+  ``parameters.instances.layout``) is written as instances instead: one POSITION,
+  NORMAL and index accessor per unique mesh (in the mesh's own units), and per baked
+  instance a node (its ``matrix``; ``extras.aobake_instance`` its place in the bake) with a
+  mesh whose primitive shares those accessors and has its own ``COLOR_0`` and custom
+  attributes.  ``read`` places them back (node matrix x stored positions) in the bake's
+  order, so the file reads as the flattened bake does.
 - ``write_textured``: a lightmap bake.  The AO atlas is an embedded PNG used as
   the material's ``occlusionTexture`` (glTF reads occlusion from the R channel,
   1 = unoccluded).
@@ -91,22 +98,106 @@ def write(
     _check_not_empty(positions, faces)
     gltf = _new_gltf(metadata)
     blob = bytearray()
+    shared = _shared_meshes(positions, faces, fields, metadata)
+    if shared is not None:
+        _write_instances(path, gltf, blob, fields, shared)
+        return
 
     attributes = _add_geometry(gltf, blob, positions, fields.get("normals"))
-    shade = fields.get("ao", fields.get("obscurance"))
-    if shade is not None:
-        # linear grey; clipped because COLOR_0 is a [0, 1] multiplier
-        grey = np.nan_to_num(np.clip(shade.astype(np.float64), 0.0, 1.0), nan=0.0)
-        rgba = np.column_stack([grey, grey, grey, np.ones_like(grey)])
-        attributes["COLOR_0"] = _add_accessor(gltf, blob, rgba, _ARRAY_BUFFER)
-    for name, attribute in CUSTOM_ATTRIBUTES.items():
-        if name in fields:
-            attributes[attribute] = _add_accessor(gltf, blob, fields[name], _ARRAY_BUFFER)
+    attributes.update(_value_attributes(gltf, blob, fields, slice(None)))
 
     material = {"name": GENERATOR, "pbrMetallicRoughness": _white_pbr()}
     _add_mesh(gltf, blob, attributes, [(faces, material)])
     _write_glb(path, gltf, blob)
     log.debug("wrote %s: %d vertices, %d faces, %s", path, len(positions), len(faces), list(fields))
+
+
+def _value_attributes(gltf: dict, blob: bytearray, fields: Mapping, rows) -> dict:
+    """COLOR_0 (linear grey of ao, else obscurance) and the custom attributes of
+    ``fields``' ``rows``: attribute name -> accessor."""
+    attributes = {}
+    shade = fields.get("ao", fields.get("obscurance"))
+    if shade is not None:
+        # linear grey; clipped because COLOR_0 is a [0, 1] multiplier
+        grey = np.nan_to_num(np.clip(shade[rows].astype(np.float64), 0.0, 1.0), nan=0.0)
+        rgba = np.column_stack([grey, grey, grey, np.ones_like(grey)])
+        attributes["COLOR_0"] = _add_accessor(gltf, blob, rgba, _ARRAY_BUFFER)
+    for name, attribute in CUSTOM_ATTRIBUTES.items():
+        if name in fields:
+            attributes[attribute] = _add_accessor(gltf, blob, fields[name][rows],
+                                                  _ARRAY_BUFFER)
+    return attributes
+
+
+def _shared_meshes(positions, faces, fields, metadata):
+    """A bake of instances as the shared geometry the instanced GLB stores: (layout
+    entries, {mesh name: (mesh-unit positions (v, 3), faces (f, 3), normals (v, 3) | None)}),
+    or None to write the arrays flat (not a bake of instances, or one whose instances of a
+    mesh do not all have its faces: ``--fix-normals fix`` may have flipped some).
+
+    A mesh's geometry is its first baked instance's, mapped back by the inverse of its
+    transform (float64; stored as float32 like any position), its faces in the mesh's own
+    winding (a mirroring transform's placed faces are reversed: ``Scene.dump``), its
+    normals by the transform's transpose (normals map by the inverse transpose)."""
+    from aobake.outputs.npz import instance_arrays
+
+    arrays = instance_arrays(metadata, len(positions), len(faces))
+    if not arrays:
+        return None
+    normals = fields.get("normals")
+    meshes, entries = {}, []
+    for k, name in enumerate(arrays["instance_meshes"]):
+        (v0, v1), (f0, f1) = arrays["instance_vertices"][k], arrays["instance_faces"][k]
+        transform = arrays["instance_transforms"][k]
+        linear = transform[:3, :3]
+        own = faces[f0:f1] - v0
+        if np.linalg.det(linear) < 0:
+            own = own[:, ::-1]
+        name = str(name)
+        if name not in meshes:
+            try:
+                inverse = np.linalg.inv(transform)
+            except np.linalg.LinAlgError:
+                return None
+            local = (positions[v0:v1] - transform[:3, 3]) @ inverse[:3, :3].T
+            mesh_normals = None if normals is None else normals[v0:v1] @ linear
+            meshes[name] = (local, np.ascontiguousarray(own), mesh_normals)
+        elif meshes[name][0].shape != (v1 - v0, 3) or not np.array_equal(meshes[name][1], own):
+            log.warning("instance %s of mesh %s does not have the mesh's faces: the .glb "
+                        "holds the bake flattened", arrays["instance_names"][k], name)
+            return None
+        entries.append({"name": str(arrays["instance_names"][k]), "mesh": name,
+                        "rows": slice(int(v0), int(v1)), "transform": transform})
+    return entries, meshes
+
+
+def _write_instances(path, gltf: dict, blob: bytearray, fields: Mapping, shared) -> None:
+    """The instanced GLB (see the module docstring): shared geometry per mesh, one node and
+    mesh per baked instance with its own value accessors."""
+    entries, meshes = shared
+    geometry = {}
+    for name, (local, own, normals) in meshes.items():
+        attributes = _add_geometry(gltf, blob, local, normals)
+        indices = _add_accessor(gltf, blob, own.reshape(-1), _ELEMENT_ARRAY_BUFFER,
+                                _UNSIGNED_INT)
+        geometry[name] = (attributes, indices)
+    gltf["materials"] = [{"name": GENERATOR, "pbrMetallicRoughness": _white_pbr()}]
+    gltf["meshes"], gltf["nodes"] = [], []
+    for k, entry in enumerate(entries):
+        attributes, indices = geometry[entry["mesh"]]
+        own = dict(attributes)
+        own.update(_value_attributes(gltf, blob, fields, entry["rows"]))
+        gltf["meshes"].append({"name": entry["mesh"], "primitives": [
+            {"attributes": own, "indices": indices, "material": 0, "mode": _MODE_TRIANGLES}]})
+        gltf["nodes"].append({"name": entry["name"], "mesh": len(gltf["meshes"]) - 1,
+                              # glTF matrices are column-major
+                              "matrix": [float(x) for x in entry["transform"].T.reshape(-1)],
+                              "extras": {"aobake_instance": k}})
+    gltf["scenes"] = [{"nodes": list(range(len(entries)))}]
+    gltf["scene"] = 0
+    _write_glb(path, gltf, blob)
+    log.debug("wrote %s: %d instances of %d meshes, %s", path, len(entries), len(meshes),
+              list(fields))
 
 
 def write_textured(
@@ -442,6 +533,10 @@ def read(path) -> Table:
         budget[0] -= values.nbytes
         return values
 
+    placed = _read_instances(gltf, accessor)
+    if placed is not None:  # aobake's bake of instances: placed back, in the bake's order
+        return placed
+
     groups: dict = {}  # POSITION accessor -> (attributes, [index arrays])
     for mesh in _list(gltf.get("meshes", [])):
         for prim in _list(mesh.get("primitives", []) if isinstance(mesh, dict) else None):
@@ -483,6 +578,52 @@ def read(path) -> Table:
     normals = columns.get("NORMAL")
     return Table(columns, "gltf", positions, float64(normals), np.concatenate(faces),
                  metadata if isinstance(metadata, dict) else {}, warnings)
+
+
+def _read_instances(gltf: dict, accessor) -> Table | None:
+    """An instanced GLB of aobake's (nodes with ``extras.aobake_instance``) as the flattened
+    bake's table: each instance's stored positions placed by its node's matrix (float64),
+    its normals by the matrix's inverse transpose, its attributes, faces reversed where the
+    matrix mirrors (as the bake's), instances in ``aobake_instance`` order; None for any
+    other GLB."""
+    nodes = _list(gltf.get("nodes", []))
+    placed = [node for node in nodes if isinstance(node, dict)
+              and isinstance(node.get("extras"), dict) and "aobake_instance" in node["extras"]]
+    asset = gltf.get("asset", {}) if isinstance(gltf.get("asset"), dict) else {}
+    if not placed or asset.get("generator") != GENERATOR:
+        return None
+    placed.sort(key=lambda node: node["extras"]["aobake_instance"])
+    meshes = _list(gltf.get("meshes", []))
+    parts: dict = {}
+    positions, normals, faces, base = [], [], [], 0
+    for node in placed:
+        matrix = node.get("matrix")
+        if not isinstance(matrix, list) or len(matrix) != 16 or not isinstance(node.get("mesh"), int) \
+                or not 0 <= node["mesh"] < len(meshes):
+            raise Unreadable(f"instance node {node.get('name')!r} without a matrix and a mesh")
+        transform = np.asarray(matrix, dtype=np.float64).reshape(4, 4).T
+        primitive = _list(meshes[node["mesh"]].get("primitives", []))[0]
+        attributes = primitive["attributes"]
+        stored = accessor(attributes["POSITION"]).astype(np.float64)
+        positions.append(stored @ transform[:3, :3].T + transform[:3, 3])
+        if "NORMAL" in attributes:
+            normal = accessor(attributes["NORMAL"]).astype(np.float64) @ np.linalg.inv(
+                transform[:3, :3])
+            normals.append(normal / np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None])
+        own = accessor(primitive["indices"]).astype(np.int64).reshape(-1, 3)
+        if np.linalg.det(transform[:3, :3]) < 0:
+            own = own[:, ::-1]
+        faces.append(own + base)
+        base += len(stored)
+        for name, index in attributes.items():
+            if name not in ("POSITION", "NORMAL"):
+                parts.setdefault(name, []).append(accessor(index))
+    columns = {name: np.concatenate(arrays) for name, arrays in parts.items()
+               if len(arrays) == len(placed)}
+    metadata = asset.get("extras", {})
+    return Table(columns, "gltf", np.concatenate(positions),
+                 np.concatenate(normals) if len(normals) == len(placed) else None,
+                 np.concatenate(faces), metadata if isinstance(metadata, dict) else {}, [])
 
 
 def _list(value) -> list:
