@@ -101,8 +101,10 @@ METHODS = {
 
 #: target name -> its declaration (``aobake.targets.TARGETS`` names the class)
 TARGETS = {
-    "vertices": TargetCapabilities(("points",), what="a per-vertex bake"),
-    "points": TargetCapabilities(("points",), what="query points"),
+    # section "instances": --bake (aobake.instances), read where the points are the scene's
+    # vertices or the caller's own
+    "vertices": TargetCapabilities(("points",), ("instances",), what="a per-vertex bake"),
+    "points": TargetCapabilities(("points",), ("instances",), what="query points"),
     "texels": TargetCapabilities(("points", "triangles"), ("texels",), what="a lightmap"),
     "view": TargetCapabilities(("points", "triangles", "gbuffer"), ("view",),
                                what="a camera view"),

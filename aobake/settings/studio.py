@@ -120,8 +120,11 @@ class StudioOptions:
     bake: tuple = setting(
         (), "parsed", "glTF nodes to bake (a glob on node names, 'mesh:NAME' for every node of "
         "a mesh; repeatable): only their vertices are sampled, every other node still "
-        "occludes. Nodes that share a mesh stay instances (docs/scale.md).", section="studio",
-        parse=_patterns("bake"), multiple=True, show_default=False)
+        "occludes. Nodes that share a mesh stay instances (docs/scale.md).",
+        # its own section: the targets whose points are the scene's vertices read it
+        # (capabilities.TARGETS), so a view does not offer it
+        section="instances", panel="studio", parse=_patterns("bake"), multiple=True,
+        show_default=False)
     instances: str = setting(
         "trace", "choice", "glTF meshes placed more than once: traced as Embree instances "
         "(trace: one copy of each mesh) or flattened (one copy per placement: the flattened "
