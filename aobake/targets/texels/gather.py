@@ -158,28 +158,44 @@ def channels(quantities, samples: TexelSamples, values: dict, rays: np.ndarray, 
 
 def plain_channels(samples: TexelSamples, values: dict, sampled: np.ndarray, padding: int,
                    seams=None, timings: dict | None = None, seam_info: dict | None = None,
-                   compiled: bool | None = None, threads: int = 1
+                   compiled: bool | None = None, threads: int = 1, to_tangent=None
                    ) -> tuple[dict, np.ndarray, np.ndarray]:
     """Texel channels of a method that casts no rays and has no stderr (an approximation,
-    a file's values): each scalar field's texel mean, seam-erased with equal weights (no
-    error to weigh the texels by) and gutter-filled like ``channels``, plus ``coverage``.
+    a file's values): each scalar field's texel mean, and each direction's (a (s, 3) field,
+    the bent normal: channels NAME.X, NAME.Y, NAME.Z) normalised mean, in tangent space with
+    ``to_tangent`` (as ``channels``), seam-erased with equal weights (no error to weigh the
+    texels by) and gutter-filled like ``channels``, plus ``coverage``.
 
-    values : field name -> (s,) float64 per sample, sampled : (s,) bool the samples with a
-    normal (the rest are left out of the texel means).  Returns as ``channels``.
+    values : field name -> (s,) or (s, 3) float64 per sample, sampled : (s,) bool the
+    samples with a normal (the rest are left out of the texel means).  Returns as
+    ``channels``.
     """
     width, height = samples.width, samples.height
     sub = samples if sampled.all() else subset(samples, sampled)
     count = texel_counts(sub)
     covered = count > 0
-    out = {name: splat(sub, value[sampled])[..., 0] for name, value in values.items()
-           if value.ndim == 1}
+    out, erase, directions = {}, [], []
+    for name, value in values.items():
+        if value.ndim == 1:
+            out[name] = splat(sub, value[sampled])[..., 0]
+            erase.append(SeamChannel((name,), "_weight"))
+        elif value.ndim == 2 and value.shape[1] == 3:
+            value = value[sampled]
+            if to_tangent is not None:
+                value = to_tangent(sub, sampled, value)
+            mean = normalize(splat(sub, value))[0]
+            labels = tuple(f"{name}.{axis}" for axis in "XYZ")
+            for axis, label in enumerate(labels):
+                out[label] = mean[..., axis]
+            erase.append(SeamChannel(labels, "_weight", direction=True))
+            directions.append(labels)
     names = list(out)
     if seams is not None and names:
         clock = time.perf_counter()
         # the data term's weight: one for every texel (the same error everywhere)
         out["_weight"] = np.ones((height, width))
-        erased = erase_seams(out, [SeamChannel((name,), "_weight") for name in names], seams,
-                             covered, padding, directions=True, compiled=compiled,
+        erased = erase_seams(out, erase, seams, covered, padding,
+                             directions=to_tangent is None, compiled=compiled,
                              threads=threads)
         del out["_weight"]
         if timings is not None:
@@ -190,6 +206,8 @@ def plain_channels(samples: TexelSamples, values: dict, sampled: np.ndarray, pad
     stack, filled = dilate(stack, covered, padding, compiled=compiled)
     stack = push_pull(stack, filled, np.float32)
     out = {name: stack[..., i] for i, name in enumerate(names)}
+    for labels in directions:  # a mean of unit vectors is shorter: renormalised
+        _renormalise([out[label] for label in labels], ~filled)
     out["coverage"] = samples.coverage.astype(np.float64) * covered
     return ({name: np.ascontiguousarray(image, dtype=np.float32) for name, image in out.items()},
             covered, filled)

@@ -105,7 +105,8 @@ class TexelTarget:
             images, covered, filled = plain_channels(samples, values, defined(plan.normals),
                                                      config.padding, state["seams"], timings,
                                                      seam_info, compiled=state["compiled"],
-                                                     threads=state["threads"])
+                                                     threads=state["threads"],
+                                                     to_tangent=to_tangent)
             quantities = [q for q in quantities if q.value.name in values]
         else:
             images, covered, filled = gather_channels(quantities, samples, values, rays,
