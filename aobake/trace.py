@@ -305,10 +305,14 @@ class Tracer:
         """
         n = len(points)
         normals = np.asarray(normals, dtype=np.float64)
-        valid = np.flatnonzero(defined(normals))
-        every = len(valid) == n  # the usual case: no copies of the points
+        traced = defined(normals)
+        every = bool(traced.all())  # the usual case: no copies of the points, no index
+        valid = slice(None) if every else np.flatnonzero(traced)
+        del traced
         kept = points if every else points[valid]
-        order = valid[morton_order(kept, self.kernels)]
+        order = morton_order(kept, self.kernels)
+        if not every:
+            order = valid[order]
         per_chunk = max(1, int(chunk_rays) // self.samples.rays)
         n_chunks = -(-len(order) // per_chunk)
         out = self.no_information(normals)
@@ -324,7 +328,7 @@ class Tracer:
         if distances is not None:
             extras["ray_distances"] = distances
         if self.samples.piece < self.samples.m:
-            if len(valid):
+            if len(kept):
                 offsets[valid] = point_offsets(
                     (kept - self.center) * self.scale,
                     None if sizes is None else (sizes if every else sizes[valid]) * self.scale,

@@ -4,18 +4,106 @@ from __future__ import annotations
 
 import numpy as np
 
+from aobake import _native
 from aobake.records import BakeResult, Finished, SamplePoints
 from aobake.vectors import defined
+
+#: faces whose corner areas are summed at a time by :func:`vertex_sizes` (bounds its
+#: temporary to 24 bytes per face of one block, not of the mesh)
+SIZE_BLOCK = 1 << 16
+#: the odd multiplier of the row hash (2^64 / golden ratio): any odd constant groups the
+#: rows the same; this one spreads nearby bit patterns over the high bits
+_MIX = np.uint64(0x9E3779B97F4A7C15)
 
 
 def vertex_sizes(scene) -> np.ndarray:
     """(v,) float64 size of each vertex's triangles: sqrt(2 * mean area of the faces using it)
-    (0 for an unreferenced vertex)."""
+    (0 for an unreferenced vertex).
+
+    Each vertex's areas are added in corner order (face 0 corners 0, 1, 2, face 1, ...), as
+    one ``np.bincount`` over the corners adds them, a block of faces at a time
+    (``np.add.at`` adds in sequence onto the running sums: the same bits) so the
+    repeated areas never exist for the whole mesh (24 bytes a face)."""
     areas = scene.areas()
+    faces = scene.faces
     n = len(scene.vertices)
-    total = np.bincount(scene.faces.ravel(), weights=np.repeat(areas, 3), minlength=n)
-    count = np.bincount(scene.faces.ravel(), minlength=n)
+    total = np.zeros(n)
+    for start in range(0, len(faces), SIZE_BLOCK):
+        block = slice(start, start + SIZE_BLOCK)
+        np.add.at(total, faces[block].reshape(-1), np.repeat(areas[block], 3))
+    count = np.bincount(faces.reshape(-1), minlength=n)
     return np.sqrt(2.0 * total / np.maximum(count, 1))
+
+
+def _row_hash(columns, n: int) -> np.ndarray:
+    """(n,) uint32 a hash of the float64 bits of each row of ``columns`` (each (n,) float64):
+    rows equal bit for bit hash equal (the converse is checked by the caller)."""
+    h = np.zeros(n, dtype=np.uint64)
+    for column in columns:
+        np.bitwise_xor(h, np.asarray(column, dtype=np.float64).view(np.uint64), out=h)
+        np.multiply(h, _MIX, out=h)
+        np.bitwise_xor(h, h >> np.uint64(29), out=h)
+    return (h >> np.uint64(32)).astype(np.uint32)
+
+
+def distinct_rows(positions: np.ndarray, normals: np.ndarray, kernels=None):
+    """The rows (position, normal) of (v, 3) float64 ``positions`` and ``normals`` that are
+    distinct bit for bit, in file order.
+
+    Returns (first (p,) int64 increasing: the first row of each distinct value,
+    inverse (v,) int64: the index into ``first`` of each row's value), or (None, None)
+    when every row is distinct (``first`` and ``inverse`` would both be 0..v-1).  The
+    groups are ``np.unique``'s of the 48-byte rows (equal bytes; -0.0 is not 0.0) and each
+    group's first row its ``return_index``; only the order of ``first`` differs (file
+    order, not the rows' byte order).
+
+    Memory: a 32-bit hash of each row and its sort (about 28 bytes a row while it runs),
+    then the exact comparison of the rows whose hashes collide; ``np.unique`` of the rows
+    held two copies of every 48-byte row.  kernels : the compiled module (its radix sort)
+    or None (numpy's).
+    """
+    n = len(positions)
+    if n < 2:
+        return None, None
+    columns = [positions[:, k] for k in range(3)] + [normals[:, k] for k in range(3)]
+    key = _row_hash(columns, n)
+    if kernels is not None:
+        order, ordered = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.uint32)
+        kernels.radix_argsort(key, 32, order, ordered)
+    else:
+        order = np.argsort(key, kind="stable")
+        ordered = key[order]
+    del key
+    collide = np.zeros(n, dtype=bool)  # in sorted order: rows sharing their hash
+    same = ordered[1:] == ordered[:-1]
+    collide[1:] |= same
+    collide[:-1] |= same
+    del ordered, same
+    candidates = np.sort(order[collide])  # file order
+    del order, collide
+    if not len(candidates):
+        return None, None
+    rows = np.ascontiguousarray(np.concatenate([positions[candidates], normals[candidates]],
+                                               axis=1), dtype=np.float64)
+    records = rows.view(np.dtype((np.void, rows.itemsize * rows.shape[1]))).ravel()
+    _, head, group = np.unique(records, return_index=True, return_inverse=True)
+    owner = candidates[head[group.reshape(-1)]]  # each candidate's group's first row
+    repeated = candidates[owner != candidates]
+    if not len(repeated):
+        return None, None
+    is_first = np.ones(n, dtype=bool)
+    is_first[repeated] = False
+    first = np.flatnonzero(is_first)
+    inverse = np.cumsum(is_first, dtype=np.int64) - 1
+    inverse[repeated] = inverse[owner[owner != candidates]]
+    return first, inverse
+
+
+def _identity(index: np.ndarray) -> bool:
+    """``index`` is 0..n-1 (compared a block at a time: no n-sized temporary)."""
+    step = SIZE_BLOCK
+    return all(np.array_equal(index[i:i + step], np.arange(i, min(len(index), i + step)))
+               for i in range(0, len(index), step))
 
 
 class VertexTarget:
@@ -30,18 +118,33 @@ class VertexTarget:
                phase=None) -> SamplePoints:
         # Vertices that share position and normal get the same point id, hence the same
         # samples and identical values (no noise seam where a file splits vertices at UV seams).
-        keys = np.ascontiguousarray(np.concatenate([scene.vertices, scene.vertex_normals], axis=1))
-        # Rows as opaque 48-byte records: a 1-D unique is ~3x faster than unique(axis=0).
-        # (A hand-made search of the rows saved 4-7 ms on the bunny and ogre: not kept.)
-        rows = keys.view(np.dtype((np.void, keys.itemsize * keys.shape[1]))).ravel()
-        _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
-        return SamplePoints(scene.vertices[first], scene.vertex_normals[first],
-                            first.astype(np.int64), sizes=vertex_sizes(scene)[first],
-                            state=inverse.reshape(-1))
+        if getattr(config, "keep_distances", False):
+            # The kept distances' rows (the NPZ's ray_distances) are the points in the
+            # rows' byte order, np.unique's: that layout is part of the file.
+            keys = np.ascontiguousarray(np.concatenate([scene.vertices, scene.vertex_normals],
+                                                       axis=1))
+            rows = keys.view(np.dtype((np.void, keys.itemsize * keys.shape[1]))).ravel()
+            _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+            return SamplePoints(scene.vertices[first], scene.vertex_normals[first],
+                                first.astype(np.int64), sizes=vertex_sizes(scene)[first],
+                                state=inverse.reshape(-1))
+        first, inverse = distinct_rows(scene.vertices, scene.vertex_normals, _native.kernels())
+        sizes = vertex_sizes(scene)
+        if first is None:
+            # Every vertex is its own point: the scene's arrays, not copies (the tracer and
+            # the executors only read them); ids and the inverse are one 0..v-1.
+            ids = np.arange(len(scene.vertices), dtype=np.int64)
+            return SamplePoints(scene.vertices, scene.vertex_normals, ids, sizes=sizes,
+                                state=ids)
+        return SamplePoints(scene.vertices[first], scene.vertex_normals[first], first,
+                            sizes=sizes[first], state=inverse)
 
     def finish(self, scene, config, plan, estimates, timings, warnings) -> Finished:
         inverse = plan.state
-        values = {name: array[inverse] for name, array in estimates.fields.items()}
+        # every vertex its own point, in order: the estimates are the result as they are
+        same = len(inverse) == len(plan.points) and _identity(inverse)
+        values = {name: array if same else array[inverse]
+                  for name, array in estimates.fields.items()}
         unsampled = int(np.count_nonzero(~defined(scene.vertex_normals)))
         if unsampled:
             why = ("unreferenced, only on zero-area faces, or only on faces --exclude left "
@@ -53,6 +156,6 @@ class VertexTarget:
             return Finished(result, values, None, len(scene.vertices))
         # rays traced before copying to vertices that share samples
         traced = int(estimates.rays.astype(np.int64).sum())
-        rays = estimates.rays[inverse]
+        rays = estimates.rays if same else estimates.rays[inverse]
         result = BakeResult(scene.vertices, scene.faces, scene.vertex_normals, rays, values)
         return Finished(result, values, rays, len(scene.vertices), cast=traced)
