@@ -68,10 +68,11 @@ STREAM_DIRECTIONS = 0x5EED_0026
 #: map's edge or the depth range's ends
 MARGIN = 1.0 + 2.0**-10
 #: time limit of one child: base + per direction x (triangles, texels, points).  Measured on
-#: llvmpipe on a loaded 2-core machine: ~6e-7 s per triangle, ~2e-8 s per texel and well
-#: under 1e-7 s per point per direction (docs/depthmaps.md); the limit is 10-15x that plus
-#: two minutes, so only a hung driver reaches it.
-TIMEOUT_BASE_S = 120.0
+#: llvmpipe on a loaded 2-core machine (docs/depthmaps.md): 0.4-1.4e-6 s per triangle,
+#: ~2e-8 s per texel, ~1.5e-7 s per point, each per direction; the limit is 7-25x that,
+#: plus 30 s (Python's start, the context, the upload: as the hemicube's child), so only a
+#: hung driver reaches it (twice, with the retry).
+TIMEOUT_BASE_S = 30.0
 TIMEOUT_PER_TRIANGLE_S = 1e-5
 TIMEOUT_PER_TEXEL_S = 3e-7
 TIMEOUT_PER_POINT_S = 1e-6
