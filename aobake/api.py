@@ -95,7 +95,8 @@ def run(
     phase("loading")
     # the lightmap's UV set is read where the map is baked into the mesh's own UVs
     scene = load_scene(mesh, config.normals, config.fix_normals,
-                       config.uv_set if getattr(target, "name", None) == "texels" else 0)
+                       config.uv_set if getattr(target, "name", None) == "texels" else 0,
+                       bake=config.bake)
     timings["load_s"] = time.perf_counter() - clock
 
     warnings: list = []

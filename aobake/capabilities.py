@@ -210,3 +210,6 @@ def check(method: str, target: str, config) -> None:
                          "with --pixel-filter box (which averages over the pixel's area)")
     if method == "file" and config.ao_from is None:
         raise UsageError("--method file needs --ao-from FILE (a per-vertex bake of the mesh)")
+    from aobake import instances  # --bake: the methods and targets that can honour it
+
+    instances.check(method, target, config)

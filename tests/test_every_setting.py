@@ -47,6 +47,7 @@ PARSED = {
     "exclude": ("floor", ("floor",)),
     "receive_only": ("floor", ("floor",)),
     "occluder_only": ("box*", ("box*",)),
+    "bake": ("box_a", ("box_a",)),
 }
 
 #: the settings a setting is used with (checked together by BakeConfig)
@@ -130,8 +131,13 @@ def scene(tmp_path_factory):
     big.export(cage)
     bake = root / "bake.npz"
     aobake.write(aobake.bake(str(mesh), rays=4), bake)
+    nodes = root / "scene.glb"
+    glb = trimesh.Scene()
+    glb.add_geometry(floor, node_name="floor", geom_name="floor")
+    glb.add_geometry(box, node_name="box_a", geom_name="box")
+    glb.export(nodes)
     return {"mesh": mesh, "low": low, "high": high, "cage": cage, "bake": bake,
-            "mask": root / "mask.png", "root": root}
+            "mask": root / "mask.png", "root": root, "nodes": nodes}
 
 
 def _fill(value, files):
@@ -179,6 +185,8 @@ def _context(command: str, name: str, files) -> tuple:
         if name != "source":
             extra += ["--from", str(files["high"])]
             request["source"] = str(files["high"])
+    if name == "bake":  # glTF nodes: the scene as a glTF file of named nodes
+        mesh = files["nodes"]
     if name == "overlap_mask":
         extra += ["--uv-overlap", "refuse"]
         request["uv_overlap"] = "refuse"

@@ -390,8 +390,6 @@ def test_the_glb_keeps_instances_sharing_their_geometry(rocks, tmp_path):
     assert result["matched_by"] == "order" and result["n"] == len(traced.positions)
 
 
-@pytest.mark.xfail(reason="aobake.api.run does not pass config.bake to load_scene yet "
-                          "(the wiring this change asks for)", strict=False)
 def test_the_command_line_bakes_the_nodes_it_names(rocks, tmp_path):
     from conftest import run_cli
 

@@ -45,7 +45,8 @@ def test_every_section_record_lives_in_the_settings_package():
 #: the settings sections each command can use (main and batch: a lightmap or vertices, by
 #: the methods that serve them; view: a camera, by every method)
 COMMAND_SECTIONS = {
-    "main": {"common", "studio", "texels", "rays", "discs", "hemicube", "file", "depthmaps"},
+    "main": {"common", "studio", "texels", "rays", "discs", "hemicube", "file", "depthmaps",
+             "instances"},
     "view": {"common", "studio", "view", "rays", "discs", "hemicube", "file", "ssao", "crytek",
              "gtao", "heightfield", "depthmaps"}}
 

@@ -81,15 +81,17 @@ def test_config_round_trips_through_a_report_with_every_field_changed():
                          pixel_filter="box", pixel_samples=8,
                          source="high.obj", cage_offset=0.25, low_occludes=True, alpha_cutout=True,
                          exclude=("a*",),
-                         receive_only=("b",), occluder_only=("c",))
+                         receive_only=("b",), occluder_only=("c",), instances="flatten")
     # keep_distances cannot go with a tolerance: the second config changes it
     kept = replace(changed, tolerance=None, keep_distances=True, cage_offset=None,
                    cage="cage.obj")
     # a texel density replaces the resolution: the third config sets it
     dense = replace(kept, resolution=DEFAULTS["resolution"], texel_density=12.5)
+    # --bake goes with none of the groups, cut-outs or --from: a config of its own
+    chosen = BakeConfig(bake=("node*", "mesh:rock"))
     assert all(getattr(changed, k) != v or getattr(kept, k) != v or getattr(dense, k) != v
-               for k, v in DEFAULTS.items()), "change every field"
-    for config in (BakeConfig(), changed, kept, dense, BakeConfig(max_distance=0.5)):
+               or getattr(chosen, k) != v for k, v in DEFAULTS.items()), "change every field"
+    for config in (BakeConfig(), changed, kept, dense, chosen, BakeConfig(max_distance=0.5)):
         assert BakeConfig.from_dict(_through_json(config.to_dict())) == config
     with pytest.raises(ValueError, match="unknown configuration keys"):
         BakeConfig.from_dict({"rayz": 3})
