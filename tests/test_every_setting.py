@@ -215,12 +215,12 @@ def files(scene, tmp_path_factory):
 
 
 def _skip_unrunnable(method: str) -> None:
-    if method == "hemicube":
-        from aobake.methods.hemicube import available
+    if method in ("hemicube", "depthmaps"):
+        import importlib
 
-        ok, why = available()
+        ok, why = importlib.import_module(f"aobake.methods.{method}").available()
         if not ok:
-            pytest.skip(f"no OpenGL context for --method hemicube: {why}")
+            pytest.skip(f"no OpenGL context for --method {method}: {why}")
 
 
 @pytest.mark.parametrize("command, name", CASES, ids=[f"{c}-{n}" for c, n in CASES])
