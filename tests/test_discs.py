@@ -5,6 +5,10 @@ exactly (to rounding), the algebra of its passes against an independent dense
 computation, the hierarchy against brute force, and the bit-identity every method owes
 the executors (any split of the points gives the same rows).  Rounding tolerances are
 counted from the operations involved, in units of float64's epsilon.
+
+These are the chapter's model's tests (``discs_model="chapter"``, named wherever the
+model matters); the robust model's are in tests/test_discs_robust.py, and the plumbing
+tests here run the default.
 """
 
 from __future__ import annotations
@@ -27,6 +31,9 @@ from aobake.vectors import normalize
 
 EPS = np.finfo(np.float64).eps
 
+#: the chapter's model, which these tests describe
+CHAPTER = dict(discs_model="chapter")
+
 
 def _points(points, normals) -> SamplePoints:
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -39,7 +46,7 @@ def _one_disc(distance, radius, emitter_normal, options=None, max_distance=math.
     the origin (normal +z)."""
     method = DiscsMethod.from_elements([[0.0, 0.0, distance]], [emitter_normal],
                                        [math.pi * radius * radius],
-                                       options or DiscsOptions(discs_passes=1),
+                                       options or DiscsOptions(discs_passes=1, **CHAPTER),
                                        max_distance=max_distance)
     return method.estimate(_points([0, 0, 0], [0, 0, 1]), 1, 1024).fields["ao"][0]
 
@@ -153,7 +160,7 @@ def test_passes_weight_each_emitter_by_its_own_previous_pass():
              (2, 0.25): 0.25 * p2 + 0.75 * p1}
     for (passes, weight), want in cases.items():
         options = DiscsOptions(discs_passes=passes, discs_weight=weight,
-                               discs_traversal="brute")
+                               discs_traversal="brute", **CHAPTER)
         method = DiscsMethod.from_elements(position, normal, area, options)
         got = method.estimate(points, 1, 4096)
         np.testing.assert_allclose(got.fields["ao"], want, rtol=0, atol=atol)
@@ -189,9 +196,11 @@ def test_hierarchy_that_opens_every_node_is_brute_force(tori_elements):
     atol = 4 * n * n * EPS
     for max_distance in (math.inf, 0.7):
         brute = DiscsMethod.from_elements(position, normal, area,
-                                          DiscsOptions(discs_traversal="brute"), max_distance)
+                                          DiscsOptions(discs_traversal="brute", **CHAPTER),
+                                          max_distance)
         tree = DiscsMethod.from_elements(position, normal, area,
-                                         DiscsOptions(discs_kappa=kappa), max_distance)
+                                         DiscsOptions(discs_kappa=kappa, **CHAPTER),
+                                         max_distance)
         a, b = brute.estimate(points, 1, 1 << 16), tree.estimate(points, 1, 1 << 16)
         np.testing.assert_allclose(b.fields["ao"], a.fields["ao"], rtol=0, atol=atol)
         assert (b.extras["discs_terms"] <= n).all()
@@ -207,12 +216,12 @@ def test_hierarchy_agrees_with_brute_force_within_the_stated_tolerance(tori_elem
     position, normal, area = tori_elements
     points = _points(position, normal)
     brute = DiscsMethod.from_elements(position, normal, area,
-                                      DiscsOptions(discs_traversal="brute"))
+                                      DiscsOptions(discs_traversal="brute", **CHAPTER))
     truth = brute.estimate(points, 1, 1 << 17).fields["ao"]
     errors = {}
     for kappa in (2.0, 4.0, 8.0):
         tree = DiscsMethod.from_elements(position, normal, area,
-                                         DiscsOptions(discs_kappa=kappa))
+                                         DiscsOptions(discs_kappa=kappa, **CHAPTER))
         errors[kappa] = _rmse(tree.estimate(points, 1, 1 << 17).fields["ao"], truth)
     assert errors[DiscsOptions().discs_kappa] <= HIERARCHY_RMSE, errors
     assert errors[4.0] <= errors[2.0] / 2 and errors[8.0] <= errors[4.0] / 2, errors
@@ -265,9 +274,10 @@ def test_elements_are_the_chapters_discs():
 def test_scaling_by_a_power_of_two_changes_no_bit(tori_elements):
     position, normal, area = tori_elements
     points = _points(position[::5] * 1.01, normal[::5])
-    base = DiscsMethod.from_elements(position, normal, area).estimate(points, 1, 4096)
+    options = DiscsOptions(**CHAPTER)
+    base = DiscsMethod.from_elements(position, normal, area, options).estimate(points, 1, 4096)
     s = 2.0 ** 60
-    scaled = DiscsMethod.from_elements(position * s, normal, area * s * s)
+    scaled = DiscsMethod.from_elements(position * s, normal, area * s * s, options)
     big = scaled.estimate(_points(points.points * s, points.normals), 1, 4096)
     np.testing.assert_array_equal(base.fields["ao"], big.fields["ao"])
 
@@ -281,7 +291,7 @@ def test_any_split_of_the_points_gives_the_same_rows(tori_elements, traversal):
     sizes and thread counts give the same bits (tests/test_executors.py's contract)."""
     position, normal, area = tori_elements
     method = DiscsMethod.from_elements(position, normal, area,
-                                       DiscsOptions(discs_traversal=traversal))
+                                       DiscsOptions(discs_traversal=traversal, **CHAPTER))
     rng = np.random.default_rng(3)
     query = np.vstack([position[::3], rng.uniform(-1.5, 2.5, (200, 3))])
     normals = np.vstack([normal[::3], rng.normal(size=(200, 3))])
@@ -299,13 +309,14 @@ def test_any_split_of_the_points_gives_the_same_rows(tori_elements, traversal):
 
 def test_registered_and_it_records_every_parameter_and_each_pass():
     assert METHODS["discs"] is DiscsMethod and not DiscsMethod.casts_rays
-    method = DiscsMethod.from_elements(*elements(load_scene(_tori())))
+    options = DiscsOptions(**CHAPTER)
+    method = DiscsMethod.from_elements(*elements(load_scene(_tori())), options)
     assert method.error_quantities() == [] and method.kernel_stages() == {}
     got = method.estimate(_points(method.position[:50] / method.scale + method.center,
                                   method.normal[:50]), 1, 4096)
     parameters = method.record(got)["parameters"]
-    options = DiscsOptions()
-    for name in ("discs_k", "discs_passes", "discs_weight", "discs_kappa", "discs_traversal"):
+    for name in ("discs_model", "discs_k", "discs_passes", "discs_weight", "discs_kappa",
+                 "discs_traversal"):
         assert parameters[name] == getattr(options, name)
     assert parameters["method"] == "discs" and parameters["max_distance"] == math.inf
     means = got.extras["discs_passes"].mean(axis=0)
@@ -318,7 +329,8 @@ def test_registered_and_it_records_every_parameter_and_each_pass():
 def test_bad_options_and_inputs_are_input_errors():
     for bad in (dict(discs_kappa=0.0), dict(discs_kappa=-1.0), dict(discs_kappa=math.inf),
                 dict(discs_k=math.nan), dict(discs_passes=0), dict(discs_passes=1.5),
-                dict(discs_weight=1.5), dict(discs_traversal="bvh")):
+                dict(discs_weight=1.5), dict(discs_traversal="bvh"),
+                dict(discs_model="bunnell")):
         with pytest.raises(InputError):
             DiscsOptions(**bad)
     scene = load_scene(_tori())

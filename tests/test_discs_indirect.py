@@ -7,7 +7,9 @@ distance from the ray-traced truth ``--method rays -q indirect`` on a closed sce
 
 Rounding tolerances count the operations involved in units of float64's epsilon; the
 agreement with the truth is a *measured* error of an approximation, stated with the
-numbers it was set from (an approximation has no error bar).
+numbers it was set from (an approximation has no error bar).  These describe the chapter's
+model (``discs_model="chapter"``); the robust model's indirect light is tested in
+tests/test_discs_robust.py.
 """
 
 from __future__ import annotations
@@ -29,6 +31,9 @@ from aobake.scene import load_scene
 from aobake.records import SamplePoints
 
 EPS = np.finfo(np.float64).eps
+
+#: the chapter's model, which these tests describe
+CHAPTER = DiscsOptions(discs_model="chapter")
 
 #: the disc indirect light's measured distance from the ray-traced truth on the two
 #: interlocking tori at every vertex, default settings, albedo 0.5 (docs/approximations.md):
@@ -75,8 +80,8 @@ def test_form_factor_on_axis_is_the_discs_cosine_fraction():
         assert form_factor(math.pi * r * r, d, 1.0, 1.0) == pytest.approx(exact, rel=8 * EPS)
         for albedo in (0.5, 0.8):
             method = DiscsMethod.from_elements([[0.0, 0.0, d]], [[0.0, 0.0, -1.0]],
-                                               [math.pi * r * r], quantities=("indirect",),
-                                               albedo=albedo)
+                                               [math.pi * r * r], CHAPTER,
+                                               quantities=("indirect",), albedo=albedo)
             got = _indirect(method, [0, 0, 0], [0, 0, 1]).fields["indirect"][0]
             assert got == pytest.approx(albedo * exact, rel=16 * EPS)
 
@@ -90,7 +95,7 @@ def test_form_factor_signs_cosines_and_far_field():
 
     def lit(emitter_normal, receiver_normal):
         method = DiscsMethod.from_elements([[0.0, 0.0, d]], [emitter_normal], [area],
-                                           quantities=("indirect",), albedo=1.0)
+                                           CHAPTER, quantities=("indirect",), albedo=1.0)
         return _indirect(method, [0, 0, 0], receiver_normal).fields["indirect"][0]
 
     on_axis = area / (math.pi * d * d + area)
@@ -120,7 +125,7 @@ def _three_discs(passes, bounces=1, albedo=0.5):
     normal = [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]
     area = [math.pi / 4, math.pi]
     options = DiscsOptions(discs_indirect_passes=passes, discs_indirect_weight=1.0,
-                           discs_traversal="brute")
+                           discs_traversal="brute", discs_model="chapter")
     method = DiscsMethod.from_elements(position, normal, area, options,
                                        quantities=("ao", "indirect"), albedo=albedo,
                                        bounces=bounces)
@@ -165,7 +170,8 @@ def test_passes_are_clamped_at_zero():
     """More light blocked than gathered (a large blocker close to R) gives 0, not less."""
     method = DiscsMethod.from_elements([[0.0, 0.0, 1.0], [0.0, 0.0, 2.0]],
                                        [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]], [math.pi, math.pi],
-                                       DiscsOptions(discs_traversal="brute"),
+                                       DiscsOptions(discs_traversal="brute",
+                                                    discs_model="chapter"),
                                        quantities=("indirect",))
     passes = _indirect(method, [0, 0, 0], [0, 0, 1]).extras["discs_indirect_passes"][0]
     assert passes[0] > 0 and passes[1] == 0.0  # L/5 - (1/2)(L/2) < 0
@@ -184,11 +190,13 @@ def test_zero_albedo_gives_zero_and_leaves_ao_alone(tori_scene):
     of the same gather keep their bits (a column's sums never depend on the others)."""
     position, normal, area = elements(tori_scene)
     points = _points(tori_scene.vertices[::7], tori_scene.vertex_normals[::7])
-    black = DiscsMethod.from_elements(position, normal, area, quantities=("ao", "indirect"),
+    black = DiscsMethod.from_elements(position, normal, area, CHAPTER,
+                                      quantities=("ao", "indirect"),
                                       albedo=0.0).estimate(points, 2, 4096)
     assert (black.fields["indirect"] == 0).all()
     assert (black.extras["discs_indirect_passes"] == 0).all()
-    alone = DiscsMethod.from_elements(position, normal, area).estimate(points, 2, 4096)
+    alone = DiscsMethod.from_elements(position, normal, area, CHAPTER).estimate(points, 2,
+                                                                                4096)
     np.testing.assert_array_equal(black.fields["ao"], alone.fields["ao"])
     np.testing.assert_array_equal(black.extras["discs_passes"], alone.extras["discs_passes"])
 
@@ -199,7 +207,8 @@ def test_any_split_of_the_points_gives_the_same_rows(tori_scene, traversal):
     position, normal, area = elements(tori_scene)
     method = DiscsMethod.from_elements(position, normal, area,
                                        DiscsOptions(discs_traversal=traversal,
-                                                    discs_indirect_passes=3),
+                                                    discs_indirect_passes=3,
+                                                    discs_model="chapter"),
                                        quantities=("ao", "indirect"))
     query, normals = tori_scene.vertices[::5], tori_scene.vertex_normals[::5]
     whole = method.estimate(_points(query, normals), 1, 4096)
@@ -213,7 +222,7 @@ def test_any_split_of_the_points_gives_the_same_rows(tori_scene, traversal):
 
 @pytest.mark.slow
 def test_a_point_without_normal_gets_no_information(tori_scene):
-    method = DiscsMethod.from_elements(*elements(tori_scene), quantities=("indirect",))
+    method = DiscsMethod.from_elements(*elements(tori_scene), CHAPTER, quantities=("indirect",))
     got = method.estimate(_points([[0, 0, 0], [0, 0, 0.5]], [[0, 0, 0], [0, 0, 1]]), 1, 4096)
     assert got.fields["indirect"][0] == NO_INFORMATION_AO
     assert np.isnan(got.extras["discs_indirect_passes"][0]).all()
@@ -235,12 +244,13 @@ def test_agrees_with_the_ray_traced_truth_within_the_measured_error():
         e = values[ok] - truth.indirect[ok]
         return math.sqrt(max(0.0, float(np.mean(e * e)) - noise)), float(e.mean())
 
-    hierarchy = aobake.bake(mesh, method="discs", quantities=("indirect",), threads=2)
+    hierarchy = aobake.bake(mesh, method="discs", quantities=("indirect",), threads=2,
+                            discs_model="chapter")
     rmse, bias = excess(hierarchy.indirect)
     assert rmse <= TORI_EXCESS_RMSE and abs(bias) <= TORI_BIAS, (rmse, bias)
     assert rmse < 0.3 * math.sqrt(float(np.mean(truth.indirect[ok] ** 2)))
     brute = aobake.bake(mesh, method="discs", quantities=("indirect",), threads=2,
-                        discs_traversal="brute")
+                        discs_traversal="brute", discs_model="chapter")
     assert excess(brute.indirect)[0] <= TORI_BRUTE_EXCESS_RMSE
 
 

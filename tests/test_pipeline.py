@@ -69,7 +69,7 @@ def test_config_round_trips_through_a_report_with_every_field_changed():
                          unwrap="always", bent_space="tangent", seams="off", denoise=True,
                          uv_set=1, uv_overlap="refuse", overlap_mask="overlap.png",
                          ao_from="bake.npz", albedo=0.25, bounces=3, discs_k=3.0,
-                         discs_passes=3, discs_weight=0.5, discs_kappa=2.0,
+                         discs_model="chapter", discs_passes=3, discs_weight=0.5, discs_kappa=2.0,
                          discs_traversal="brute", discs_indirect_passes=3,
                          discs_indirect_weight=0.5, hemicube_resolution=32,
                          depthmaps_directions=64, depthmaps_resolution=512, depthmaps_bias=0.75,

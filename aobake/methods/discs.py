@@ -61,6 +61,26 @@ radius sqrt(A / pi) away.  ``traversal="brute"`` sums every element (O(n) per re
 All arithmetic runs in a local frame: positions rebased on the elements' per-axis median
 and scaled by a power of two (exact), so the numbers do not depend on where the mesh sits
 or on its scale; every shadow term is invariant under that scaling.
+
+The robust model (``discs_model="robust"``, the default; Hoberock and Jia, GPU Gems 3,
+ch. 12) keeps the elements, the passes and the hierarchy and changes the terms:
+
+- each shadow is the cosine-weighted form factor ``A sat(n_E . v) sat(n_R . v) / (pi d^2
+  + A)`` (exact on a disc's axis; no gain k), and near the receiver (a leaf within kappa
+  equivalent radii) Lambert's exact form factor of the element's own triangles, a third
+  of each, clipped to the receiver's hemisphere;
+- a node is blended with its children (a leaf with its triangles) over a band of distances
+  (``discs_tree.TRANSITION``) instead of switched at kappa: the result is continuous;
+- every element has a flipped twin (its normal reversed) weighted by its ``presence``,
+  how open its back is: 0 on closed (or nearly closed) surfaces facing out, found with
+  the vertices welded by position (``aobake.repair.orient``), else the one-sided layer's
+  AO at the element's back.  An open sheet (a floor) then casts from both sides; a closed
+  surface from its back only, as in the chapter;
+- a receiver on another surface's triangle (contact: an object resting on a floor) is
+  blocked for certain where it faces into a closed surface or along the triangle's plane.
+
+It computes cosine-weighted AO (``--weighting uniform`` is the chapter's model's).  The
+indirect light keeps the chapter's one-sided emission and blocking with the robust terms.
 """
 
 from __future__ import annotations
@@ -71,14 +91,15 @@ from dataclasses import asdict
 
 import numpy as np
 
+from aobake import repair as repairs
 from aobake.errors import InputError
 from aobake.records import Estimates
 from aobake.methods import discs_tree
 from aobake.methods.base import refuse_ray_settings
 # the settings record and its constants live apart (read by every config), re-exported here
 from aobake.settings.discs import (DEFAULT_INDIRECT_PASSES,  # noqa: F401
-                                          DEFAULT_INDIRECT_WEIGHT, DEFAULT_KAPPA, MAX_PASSES,
-                                          TRAVERSALS, DiscsOptions)
+                                   DEFAULT_INDIRECT_WEIGHT, DEFAULT_KAPPA, DEFAULT_MODEL,
+                                   MAX_PASSES, MODELS, TRAVERSALS, DiscsOptions)
 from aobake.vectors import defined
 
 
@@ -153,6 +174,12 @@ def elements(scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     and whose face normals do not cancel: (position (e, 3), normal (e, 3) unit, area (e,))
     float64 in scene units.  area = sum over the vertex's faces of (face area / 3) (so the
     elements' areas sum to the mesh's), normal = normalised sum of those faces' unit normals."""
+    position, normal, area, _keep = _elements(scene)
+    return position, normal, area
+
+
+def _elements(scene):
+    """:func:`elements` and keep (v,) bool: the vertices that have an element."""
     faces = np.asarray(scene.faces, dtype=np.int64)
     n = len(scene.vertices)
     corners = faces.ravel()
@@ -163,7 +190,47 @@ def elements(scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     length = np.sqrt(discs_tree._dot(summed, summed))
     keep = (area > 0) & (length > 0)
     normal = summed[keep] / length[keep, None]
-    return np.asarray(scene.vertices, dtype=np.float64)[keep], normal, area[keep]
+    return np.asarray(scene.vertices, dtype=np.float64)[keep], normal, area[keep], keep
+
+
+def element_faces(faces: np.ndarray, face_area: np.ndarray, keep: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Each element's own triangles: faces (f, 3) int64 vertex indices, face_area (f,),
+    keep (v,) bool the vertices that have an element (in order) -> (start (e + 1,) int64,
+    faces (m,) int64): element i's triangles of non-zero area are ``faces[start[i]:start[i +
+    1]]``, in increasing order."""
+    element_of = np.full(len(keep), -1, dtype=np.int64)
+    element_of[keep] = np.arange(int(keep.sum()), dtype=np.int64)
+    with_area = np.flatnonzero(face_area > 0)
+    owner = element_of[faces[with_area].ravel()]
+    face = np.repeat(with_area, 3)
+    has = owner >= 0
+    owner, face = owner[has], face[has]
+    order = np.lexsort((face, owner))
+    owner, face = owner[order], face[order]
+    start = np.searchsorted(owner, np.arange(int(keep.sum()) + 1)).astype(np.int64)
+    return start, face.astype(np.int64)
+
+
+def closed_elements(vertices: np.ndarray, faces: np.ndarray, start: np.ndarray,
+                    owned: np.ndarray) -> np.ndarray:
+    """(e,) bool: the elements whose triangles all lie on closed (or nearly closed: small
+    holes) components facing out, with the vertices welded by position (a slab written as
+    separate patches is one closed component).  vertices (v, 3), faces (f, 3) int64; start,
+    owned as :func:`element_faces`.  ``aobake.repair.orient`` finds the components."""
+    vertices = np.ascontiguousarray(np.asarray(vertices, dtype=np.float64))
+    _, first, weld = np.unique(vertices.view(np.dtype((np.void, 24))).ravel(),
+                               return_index=True, return_inverse=True)
+    found = repairs.orient(vertices[first], weld.reshape(-1)[faces])
+    shut = (found.closed | found.nearly_closed) & ~found.inward
+    on_shut = np.zeros(len(faces), dtype=bool)
+    has = found.component >= 0
+    on_shut[has] = shut[found.component[has]]
+    # an element is closed when none of its triangles is on an open (or inward) component
+    open_count = np.add.reduceat((~on_shut[owned]).astype(np.int64), start[:-1]) \
+        if len(owned) else np.zeros(len(start) - 1, dtype=np.int64)
+    empty = start[1:] == start[:-1]
+    return (open_count == 0) & ~empty
 
 
 class DiscsMethod:
@@ -180,12 +247,18 @@ class DiscsMethod:
 
     def __init__(self, position: np.ndarray, normal: np.ndarray, area: np.ndarray,
                  options: DiscsOptions, max_distance: float, threads: int | None = None,
-                 quantities: tuple = ("ao",), albedo: float = 0.5, bounces: int = 1):
+                 quantities: tuple = ("ao",), albedo: float = 0.5, bounces: int = 1,
+                 triangles: tuple | None = None, closed: np.ndarray | None = None):
         """position (e, 3), normal (e, 3) unit, area (e,) > 0 float64 in scene units;
         max_distance in scene units (inf: no limit); quantities some of ``DISC_QUANTITIES``;
-        albedo in [0, 1] and bounces >= 1 (``indirect`` only).  Builds the frame, the
-        hierarchy and the elements' pass values (passes 1..P-1; with ``indirect``, the
-        elements' AO, their radiance and their indirect passes 1..Q-1) once."""
+        albedo in [0, 1] and bounces >= 1 (``indirect`` only); triangles : the robust model's
+        exact near field, (corners (f, 3, 3) float64 scene units, normals (f, 3) unit,
+        start (e + 1,), faces (m,): :func:`element_faces`), None: discs at every distance;
+        closed : (e,) bool the elements on closed surfaces facing out (:func:`closed_elements`:
+        the robust model's presence is 0 there without a gather), None: none known.
+        Builds the frame, the hierarchy (the robust model: its flipped layer) and the
+        elements' pass values (passes 1..P-1; with ``indirect``, the elements' AO, their
+        radiance and their indirect passes 1..Q-1) once."""
         quantities = tuple(q for q in DISC_QUANTITIES if q in quantities)
         if not quantities:
             raise InputError(f"discs: quantities must be some of {DISC_QUANTITIES}")
@@ -206,11 +279,37 @@ class DiscsMethod:
         self.normal = normal
         self.area = area * (self.scale * self.scale)
         self.local_max_distance = self.max_distance * self.scale
+        self.robust = options.discs_model == "robust"
+        # the robust model always walks the tree (brute force: every node above the leaves
+        # opened), whose leaves blend into their triangles
         self.tree = (discs_tree.build(self.position, self.normal, self.area)
-                     if options.discs_traversal == "hierarchy" else None)
+                     if options.discs_traversal == "hierarchy" or self.robust else None)
+        threads = threads or _default_threads()
+        self.triangles = None
+        self.presence = np.zeros(self.n_elements)  # the flipped layer (robust model)
+        if self.robust:
+            if triangles is not None:
+                corners, face_normal, start, faces = triangles
+                self.triangles = discs_tree.Triangles(
+                    (np.asarray(corners, dtype=np.float64) - self.center) * self.scale,
+                    np.asarray(face_normal, dtype=np.float64), np.asarray(start, np.int64),
+                    np.asarray(faces, np.int64))
+            # How open each element's back is: the receiver at its position facing the
+            # other way, under the one-sided layer alone.  Inside a closed surface it is 0
+            # (the far side covers it), behind an open sheet 1: the flipped layer's weight.
+            self.flipped = discs_tree.flipped_levels(self.tree, self.position, self.normal,
+                                                     self.area, self.presence)
+            open_back = (np.ones(self.n_elements, dtype=bool) if closed is None
+                         else ~np.asarray(closed, dtype=bool))
+            if open_back.any():
+                sums, _ = self._gather(self._weights(np.ones((self.n_elements, 1))),
+                                       self.position[open_back], -self.normal[open_back],
+                                       threads, PREPARE_PAIRS, contact=False, presence=True)
+                self.presence[open_back] = np.clip(1.0 - sums[:, 0], 0.0, 1.0)
+            self.flipped = discs_tree.flipped_levels(self.tree, self.position, self.normal,
+                                                     self.area, self.presence)
         # Passes 1..P-1 at the elements: what a receiver's pass j weights each shadow by.
         # The receivers here are the elements themselves (their own normals).
-        threads = threads or _default_threads()
         accessible = np.ones((self.n_elements, 1))  # "pass 0": every element casts fully
         computed = []
         for _ in range(options.discs_passes - 1):
@@ -291,15 +390,28 @@ class DiscsMethod:
             raise InputError("--method discs has no ground plane (its elements are the mesh's "
                              "vertices)")
         refuse_ray_settings("discs", config)
-        position, normal, area = elements(scene)
+        position, normal, area, keep = _elements(scene)
         if len(position) == 0:
             raise InputError(f"{scene.source}: no faces with area: --method discs has no "
                              "elements")
         max_distance = config.resolve_max_distance(scene.diagonal)
         if options is None:  # the config's settings once it carries them, else the class's
             options = DiscsOptions.of(config, cls.options)
+        triangles = closed = None
+        if options.discs_model == "robust":
+            if getattr(config, "weighting", "cosine") != "cosine":
+                raise InputError("--method discs --discs-model robust computes cosine-weighted "
+                                 "AO (its form factors are the cosine measure); --weighting "
+                                 "uniform is the chapter's model's (--discs-model chapter)")
+            faces = np.asarray(scene.faces, dtype=np.int64)
+            face_area = scene.areas()
+            start, owned = element_faces(faces, face_area, keep)
+            triangles = (np.asarray(scene.vertices, dtype=np.float64)[faces],
+                         np.asarray(scene.face_normals, dtype=np.float64), start, owned)
+            closed = closed_elements(scene.vertices, faces, start, owned)
         return cls(position, normal, area, options, max_distance, quantities=quantities,
-                   albedo=getattr(config, "albedo", 0.5), bounces=getattr(config, "bounces", 1))
+                   albedo=getattr(config, "albedo", 0.5), bounces=getattr(config, "bounces", 1),
+                   triangles=triangles, closed=closed)
 
     @classmethod
     def from_elements(cls, position, normal, area, options: DiscsOptions | None = None,
@@ -336,7 +448,8 @@ class DiscsMethod:
         return self.tree.node_values(per_element)
 
     def _gather(self, weights, receivers: np.ndarray, normals: np.ndarray, threads: int,
-                budget: int, advance=None, kinds=None) -> tuple[np.ndarray, np.ndarray]:
+                budget: int, advance=None, kinds=None, contact: bool = True,
+                presence: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Sums (c, w) and terms (c,) at receivers (c, 3) in the local frame, each column
         with its kernel (``kinds``, ``discs_tree.KINDS``; None: shadows), in chunks on
         ``threads`` threads (results land by index); ``advance(k)`` as k more receivers are
@@ -352,6 +465,15 @@ class DiscsMethod:
 
         def run(bounds):
             lo, hi = bounds
+            if self.robust:
+                # the presence (how open each back is: 0 or 1 but near an open rim, a
+                # coarse quantity) with a switch between levels: half the terms
+                return discs_tree.gather_robust(
+                    self.tree, self.flipped, self.triangles, self.presence, weights,
+                    receivers[lo:hi], normals[lo:hi], opt.discs_kappa,
+                    self.local_max_distance, budget, kinds,
+                    brute=opt.discs_traversal == "brute", contact=contact,
+                    band=0.0 if presence else None)
             if self.tree is not None:
                 return discs_tree.gather_tree(self.tree, weights, receivers[lo:hi],
                                               normals[lo:hi], opt.discs_k, opt.discs_kappa,
@@ -461,6 +583,10 @@ class DiscsMethod:
                 parameters.pop(name)  # not used without indirect light
         if self.tree is None:
             parameters["discs_kappa"] = None  # not used by brute force
+        if self.robust:
+            parameters["discs_k"] = None  # the chapter's receiver gain: not used
+            parameters["two_sided_elements"] = int(np.count_nonzero(self.presence > 0))
+            parameters["exact_near_field"] = self.triangles is not None
         return {"parameters": parameters}
 
     def error_quantities(self) -> list:
