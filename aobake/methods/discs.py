@@ -221,7 +221,11 @@ def closed_elements(vertices: np.ndarray, faces: np.ndarray, start: np.ndarray,
     vertices = np.ascontiguousarray(np.asarray(vertices, dtype=np.float64))
     _, first, weld = np.unique(vertices.view(np.dtype((np.void, 24))).ravel(),
                                return_index=True, return_inverse=True)
-    found = repairs.orient(vertices[first], weld.reshape(-1)[faces])
+    welded = vertices[first]
+    # re-centred and scaled (orient's volumes are products of three coordinates)
+    welded = welded - welded.mean(axis=0) if len(welded) else welded
+    reach = float(np.abs(welded).max()) if len(welded) else 0.0
+    found = repairs.orient(welded / reach if reach > 0 else welded, weld.reshape(-1)[faces])
     shut = (found.closed | found.nearly_closed) & ~found.inward
     on_shut = np.zeros(len(faces), dtype=bool)
     has = found.component >= 0

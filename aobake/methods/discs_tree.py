@@ -515,7 +515,10 @@ def triangle_form_factors(points: np.ndarray, normals: np.ndarray, corners: np.n
         px[t] += lift * fx[t]
         py[t] += lift * fy[t]
         pz[t] += lift * fz[t]
-        if contact:
+        # facing the front of a triangle in its plane (a flat surface's own neighbours)
+        # is no contact: only a normal along the plane or into its back can be
+        t = touched[facing[touched] <= CONTACT_COSINE] if contact else touched[:0]
+        if len(t):
             # on the triangle after the ray tracer's step off the surface along the normal
             # (its part along the plane: a point on an edge, stepping out, is beside it)
             along = normals[t] - facing[t, None] * face_normal[t]
@@ -579,7 +582,10 @@ def _clipped_lambert(px, py, pz, nx, ny, nz, corners) -> np.ndarray:
             leave[k] = np.where(out, value, leave[k])
             enter[k] = np.where(back, value, enter[k])
         clipped |= out
-    total += np.where(clipped, _edge(*leave, *enter, nx, ny, nz), 0.0)
+    cut = np.flatnonzero(clipped)
+    if len(cut):
+        total[cut] += _edge(*(x[cut] for x in leave), *(x[cut] for x in enter), nx[cut],
+                            ny[cut], nz[cut])
     return np.abs(total) / (2.0 * math.pi)
 
 
@@ -686,9 +692,14 @@ def gather_robust(tree: Tree, flipped: list, triangles: Triangles | None, presen
             which = np.repeat(np.arange(len(pair)), count)
             first = np.repeat(triangles.start[element] - np.cumsum(count) + count, count)
             face = triangles.faces[first + np.arange(len(which))]
-            back, front, enclosed, edge_on = triangle_form_factors(
-                receivers[rec[pair[which]]], normals[rec[pair[which]]],
-                triangles.corners[face], triangles.normal[face], triangles.size[face], contact)
+            # A triangle near a receiver is near all three of its corners' elements: its
+            # form factor is a function of (receiver, triangle) alone, computed once.
+            key = rec[pair[which]] * np.int64(len(triangles.normal)) + face
+            key, row, inverse = np.unique(key, return_index=True, return_inverse=True)
+            at, face_u = rec[pair[which[row]]], face[row]
+            back, front, enclosed, edge_on = (x[inverse.reshape(-1)] for x in triangle_form_factors(
+                receivers[at], normals[at], triangles.corners[face_u], triangles.normal[face_u],
+                triangles.size[face_u], contact))
             scale = onward[pair] / 3.0  # an element is a third of each of its triangles
             back = np.bincount(which, back, minlength=len(pair)) * scale
             front = np.bincount(which, front, minlength=len(pair)) * scale
