@@ -131,7 +131,8 @@ def plan(gltf=None, mitsuba=None, *, config=None, taken=()) -> Exports:
     none of which an export may overwrite.  OutputError naming the path otherwise.
     """
     for name, why in NOT_EXPORTABLE.items():
-        if _setting(config, name):
+        # only an export asked for is refused: a view with groups and no export is a view
+        if (gltf is not None or mitsuba is not None) and _setting(config, name):
             raise UsageError(f"the exported scene holds one mesh every renderer sees and "
                              f"occludes with; {why}: no export of such a view")
     paths = {}
