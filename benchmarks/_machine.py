@@ -110,17 +110,21 @@ def quiet_sample(seconds: float = SAMPLE_S) -> dict:
     return load.record()
 
 
-def wait_for_quiet(limit_s: float, threshold: float = LOAD_THRESHOLD, log=None) -> dict:
-    """Sample until other work is at most ``threshold`` cores, for at most ``limit_s``
-    seconds; returns the last sample (its ``others_cores`` may still be above)."""
+def wait_for_quiet(limit_s: float, threshold: float = LOAD_THRESHOLD, log=None,
+                   settle: int = 2) -> dict:
+    """Sample until other work was at most ``threshold`` cores in ``settle`` samples in a
+    row (a quiet second, not a gap between two of someone's processes), for at most
+    ``limit_s`` seconds; returns the last sample (its ``others_cores`` may still be above)."""
     deadline = time.monotonic() + limit_s
-    sample = quiet_sample()
-    told = False
-    while sample["others_cores"] > threshold and time.monotonic() < deadline:
-        if log and not told:
-            log(f"  (waiting up to {limit_s:.0f} s for other work below {threshold} cores: "
-                f"{sample['others_cores']:.2f} now)")
-            told = True
-        time.sleep(2.0)
+    quiet, told = 0, False
+    while True:
         sample = quiet_sample()
-    return sample
+        quiet = quiet + 1 if sample["others_cores"] <= threshold else 0
+        if quiet >= settle or time.monotonic() >= deadline:
+            return sample
+        if quiet == 0:
+            if log and not told:
+                log(f"  (waiting up to {limit_s:.0f} s for other work below {threshold} "
+                    f"cores: {sample['others_cores']:.2f} now)")
+                told = True
+            time.sleep(2.0)

@@ -3,7 +3,7 @@
     pip install -e '.[peers]'            # libigl, open3d, matplotlib
     pip install --no-deps bpy==5.0.1     # Blender (Python 3.11 wheel; see below)
     python benchmarks/bench_peers.py [--meshes bunny ogre] [--threads 2] [--json peers.json]
-        [--skip PEER ...] [--quick]
+        [--skip PEER ...] [--quick] [--packet-width W] [--wait S] [--retries K]
 
 Installing: bpy 5.0.1 pins numpy<2 (which would move numpy to 1.26 and OpenImageIO to 3.0),
 so it is not in the extra: ``pip install --no-deps bpy==5.0.1`` keeps numpy 2 (it bakes under
@@ -16,6 +16,23 @@ and the ogre from ../shared/meshes), max distance infinite, on ``--threads`` thr
 several ray counts, and is scored by its RMSE against a shared reference over the vertices
 with a normal (the bunny has 1,113 unreferenced vertices, baked as "no information").
 
+**Every row is timed in a fresh process** (the CLI as itself, the others through
+benchmarks/_peers_runner.py, Blender through benchmarks/_peers_blender.py), so no row
+inherits the state another left behind (inside this script's own process the library call
+once took 4.29 s on the bunny at 256 rays where a fresh process took 1.8-2.3 s).
+
+**What the figures were taken on, and under what load.**  The header names the CPU model
+(/proc/cpuinfo), its vector extensions (AVX2, AVX-512F, ...), Embree's native packet width
+on it and the packet width each aobake row used (read back from its report).  Around each
+row (benchmarks/_machine.py) the CPU time *other* work used is measured: 0.5 s while this
+script sleeps before the row, over the row itself (all cores' busy time from /proc/stat
+less the CPU time of this process and its children), and 0.5 s after.  A row where other
+work used more than ``--threshold`` cores (0.3) before it or during it is printed as "not
+comparable (load)" (the load after it is recorded beside); it is run again up to
+``--retries`` times (2), each time after waiting up to ``--wait`` seconds (60) for a quiet
+second (two samples in a row below the threshold), and every attempt is kept in the JSON.  A time-to-error figure interpolated from a row under load is marked
+"(load)" too.  The figures mean something only next to the CPU they came from.
+
 The reference, one per mesh and AO convention: aobake, ``sobol``, 16,384 rays per vertex,
 with another seed than the runs (with the same seed it would share their randomisation and
 their errors would look smaller than they are).  Its own rms reported stderr is printed: a
@@ -27,26 +44,26 @@ Rows (``--skip`` takes the names in brackets):
 
 * [cli] the aobake CLI as a subprocess, ``aobake MESH --out X.npz --rays N --threads T
   --quiet --report r.json``: the whole process (interpreter start, import, file read, bake,
-  writing); rays cast from the report, error from the NPZ.
+  writing); rays cast and packet width from the report, error from the NPZ.
 * [replicates] the CLI as [cli] with ``--replicates 2``: the same sampler in two
   replicates (a more accurate value for the rays; the stderr on one degree of freedom).
-* [library] ``aobake.bake(path, rays=N, threads=T)``, file read included.
+* [library] ``aobake.bake(path, rays=N, threads=T)``, file read included, in a fresh
+  process with aobake's modules imported before the clock starts.
 * [tolerance] the CLI with ``--tolerance E`` (default pilot, the CLI's ``--rays`` default;
   ``--pilot`` to change it): rays cast (pilot + final) from its report.
 * [bare] a bare embreex loop (as benchmarks/bench_throughput.py): the rays of the library
   run at the same N, generated beforehand by aobake's own generator (not timed), traced
-  through ``EmbreeScene.run(query="OCCLUDED")`` on T threads in the same chunks; two rows:
-  the tracing alone, and build + tracing.  AO = the unoccluded fraction (cosine-distributed
-  rays).  It shows what is left to gain below aobake.
+  through ``EmbreeScene.run(query="OCCLUDED")`` (one ray at a time) on T threads in the
+  same chunks; two rows: the tracing alone, and build + tracing.  AO = the unoccluded
+  fraction (cosine-distributed rays).  It shows what is left to gain below aobake.
 * [libigl] ``igl.embree.ambient_occlusion(V, F, V, N, n)`` (whole call: it builds its Embree
   scene each time), scored against the **uniform** reference: libigl averages visibility over
   uniformly distributed hemisphere directions and returns the occluded fraction, so
   AO = 1 - result.  Its directions are one stratified-random set shared by every vertex
   (flipped into each hemisphere), traced with an absolute tnear of 1e-4 scene units; its
-  thread pool is sized by IGL_NUM_THREADS, set to T here before libigl is first used.  It is
-  handed all vertices, the unreferenced ones too (its call as documented), and they count
-  in its rays.
-* [open3d] ``o3d.t.geometry.RaycastingScene.test_occlusions`` on rays generated here in
+  thread pool is sized by IGL_NUM_THREADS, set to T for its process.  It is handed all
+  vertices, the unreferenced ones too (its call as documented), and they count in its rays.
+* [open3d] ``o3d.t.geometry.RaycastingScene.test_occlusions`` on rays generated in
   numpy: cosine-weighted (u -> (sqrt(u0) cos 2 pi u1, sqrt(u0) sin 2 pi u1, sqrt(1 - u0))
   in a frame about the vertex normal), i.i.d. from one PCG64 stream, origins lifted along
   the normal by aobake's own per-vertex offset rule (computed once, untimed), tnear 0,
@@ -64,16 +81,18 @@ Rows (``--skip`` takes the names in brackets):
   a floor vertex under a coaxial 64-gon of radius 1 at height 1, 8 corners x 4096 samples:
   0.5002, where cosine AO is 0.5004 and uniform AO 0.707).
 
-Per row: seconds, rays/s (rays cast / seconds), RMSE; per method the time to reach RMSE
-0.01 and 0.005 (``--targets``), interpolated log-log between the two measured ray counts
-that bracket it ("--" when not reached, "<= t" when the first count already reaches it),
-and its ratio to the aobake CLI's time (> 1: slower than the CLI).  A method stops at the
-first count whose RMSE is below the smallest target (``--all-counts`` runs them all).
-Markdown tables per mesh on stdout; ``--json PATH`` writes the same numbers.
+Per row: seconds, rays/s (rays cast / seconds), RMSE, the packet width (aobake rows), the
+other work before / during / after (cores); per method the time to reach RMSE 0.01 and
+0.005 (``--targets``), interpolated log-log between the two measured ray counts that
+bracket it ("--" when not reached, "<= t" when the first count already reaches it), and its
+ratio to the aobake CLI's time (> 1: slower than the CLI).  A method stops at the first
+count whose RMSE is below the smallest target (``--all-counts`` runs them all).
+``--packet-width W`` sets AOBAKE_PACKET_WIDTH for every aobake process (default: aobake's
+own choice for this CPU, aobake.backends.native.packet_width).  Markdown tables per mesh on
+stdout; ``--json PATH`` writes the same numbers, the machine and every attempt's load.
 
-``--quick`` is a smoke run (under a minute): one mesh, three tiny ray counts, a 1,024-ray
-reference, targets 0.05 / 0.04.  The timings mean something only on an otherwise idle
-machine.
+``--quick`` is a smoke run (about a minute): one mesh, three tiny ray counts, a 1,024-ray
+reference, targets 0.05 / 0.04.
 """
 
 from __future__ import annotations
@@ -90,25 +109,25 @@ import subprocess
 import sys
 import tempfile
 import time
-from concurrent.futures import ThreadPoolExecutor
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE))
 
 import aobake  # noqa: E402
-from aobake.settings import DEFAULT_RAY_OFFSET, BakeConfig  # noqa: E402
 from aobake.scene import load_scene  # noqa: E402
-from aobake.targets.vertices import vertex_sizes  # noqa: E402
-from aobake.occluders import build as build_occluders  # noqa: E402
-from aobake.trace import DEFAULT_CHUNK_RAYS, Tracer, morton_order, point_offsets  # noqa: E402
 
-HERE = Path(__file__).resolve().parent
+import _machine  # noqa: E402
+from _peers_runner import packet_width_of  # noqa: E402
+
 DEFAULT_MESH_DIR = HERE.parents[1] / "shared" / "meshes"
 MESHES = {"bunny": "stanford-bunny.obj", "ogre": "ogre.obj"}
 PEERS = ("cli", "replicates", "library", "tolerance", "bare", "libigl", "open3d", "blender")
+RUNNER = HERE / "_peers_runner.py"
 
 FULL = {"rays": (16, 32, 64, 128, 256, 512, 1024, 2048, 4096),
         "blender_rays": (16, 64, 256, 512),
@@ -120,10 +139,6 @@ QUICK = {"rays": (16, 32, 64), "blender_rays": (4, 8, 16), "tolerances": (0.05, 
 
 #: seed of the references; the runs use aobake's default (0)
 REF_SEED = 987654321
-#: rays per Open3D call (a chunk of whole vertices), and per pre-generated batch of the
-#: bare loop (bounds their memory: 24 bytes a ray)
-OPEN3D_CHUNK_RAYS = 1 << 21
-BARE_BATCH_RAYS = 1 << 24
 
 
 # --------------------------------------------------------------------------- helpers
@@ -145,41 +160,38 @@ def errors(estimate: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> tup
 
 
 def time_to(points: list, target: float):
-    """Seconds to reach RMSE ``target`` from measured (rays, seconds, rmse) points, sorted
-    by rays: log-log interpolation between the first bracketing pair.  Returns
-    (seconds, bound) with bound '=' (interpolated), '<=' (the first point is already below:
-    its time is an upper bound) or None (never reached: seconds None)."""
+    """Seconds to reach RMSE ``target`` from measured (rays, seconds, rmse, comparable)
+    points: log-log interpolation between the first bracketing pair.  Returns (seconds,
+    bound, comparable) with bound '=' (interpolated), '<=' (the first point is already
+    below: its time is an upper bound) or None (never reached: seconds None), and
+    comparable False when a point it rests on was taken under load."""
     pts = sorted(p for p in points if p[2] > 0 and p[1] > 0)
     if not pts:
-        return None, None
+        return None, None, True
     if pts[0][2] <= target:
-        return pts[0][1], "<="
-    for (_, ta, ea), (_, tb, eb) in itertools.pairwise(pts):
+        return pts[0][1], "<=", pts[0][3]
+    for (_, ta, ea, ca), (_, tb, eb, cb) in itertools.pairwise(pts):
         if ea > target >= eb:
             f = (math.log(target) - math.log(ea)) / (math.log(eb) - math.log(ea))
-            return math.exp((1 - f) * math.log(ta) + f * math.log(tb)), "="
-    return None, None
+            return math.exp((1 - f) * math.log(ta) + f * math.log(tb)), "=", ca and cb
+    return None, None, True
 
 
 def ratio(mine, cli):
-    """(value, bound) of mine / cli for two time_to() results."""
-    (tm, bm), (tc, bc) = mine, cli
+    """(value, bound, comparable) of mine / cli for two time_to() results."""
+    (tm, bm, cm), (tc, bc, cc) = mine, cli
     if tm is None or tc is None:
-        return None, None
-    if bm == "=" and bc == "=":
-        return tm / tc, "="
-    if bm == "<=" and bc == "=":
-        return tm / tc, "<="
-    if bm == "=" and bc == "<=":
-        return tm / tc, ">="
-    return None, None
+        return None, None, True
+    bound = {("=", "="): "=", ("<=", "="): "<=", ("=", "<="): ">="}.get((bm, bc))
+    return (tm / tc, bound, cm and cc) if bound else (None, None, True)
 
 
-def fmt_bound(value, bound, digits=3) -> str:
+def fmt_bound(value, bound, comparable=True, digits=3) -> str:
     if value is None:
         return "—"
     text = f"{value:.{digits}g}" if value < 1000 else f"{value:.0f}"
-    return text if bound == "=" else f"{bound} {text}"
+    text = text if bound == "=" else f"{bound} {text}"
+    return text if comparable else f"{text} (load)"
 
 
 def file_key(path: Path) -> str:
@@ -191,26 +203,62 @@ def valid_mask(ref: dict) -> np.ndarray:
     return ref["rays"] > 0
 
 
+def child_env(args, **extra) -> dict:
+    """The environment of every timed process: this one's, the packet width if given."""
+    env = dict(os.environ, **extra)
+    if args.packet_width is not None:
+        env["AOBAKE_PACKET_WIDTH"] = str(args.packet_width)
+    return env
+
+
+def run_process(cmd: list, env: dict, what: str) -> float:
+    """Run cmd to its end; its wall seconds.  RuntimeError with its stderr's tail."""
+    start = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False, env=env)
+    wall = time.perf_counter() - start
+    if proc.returncode != 0:
+        tail = "\n".join(proc.stderr.strip().splitlines()[-5:])
+        raise RuntimeError(f"{what} exited {proc.returncode}: {tail}")
+    return wall
+
+
+def run_runner(args, kind: str, path: Path, rays: int, work: Path, **options) -> dict:
+    """One _peers_runner.py process: its ao, seconds, rays_cast, info (+ its process_s)."""
+    out = work / f"{kind}.npz"
+    out.unlink(missing_ok=True)
+    cmd = [sys.executable, str(RUNNER), kind, str(path), "--rays", str(rays), "--threads",
+           str(args.threads), "--out", str(out)]
+    for key, value in options.items():
+        cmd += [f"--{key}", str(value)]
+    # libigl sizes its pool from IGL_NUM_THREADS once, when it is first used
+    process_s = run_process(cmd, child_env(args, IGL_NUM_THREADS=str(args.threads)),
+                            f"{kind} ({rays} rays)")
+    with np.load(out) as data:
+        res = {k: data[k] for k in data.files}
+    res["info"] = json.loads(str(res["info"]))
+    res["seconds"], res["rays_cast"] = float(res["seconds"]), int(res["rays_cast"])
+    res["process_s"] = process_s
+    return res
+
+
 # --------------------------------------------------------------------------- reference
 
-def reference(path: Path, weighting: str, rays: int, threads: int, cache: Path, fresh: bool,
-              log) -> dict:
-    """aobake sobol at ``rays`` rays per vertex, seed REF_SEED: ao, ao_stderr, rays per vertex."""
+def reference(args, path: Path, weighting: str, rays: int, work: Path, log) -> dict:
+    """aobake sobol at ``rays`` rays per vertex, seed REF_SEED: ao, ao_stderr, rays per vertex
+    (baked in a process of its own, untimed; cached in --cache)."""
     name = f"aobake_peers_ref_{path.stem}_{weighting}_{rays}_{REF_SEED}_{file_key(path)}.npz"
-    cached = cache / name
-    if cached.is_file() and not fresh:
+    cached = args.cache / name
+    if cached.is_file() and not args.fresh_reference:
         with np.load(cached) as data:
             out = {k: data[k] for k in data.files}
         out["cache"], out["cached"] = str(cached), True
         return out
     log(f"  baking the {weighting} reference ({rays} rays/vertex; cached as {cached}) ...")
-    start = time.perf_counter()
-    res = aobake.bake(str(path), rays=rays, sampler="sobol", seed=REF_SEED, weighting=weighting,
-                      threads=threads)
-    wall = time.perf_counter() - start
-    out = {"ao": res.ao.astype(np.float64), "ao_stderr": res.ao_stderr.astype(np.float64),
-           "rays": res.rays.astype(np.int64), "wall_s": np.float64(wall)}
-    cache.mkdir(parents=True, exist_ok=True)
+    res = run_runner(args, "library", path, rays, work, sampler="sobol", seed=REF_SEED,
+                     weighting=weighting)
+    out = {"ao": res["ao"], "ao_stderr": res["ao_stderr"], "rays": res["rays"],
+           "wall_s": np.float64(res["seconds"])}
+    args.cache.mkdir(parents=True, exist_ok=True)
     tmp = cached.with_suffix(".tmp.npz")
     np.savez(tmp, **out)
     os.replace(tmp, cached)
@@ -218,7 +266,7 @@ def reference(path: Path, weighting: str, rays: int, threads: int, cache: Path, 
     return out
 
 
-# --------------------------------------------------------------------------- aobake
+# --------------------------------------------------------------------------- aobake CLI
 
 def aobake_command() -> list:
     exe = Path(sys.executable).with_name("aobake")
@@ -228,167 +276,28 @@ def aobake_command() -> list:
     return [found] if found else [sys.executable, "-m", "aobake"]
 
 
-def run_cli(path: Path, rays: int | None, threads: int, work: Path,
-            tolerance: float | None = None, extra: tuple = ()) -> dict:
+def run_cli(args, path: Path, rays: int | None, work: Path, tolerance: float | None = None,
+            extra: tuple = ()) -> dict:
     out, report = work / "cli.npz", work / "cli.json"
     for f in (out, report):
         f.unlink(missing_ok=True)
-    cmd = aobake_command() + [str(path), "--out", str(out), "--threads", str(threads), "--quiet",
-                              "--report", str(report)]
+    cmd = aobake_command() + [str(path), "--out", str(out), "--threads", str(args.threads),
+                              "--quiet", "--report", str(report)]
     if rays is not None:
         cmd += ["--rays", str(rays)]
     if tolerance is not None:
         cmd += ["--tolerance", f"{tolerance:g}"]
     cmd += list(extra)
-    start = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
-    wall = time.perf_counter() - start
-    if proc.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} exited {proc.returncode}: {proc.stderr.strip()}")
+    wall = run_process(cmd, child_env(args), " ".join(cmd))
     rep = json.loads(report.read_text())
     with np.load(out) as data:
         ao = data["ao"].astype(np.float64)
     return {"seconds": wall, "rays_cast": int(rep["rays_cast"]), "ao": ao,
-            "inner_s": float(rep["wall_time_s"]), "report": rep}
+            "inner_s": float(rep["wall_time_s"]), "report": rep,
+            "info": {"packet_width": packet_width_of(rep)}}
 
 
-def run_library(path: Path, rays: int, threads: int) -> dict:
-    start = time.perf_counter()
-    res = aobake.bake(str(path), rays=rays, threads=threads)
-    wall = time.perf_counter() - start
-    return {"seconds": wall, "rays_cast": int(res.report["rays_cast"]),
-            "ao": res.ao.astype(np.float64)}
-
-
-def run_bare(scene, rays: int, threads: int) -> dict:
-    """bench_throughput's bare loop on the library run's rays, keeping the answers.
-
-    The points are the distinct (position, normal) pairs with a normal, as aobake traces
-    them; each chunk's rays come from aobake's generator and are made before the clock
-    starts (in batches of BARE_BATCH_RAYS, whose generation is not timed either)."""
-    from embreex import rtcore_scene
-    from embreex.mesh_construction import TriangleMesh
-
-    config = BakeConfig(rays=rays)
-    tracer = Tracer(scene, config, build_occluders(scene, config))
-    V, N = scene.vertices, scene.vertex_normals
-    keys = np.ascontiguousarray(np.concatenate([V, N], axis=1))
-    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-    inverse = inverse.ravel()
-    good = np.linalg.norm(N[first], axis=1) > 0.5
-    valid = first[good]
-    sizes = vertex_sizes(scene)[valid]
-    points, normals, ids = V[valid], N[valid], valid.astype(np.int64)
-    per_point = tracer.samples.rays
-    per_chunk = max(1, DEFAULT_CHUNK_RAYS // per_point)
-    order = morton_order(points)
-    chunks = [order[s:s + per_chunk] for s in range(0, len(order), per_chunk)]
-
-    vertices = (scene.vertices - tracer.center).astype(np.float32)
-    faces = scene.faces.astype(np.int32)
-    tmax = np.float32(1e37)
-    start = time.perf_counter()
-    emb = rtcore_scene.EmbreeScene()
-    TriangleMesh(emb, vertices, faces)
-    emb.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), query="OCCLUDED")  # commit
-    build_s = time.perf_counter() - start
-
-    def make(sel):
-        rebased = points[sel] - tracer.center
-        offsets = point_offsets(rebased, sizes[sel], tracer.config.ray_offset)
-        origins = rebased + offsets[:, None] * normals[sel]
-        r = tracer.generator.rays(origins, normals[sel], ids[sel])
-        return r.origins, r.directions.reshape(-1, 3).copy()
-
-    def trace(chunk):
-        o, d = chunk
-        return emb.run(o, d, dists=np.full(len(o), tmax, np.float32), query="OCCLUDED")
-
-    ao_points = np.empty(len(points))
-    trace_s, total, i = 0.0, 0, 0
-    per_batch = max(1, BARE_BATCH_RAYS // (per_chunk * per_point))
-    with ThreadPoolExecutor(threads) as pool:
-        while i < len(chunks):
-            batch = chunks[i:i + per_batch]
-            made = [make(sel) for sel in batch]
-            clock = time.perf_counter()
-            hits = list(pool.map(trace, made))
-            trace_s += time.perf_counter() - clock
-            for sel, (o, _), hit in zip(batch, made, hits):
-                total += len(o)
-                occluded = (hit >= 0).reshape(len(sel), -1)
-                ao_points[sel] = 1.0 - occluded.mean(axis=1)
-            i += per_batch
-    per_unique = np.full(len(first), np.nan)
-    per_unique[np.flatnonzero(good)] = ao_points
-    return {"rays_cast": total, "build_s": build_s, "trace_s": trace_s,
-            "ao": per_unique[inverse]}
-
-
-# --------------------------------------------------------------------------- peers
-
-def run_libigl(scene, rays: int) -> dict:
-    import igl.embree
-
-    V = np.ascontiguousarray(scene.vertices, dtype=np.float64)
-    F = np.ascontiguousarray(scene.faces, dtype=np.int64)
-    N = np.ascontiguousarray(scene.vertex_normals, dtype=np.float64)
-    start = time.perf_counter()
-    occluded = igl.embree.ambient_occlusion(V, F, V, N, rays)
-    wall = time.perf_counter() - start
-    return {"seconds": wall, "rays_cast": len(V) * rays, "ao": 1.0 - np.asarray(occluded)}
-
-
-def hemisphere_frames(n: np.ndarray):
-    """(k, 3) unit normals -> tangents, bitangents (k, 3) (Duff et al. 2017, branchless)."""
-    sign = np.where(n[:, 2] >= 0, 1.0, -1.0)
-    a = -1.0 / (sign + n[:, 2])
-    b = n[:, 0] * n[:, 1] * a
-    t = np.stack([1.0 + sign * n[:, 0] ** 2 * a, sign * b, -sign * n[:, 0]], axis=1)
-    s = np.stack([b, sign + n[:, 1] ** 2 * a, -n[:, 1]], axis=1)
-    return t, s
-
-
-def run_open3d(scene, rays: int, threads: int, origins: np.ndarray, normals: np.ndarray,
-               seed: int = 0) -> dict:
-    """origins, normals (k, 3) float64: the vertices with a normal, already lifted."""
-    import open3d as o3d
-
-    gen_s = 0.0
-    start = time.perf_counter()
-    rs = o3d.t.geometry.RaycastingScene(nthreads=threads)
-    rs.add_triangles(o3d.core.Tensor(scene.vertices.astype(np.float32)),
-                     o3d.core.Tensor(scene.faces.astype(np.uint32)))
-    rng = np.random.default_rng(seed)
-    ao = np.empty(len(origins))
-    per_chunk = max(1, OPEN3D_CHUNK_RAYS // rays)
-    for s in range(0, len(origins), per_chunk):
-        clock = time.perf_counter()
-        o, n = origins[s:s + per_chunk], normals[s:s + per_chunk]
-        k = len(o)
-        u = rng.random((k, rays, 2))
-        r = np.sqrt(u[..., 0])
-        phi = 2.0 * np.pi * u[..., 1]
-        x, y, z = r * np.cos(phi), r * np.sin(phi), np.sqrt(1.0 - u[..., 0])
-        t, b = hemisphere_frames(n)
-        d = x[..., None] * t[:, None] + y[..., None] * b[:, None] + z[..., None] * n[:, None]
-        block = np.empty((k, rays, 6), dtype=np.float32)
-        block[..., :3] = o[:, None]
-        block[..., 3:] = d
-        gen_s += time.perf_counter() - clock
-        hit = rs.test_occlusions(o3d.core.Tensor(block.reshape(-1, 6)), nthreads=threads)
-        ao[s:s + per_chunk] = 1.0 - hit.numpy().reshape(k, rays).mean(axis=1)
-    wall = time.perf_counter() - start
-    return {"seconds": wall, "rays_cast": len(origins) * rays, "ao": ao, "gen_s": gen_s}
-
-
-def open3d_rays_setup(scene):
-    """The vertices with a normal, lifted along it by aobake's offset rule (untimed)."""
-    N = scene.vertex_normals
-    has = np.linalg.norm(N, axis=1) > 0.5
-    offsets = point_offsets(scene.vertices[has], vertex_sizes(scene)[has], DEFAULT_RAY_OFFSET)
-    return has, scene.vertices[has] + offsets[:, None] * N[has], N[has]
-
+# --------------------------------------------------------------------------- Blender
 
 def blender_python(args) -> list:
     return [args.blender_python or sys.executable, str(HERE / "_peers_blender.py")]
@@ -445,6 +354,36 @@ def map_vertices(scene, co: np.ndarray) -> np.ndarray:
 
 # --------------------------------------------------------------------------- driver
 
+def watched(args, run, log, label: str):
+    """Run one row (``run()``: a fresh process to its end) under the load watch.
+
+    Returns (result, load): load has the other work before / during / after in cores
+    (benchmarks/_machine.py), ``comparable`` (neither before nor during above --threshold:
+    the row's own measurement of other work is the direct one, the sample before catches
+    a load that its own work squeezed out; after is recorded only) and ``attempts``
+    (every try's seconds and load; a try under load is run again, up to --retries times,
+    after waiting up to --wait s for a quiet machine)."""
+    attempts = []
+    for attempt in range(args.retries + 1):
+        before = _machine.wait_for_quiet(args.wait, args.threshold, log)
+        with _machine.Load() as during:
+            res = run()
+        after = _machine.quiet_sample()
+        load = {"before": before, "during": during.record(), "after": after}
+        others = [load[k]["others_cores"] for k in ("before", "during", "after")]
+        # before and during decide; after is kept as a sign of load that began late in it
+        load["comparable"] = max(others[:2]) <= args.threshold
+        attempts.append({"seconds": res["seconds"], **{k: load[k] for k in
+                                                       ("before", "during", "after")}})
+        if load["comparable"]:
+            break
+        log(f"  {label}: not comparable (load): other work "
+            + " / ".join(f"{o:.2f}" for o in others) + " cores before / during / after"
+            + ("; again" if attempt < args.retries else "; kept, marked"))
+    load["attempts"] = attempts
+    return res, load
+
+
 def measure_mesh(args, cfg, path: Path, work: Path, available: dict, log) -> dict:
     scene = load_scene(path)
     V = scene.vertices
@@ -453,8 +392,7 @@ def measure_mesh(args, cfg, path: Path, work: Path, available: dict, log) -> dic
     conventions = ["cosine"]
     if available.get("libigl") or available.get("blender"):
         conventions.append("uniform")
-    refs = {w: reference(path, w, cfg["ref_rays"], args.threads, args.cache,
-                         args.fresh_reference, log) for w in conventions}
+    refs = {w: reference(args, path, w, cfg["ref_rays"], work, log) for w in conventions}
     mask = valid_mask(refs["cosine"])
     ref_info = {}
     for w, ref in refs.items():
@@ -469,90 +407,107 @@ def measure_mesh(args, cfg, path: Path, work: Path, available: dict, log) -> dic
     stop_at = min(cfg["targets"])
     rows: list = []
 
-    def add(method, convention, param, res, seconds=None, note="", echo=True, **extra):
+    def add(method, convention, param, res, load, seconds=None, note="", echo=True, **extra):
         err, bias, missing = errors(res["ao"], refs[convention]["ao"], mask)
         s = res["seconds"] if seconds is None else seconds
         if missing:
             note = (note + "; " if note else "") + f"{missing} vertices undefined, left out"
+        width = res.get("info", {}).get("packet_width")
         row = {"method": method, "convention": convention, "param": param,
                "rays_cast": int(res["rays_cast"]), "seconds": s,
                "rays_per_s": res["rays_cast"] / s if s > 0 else None, "rmse": err, "bias": bias,
-               "note": note, **extra}
+               "packet_width": width, "comparable": load["comparable"],
+               "others_cores": [load[k]["others_cores"] for k in ("before", "during", "after")],
+               "loadavg_1min": [load["before"]["loadavg_1min"][0],
+                                load["after"]["loadavg_1min"][1]],
+               "attempts": load["attempts"], "note": note, **extra}
         rows.append(row)
         if echo:
+            mark = "" if load["comparable"] else "  NOT COMPARABLE (load)"
             log(f"  {method:28s} {param!s:>12s}  {s:8.3f} s  RMSE {err:.5f}  "
-                f"mean err {bias:+.5f}  {note}")
+                f"mean err {bias:+.5f}  " + (f"{width} lanes  " if width else "")
+                + "others " + "/".join(f"{o:.2f}" for o in row["others_cores"])
+                + f"  {note}{mark}")
         return err
 
     def done(err):
         return err < stop_at and not args.all_counts
 
+    def cli_rows(method, extra=()):
+        for n in cfg["rays"]:
+            res, load = watched(args, lambda: run_cli(args, path, n, work, extra=extra), log,
+                                f"{method} {n}")
+            if done(add(method, "cosine", n, res, load,
+                        note=f"bake inside {res['inner_s']:.2f} s")):
+                break
+
     if "cli" in available:
-        for n in cfg["rays"]:
-            res = run_cli(path, n, args.threads, work)
-            if done(add("aobake CLI", "cosine", n, res,
-                        note=f"bake inside {res['inner_s']:.2f} s")):
-                break
+        cli_rows("aobake CLI")
     if "replicates" in available:
-        for n in cfg["rays"]:
-            res = run_cli(path, n, args.threads, work, extra=("--replicates", "2"))
-            if done(add("aobake CLI --replicates 2", "cosine", n, res,
-                        note=f"bake inside {res['inner_s']:.2f} s")):
-                break
+        cli_rows("aobake CLI --replicates 2", ("--replicates", "2"))
     if "library" in available or "bare" in available:
         for n in cfg["rays"]:
             err = None
             if "library" in available:
-                err = add("aobake.bake()", "cosine", n, run_library(path, n, args.threads))
+                res, load = watched(args, lambda: run_runner(args, "library", path, n, work),
+                                    log, f"library {n}")
+                err = add("aobake.bake()", "cosine", n, res, load,
+                          note=f"process {res['process_s']:.2f} s")
             if "bare" in available:
-                res = run_bare(scene, n, args.threads)
-                e1 = add("bare embreex, trace", "cosine", n, res, seconds=res["trace_s"],
+                res, load = watched(args, lambda: run_runner(args, "bare", path, n, work), log,
+                                    f"bare {n}")
+                build_s, trace_s = res["info"]["build_s"], res["info"]["trace_s"]
+                e1 = add("bare embreex, trace", "cosine", n, res, load, seconds=trace_s,
                          note="rays pre-generated, not timed")
-                add("bare embreex, build+trace", "cosine", n, res,
-                    seconds=res["build_s"] + res["trace_s"], note=f"build {res['build_s']:.3f} s")
+                add("bare embreex, build+trace", "cosine", n, res, load,
+                    seconds=build_s + trace_s, note=f"build {build_s:.3f} s")
                 err = e1 if err is None else err
             if done(err):
                 break
     if "tolerance" in available:
         for e in cfg["tolerances"]:
-            res = run_cli(path, args.pilot, args.threads, work, tolerance=e)
+            res, load = watched(args, lambda: run_cli(args, path, args.pilot, work, tolerance=e),
+                                log, f"tolerance {e:g}")
             t = res["report"].get("tolerance", {})
-            add("aobake CLI --tolerance", "cosine", f"E={e:g}", res,
+            add("aobake CLI --tolerance", "cosine", f"E={e:g}", res, load,
                 note=f"{res['rays_cast'] / int(mask.sum()):.0f} rays/vertex; met "
                      f"{t.get('points_met', '?')}, missed {t.get('points_missed', '?')}, "
                      f"capped {t.get('points_capped', '?')}")
+
     def peer_libigl():
         for n in cfg["rays"]:
-            if done(add("libigl (embree)", "uniform", n, run_libigl(scene, n))):
+            res, load = watched(args, lambda: run_runner(args, "libigl", path, n, work), log,
+                                f"libigl {n}")
+            if done(add("libigl (embree)", "uniform", n, res, load,
+                        note=f"process {res['process_s']:.2f} s")):
                 break
 
     def peer_open3d():
-        has, origins, normals = open3d_rays_setup(scene)
         for n in cfg["rays"]:
-            res = run_open3d(scene, n, args.threads, origins, normals)
-            ao = np.full(len(V), np.nan)
-            ao[has] = res["ao"]
-            res["ao"] = ao
-            if done(add("Open3D RaycastingScene", "cosine", n, res,
-                        note=f"numpy ray generation {res['gen_s']:.2f} s of it")):
+            res, load = watched(args, lambda: run_runner(args, "open3d", path, n, work), log,
+                                f"open3d {n}")
+            if done(add("Open3D RaycastingScene", "cosine", n, res, load,
+                        note=f"numpy ray generation {res['info']['gen_s']:.2f} s of it")):
                 break
 
     def peer_blender():
         probes = []
         for n in cfg["blender_rays"]:
-            res = run_blender(args, path, n, work, scene)
+            res, load = watched(args, lambda: run_blender(args, path, n, work, scene), log,
+                                f"blender {n}")
             errs = {w: errors(res["ao"], refs[w]["ao"], mask)[0] for w in refs}
-            probes.append((n, res, errs))
+            probes.append((n, res, load, errs))
             log(f"  {'Blender Cycles':28s} {n:>12d}  {res['seconds']:8.3f} s  "
-                + "  ".join(f"RMSE vs {w} {e:.5f}" for w, e in errs.items()))
+                + "  ".join(f"RMSE vs {w} {e:.5f}" for w, e in errs.items())
+                + ("" if load["comparable"] else "  NOT COMPARABLE (load)"))
             if min(errs.values()) < stop_at and not args.all_counts:
                 break
         # Its convention: the reference it is closer to at its highest sample count.
-        last = probes[-1][2]
+        last = probes[-1][3]
         matched = min(last, key=last.get)
-        for n, res, errs in probes:
+        for n, res, load, errs in probes:
             others = ", ".join(f"vs {w} {e:.5f}" for w, e in errs.items() if w != matched)
-            add("Blender Cycles", matched, n, res,
+            add("Blender Cycles", matched, n, res, load,
                 note=f"samples/corner, {res['corners']:,} corners; import "
                      f"{res['import_s']:.2f} s, import bpy {res['bpy_import_s']:.2f} s, "
                      f"process {res['process_s']:.1f} s; RMSE {others}",
@@ -581,7 +536,8 @@ def measure_mesh(args, cfg, path: Path, work: Path, available: dict, log) -> dic
     summary = []
     cli_times = None
     for m in methods:
-        pts = [(r["rays_cast"], r["seconds"], r["rmse"]) for r in rows if r["method"] == m]
+        pts = [(r["rays_cast"], r["seconds"], r["rmse"], r["comparable"]) for r in rows
+               if r["method"] == m]
         times = [time_to(pts, tgt) for tgt in cfg["targets"]]
         if m == "aobake CLI":
             cli_times = times
@@ -590,18 +546,29 @@ def measure_mesh(args, cfg, path: Path, work: Path, available: dict, log) -> dic
                         "time_to": times})
     for s in summary:
         s["vs_cli"] = ([ratio(t, c) for t, c in zip(s["time_to"], cli_times)]
-                       if cli_times else [(None, None)] * len(cfg["targets"]))
+                       if cli_times else [(None, None, True)] * len(cfg["targets"]))
     return {"mesh": str(path), "name": path.name, "vertices": len(V),
             "vertices_with_normal": int(mask.sum()), "triangles": len(scene.faces),
             "references": ref_info, "rows": rows, "summary": summary, "blender": blender,
             "failures": failures}
 
 
-def markdown(result: dict, targets) -> str:
+def machine_line(machine: dict) -> str:
+    c = machine["cpu"]
+    has512 = "avx512f" in c["vector"]
+    return (f"CPU: **{c['model']}** ({c['logical_cpus']} logical CPUs), vector extensions "
+            f"{' '.join(c['vector']) or 'none reported'}"
+            + ("" if has512 else " (no AVX-512)")
+            + f"; Embree's native packet width {machine['embree_native_width']}; aobake's "
+            f"packet width {machine['packet_width']} ({machine['packet_width_by']}); other "
+            f"work above {machine['threshold_cores']} cores marks a row not comparable")
+
+
+def markdown(result: dict, targets, machine: dict) -> str:
     title = (f"### {result['name']}: {result['vertices']:,} vertices "
              f"({result['vertices_with_normal']:,} with a normal), {result['triangles']:,} "
              f"triangles")
-    lines = [title, ""]
+    lines = [title, "", machine_line(machine), ""]
     for w, ref in result["references"].items():
         lines.append(f"- reference, {w}: aobake sobol {ref['rays']} rays/vertex, seed "
                      f"{ref['seed']}: rms stderr **{ref['rms_stderr']:.5f}**")
@@ -613,13 +580,20 @@ def markdown(result: dict, targets) -> str:
                      + ")")
     for name, why in result["failures"].items():
         lines.append(f"- {name} failed and is left out: {why}")
-    header = "| method | AO | rays/vertex | rays cast | seconds | Mrays/s | RMSE | mean err | notes |"
-    lines += ["", header, "|---|---|---|---|---|---|---|---|---|"]
+    widths = sorted({r["packet_width"] for r in result["rows"] if r["packet_width"]})
+    lines.append(f"- packet width of the aobake rows: {', '.join(map(str, widths)) or '—'}")
+    header = ("| method | AO | rays/vertex | rays cast | seconds | Mrays/s | RMSE | mean err "
+              "| other work before / during / after (cores) | notes |")
+    lines += ["", header, "|---|---|---|---|---|---|---|---|---|---|"]
     for r in result["rows"]:
         rps = "—" if r["rays_per_s"] is None else f"{r['rays_per_s'] / 1e6:.2f}"
+        secs = f"{r['seconds']:.3f}" if r["comparable"] else \
+            f"not comparable (load): {r['seconds']:.3f}"
+        tries = len(r["attempts"])
+        note = r["note"] + (f"; attempt {tries} of {tries}" if tries > 1 else "")
         lines.append(f"| {r['method']} | {r['convention']} | {r['param']} | {r['rays_cast']:,} "
-                     f"| {r['seconds']:.3f} | {rps} | {r['rmse']:.5f} | {r['bias']:+.5f} "
-                     f"| {r['note']} |")
+                     f"| {secs} | {rps} | {r['rmse']:.5f} | {r['bias']:+.5f} | "
+                     + " / ".join(f"{o:.2f}" for o in r["others_cores"]) + f" | {note} |")
     head = " | ".join(f"s to RMSE {t:g}" for t in targets)
     vs = " | ".join(f"× aobake CLI @{t:g}" for t in targets)
     lines += ["", f"| method | AO | {head} | {vs} |",
@@ -633,10 +607,10 @@ def markdown(result: dict, targets) -> str:
 def jsonable(result: dict, targets) -> dict:
     out = dict(result)
     out["summary"] = [{"method": s["method"], "convention": s["convention"],
-                       **{f"seconds_to_rmse_{t:g}": {"seconds": v, "bound": b}
-                          for t, (v, b) in zip(targets, s["time_to"])},
-                       **{f"vs_aobake_cli_at_{t:g}": {"ratio": v, "bound": b}
-                          for t, (v, b) in zip(targets, s["vs_cli"])}}
+                       **{f"seconds_to_rmse_{t:g}": {"seconds": v, "bound": b, "comparable": c}
+                          for t, (v, b, c) in zip(targets, s["time_to"])},
+                       **{f"vs_aobake_cli_at_{t:g}": {"ratio": v, "bound": b, "comparable": c}
+                          for t, (v, b, c) in zip(targets, s["vs_cli"])}}
                       for s in result["summary"]]
     return out
 
@@ -645,10 +619,24 @@ def parse_list(kind):
     return lambda text: tuple(kind(x) for x in text.replace(",", " ").split())
 
 
+def aobake_packet_width(args) -> dict:
+    """Embree's native packet width here and the width aobake's processes will use, asked of
+    a process of their own (so this one never opens Embree)."""
+    code = ("import json; from aobake.backends import native; b = native.binding(); "
+            "w = native.packet_width(b[1]) if b else (None, 'embreex'); "
+            "print(json.dumps([native.native_width(), w[0], w[1]]))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env=child_env(args), check=False)
+    if proc.returncode != 0:
+        sys.exit(f"aobake does not start here: {proc.stderr.strip().splitlines()[-1:]}")
+    native_w, width, by = json.loads(proc.stdout.strip().splitlines()[-1])
+    return {"embree_native_width": native_w, "packet_width": width, "packet_width_by": by}
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="\n".join(__doc__.splitlines()[2:6]))
+                                     epilog="\n".join(__doc__.splitlines()[2:7]))
     parser.add_argument("--meshes", nargs="+", default=list(MESHES),
                         help=f"names ({', '.join(MESHES)}: files in --mesh-dir) or paths")
     parser.add_argument("--mesh-dir", type=Path, default=DEFAULT_MESH_DIR)
@@ -669,6 +657,15 @@ def main(argv=None):
                         help="--rays given to the --tolerance runs (default: the CLI's own)")
     parser.add_argument("--all-counts", action="store_true",
                         help="do not stop a method once it is below the smallest target")
+    parser.add_argument("--packet-width", type=int, choices=[1, 4, 8, 16],
+                        help="AOBAKE_PACKET_WIDTH for every aobake process (default: "
+                             "aobake's choice for this CPU)")
+    parser.add_argument("--threshold", type=float, default=_machine.LOAD_THRESHOLD,
+                        help="other work (cores) above which a row is not comparable (0.3)")
+    parser.add_argument("--wait", type=float, default=60.0,
+                        help="seconds to wait for other work below --threshold before a row")
+    parser.add_argument("--retries", type=int, default=2,
+                        help="times a row under load is run again (default 2)")
     parser.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()),
                         help="where the references are cached (default /tmp)")
     parser.add_argument("--fresh-reference", action="store_true", help="re-bake the references")
@@ -685,8 +682,6 @@ def main(argv=None):
     if unknown:
         parser.error(f"--skip: unknown {', '.join(sorted(unknown))} "
                      f"(choose from {', '.join(PEERS)})")
-    # libigl reads IGL_NUM_THREADS once, when it first sizes its pool: set before any use.
-    os.environ["IGL_NUM_THREADS"] = str(args.threads)
     # The CLI runs as a user's install runs it: with its modules' bytecode, which `pip
     # install .` compiles.  An editable checkout under PYTHONDONTWRITEBYTECODE=1 (set on the
     # machines this was measured on) has none and would compile every module of aobake in
@@ -708,20 +703,20 @@ def main(argv=None):
     versions = {"python": platform.python_version(), "aobake": pkg_version("aobake"),
                 "embreex": pkg_version("embreex"), "numpy": np.__version__}
     available = {p: True for p in PEERS if p not in skip}
-    if "libigl" in available:
-        try:
-            import igl.embree  # noqa: F401
-            versions["libigl"] = pkg_version("libigl")
-        except ImportError as exc:
-            log(f"skipping libigl: {exc} (pip install libigl)")
-            del available["libigl"]
-    if "open3d" in available:
-        try:
-            import open3d  # noqa: F401
-            versions["open3d"] = pkg_version("open3d")
-        except ImportError as exc:  # e.g. libusb-1.0.so.0 missing: apt-get install libusb-1.0-0
-            log(f"skipping open3d: {exc} (pip install open3d)")
-            del available["open3d"]
+    for peer, module, hint in (("libigl", "igl.embree", "pip install libigl"),
+                               ("open3d", "open3d", "pip install open3d; open3d needs "
+                                                    "libusb-1.0-0")):
+        if peer not in available:
+            continue
+        # imported in a process of its own: this one stays small and never starts a pool
+        proc = subprocess.run([sys.executable, "-c", f"import {module}"], capture_output=True,
+                              text=True, check=False)
+        if proc.returncode != 0:
+            why = (proc.stderr.strip().splitlines() or ["?"])[-1]
+            log(f"skipping {peer}: {why} ({hint})")
+            del available[peer]
+        else:
+            versions[peer] = pkg_version(peer)
     if "blender" in available:
         found, why = blender_version(args)
         if found is None:
@@ -730,7 +725,10 @@ def main(argv=None):
             del available["blender"]
         else:
             versions["bpy"] = found
+    machine = {"cpu": _machine.cpu(), "platform": platform.platform(),
+               "threshold_cores": args.threshold, **aobake_packet_width(args)}
     log(f"# aobake vs peers ({'quick smoke run' if args.quick else 'full run'})")
+    log(machine_line(machine))
     log(f"versions: {json.dumps(versions)}; threads {args.threads}; "
         f"rows: {', '.join(available)}; RMSE targets {', '.join(f'{t:g}' for t in cfg['targets'])}")
 
@@ -740,12 +738,13 @@ def main(argv=None):
         for p in paths:
             results.append(measure_mesh(args, cfg, p, Path(tmp), available, log))
     for r in results:
-        log("\n" + markdown(r, cfg["targets"]))
-    log(f"\n(total {time.perf_counter() - start:.0f} s)")
+        log("\n" + markdown(r, cfg["targets"], machine))
+    under = sum(not row["comparable"] for r in results for row in r["rows"])
+    log(f"\n(total {time.perf_counter() - start:.0f} s; {under} row(s) not comparable (load))")
     if args.json:
         payload = {"versions": versions, "threads": args.threads, "quick": args.quick,
                    "config": {k: list(v) if isinstance(v, tuple) else v for k, v in cfg.items()},
-                   "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
+                   "machine": machine, "packet_width_forced": args.packet_width,
                    "meshes": [jsonable(r, cfg["targets"]) for r in results]}
         args.json.write_text(json.dumps(payload, indent=1))
         log(f"wrote {args.json}")
