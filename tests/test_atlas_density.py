@@ -104,6 +104,7 @@ def test_every_chart_has_the_same_texel_density(atlases, name):
     np.testing.assert_allclose(density, np.median(density), rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_box_faces_fill_close_to_the_best_grid(atlases):
     """A box's six faces are six equal square charts.  The best layout of six equal squares
     in a square is 3 x 2 with side 1/3; with whole-texel charts (side a + 1 texels covered)
@@ -263,6 +264,7 @@ def _child_env():
     return env
 
 
+@pytest.mark.slow
 def test_bake_reports_coverage_and_density(tmp_path):
     """The report's texture statistics: the covered share of the image, the chart count, and
     the charts' texel density (5th-95th percentile and their ratio)."""

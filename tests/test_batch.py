@@ -72,6 +72,7 @@ def test_a_corrupt_asset_is_reported_and_the_others_baked(tmp_path):
     assert not list(out.rglob("*aobake-unfinished*"))
 
 
+@pytest.mark.slow
 def test_resume_skips_what_is_done_and_bakes_what_changed(tmp_path):
     meshes = _library(tmp_path / "in")
     meshes["broken"].unlink()

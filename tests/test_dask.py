@@ -74,6 +74,7 @@ CASES = {
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
+@pytest.mark.slow
 def test_vertex_bake_on_dask_is_the_local_bake(session, case):
     mesh, options = _scene(), CASES[case]
     local = aobake.bake(mesh, seed=3, threads=1, **options)
@@ -86,6 +87,7 @@ def test_vertex_bake_on_dask_is_the_local_bake(session, case):
     assert stats["items"] == -(-len(local.rays) // 13) and stats["pilot_points"] == 0
 
 
+@pytest.mark.slow
 def test_lightmap_and_view_on_dask_are_the_local_ones(session):
     mesh = _torus()
     options = dict(rays=8, resolution=32, seed=5, quantities=("ao", "bent_normal"))
@@ -96,6 +98,7 @@ def test_lightmap_and_view_on_dask_are_the_local_ones(session):
           aobake.bake_view(mesh, executor="dask", chunk_points=151, **view))
 
 
+@pytest.mark.slow
 def test_cost_model_splits_the_rest_after_the_pilot(session, monkeypatch):
     """Without --chunk-points: the first points are estimated here (the pilot, kept), the
     rest in items of about ITEM_SECONDS of a worker, each worker getting work.  The model's
@@ -187,6 +190,7 @@ def _has_cryptography():
     return True
 
 
+@pytest.mark.slow
 def test_worker_killed_mid_item_loses_nothing(session):
     """The test kills a worker's process while it traces an item: the scheduler re-runs the
     item elsewhere (the nanny restarts the worker) and the bits are the local bake's."""

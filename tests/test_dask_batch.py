@@ -77,6 +77,7 @@ class _KillFarAway(distributed.WorkerPlugin):
         cache.run_item = getattr(cache.run_item, "original", cache.run_item)
 
 
+@pytest.mark.slow
 def test_an_asset_that_kills_its_workers_fails_alone(tmp_path, dask_session):
     """The poison asset comes first: its item kills 3 workers (allowed-failures 2), its
     asset fails with that message, and the restarted workers bake the rest."""
@@ -113,6 +114,7 @@ def test_an_asset_that_kills_its_workers_fails_alone(tmp_path, dask_session):
     client.wait_for_workers(2, timeout=60)
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_the_batch_and_its_cluster(tmp_path):
     """SIGINT to the whole process group (a terminal's Ctrl-C) while the second asset is
     on the cluster: exit 130 within seconds, the first asset's files and the summary

@@ -166,6 +166,7 @@ def _one_error_line(stderr: str) -> str:
 
 
 @pytest.mark.parametrize("server", FAST, indirect=True)
+@pytest.mark.slow
 def test_library_refuses_another_service_at_once(server, monkeypatch):
     """Another service's answer is an InputError naming the address and what came, well
     before the wait is over; so for a split that reaches the cluster."""

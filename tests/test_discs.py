@@ -242,6 +242,7 @@ def test_max_distance_drops_farther_elements():
     assert method.max_distance == pytest.approx(0.1 * scene.diagonal, rel=4 * EPS)
 
 
+@pytest.mark.slow
 def test_a_point_without_normal_gets_no_information(tori_elements):
     position, normal, area = tori_elements
     method = DiscsMethod.from_elements(position, normal, area)

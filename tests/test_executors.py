@@ -49,6 +49,7 @@ CASES = {
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
+@pytest.mark.slow
 def test_vertex_bake_is_the_same_for_every_split_and_executor(case):
     mesh = _scene()
     options = CASES[case]
@@ -63,6 +64,7 @@ def test_vertex_bake_is_the_same_for_every_split_and_executor(case):
         assert other.report["executor"]["name"] == run["executor"]
 
 
+@pytest.mark.slow
 def test_lightmap_and_view_are_the_same_on_processes():
     import trimesh
 
@@ -78,6 +80,7 @@ def test_lightmap_and_view_are_the_same_on_processes():
     _same(_values(a), _values(b))
 
 
+@pytest.mark.slow
 def test_numpy_path_is_carried_to_worker_processes(kernel):
     """A bake asked for on the numpy path runs it in the workers too (the report says so),
     with the same bits."""
@@ -126,6 +129,7 @@ def test_unknown_method_executor_and_bad_workers_are_input_errors():
             aobake.bake(mesh, rays=4, workers=bad)
 
 
+@pytest.mark.slow
 def test_cli_executor_processes_matches_threads(tmp_path):
     from conftest import run_cli
 
@@ -142,6 +146,7 @@ def test_cli_executor_processes_matches_threads(tmp_path):
 
 
 @pytest.mark.parametrize("method", ["discs", "hemicube"])
+@pytest.mark.slow
 def test_approximations_are_the_same_for_every_split_and_executor(method):
     """A method that casts no rays merges by index like the rays: the same bits whatever
     the split and executor (hemicube: where an EGL context can be made)."""
@@ -163,6 +168,7 @@ def test_approximations_are_the_same_for_every_split_and_executor(method):
 
 
 @pytest.mark.parametrize("executor", ["threads", "processes"])
+@pytest.mark.slow
 def test_every_executor_releases_what_the_method_started_here(monkeypatch, executor):
     """What a method holds for estimating in this process (``close``: the hemicube's GL
     child started ahead) is released when the executor's estimate returns: no process a

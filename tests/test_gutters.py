@@ -172,6 +172,7 @@ def test_box_filtered_mips_never_bleed_black_into_the_charts(resolution, padding
 
 
 @pytest.mark.parametrize("resolution, padding", SIZES)
+@pytest.mark.slow
 def test_dilation_within_padding_is_unchanged_bit_for_bit(resolution, padding):
     res, stack, names = _bake(resolution, padding)
     old, old_stack, _ = _bake(resolution, padding, fill=False)

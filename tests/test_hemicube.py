@@ -234,6 +234,7 @@ def _disc_case(r, weighting, resolution, n=12, seed=3):
 
 @pytest.mark.parametrize("weighting", ["cosine", "uniform"])
 @pytest.mark.parametrize("r", [8, 32])
+@pytest.mark.slow
 def test_floor_under_a_coaxial_disc_within_the_discretisation_bound(gl, resolution, r,
                                                                     weighting):
     """The floor under a tessellated disc: exact by Lambert's polygon form factor (cosine)
@@ -290,6 +291,7 @@ def test_floor_under_a_ceiling_with_max_distance(gl, resolution, weighting):
     assert result.report["parameters"]["max_distance"] == d
 
 
+@pytest.mark.slow
 def test_error_falls_with_resolution(gl, resolution):
     """Convergence: the largest error over the disc's points and its bound both fall about
     as 1/R (measured: 0.017, 0.0053, 0.0032, 0.0008 at R = 8, 16, 32, 64)."""
@@ -311,6 +313,7 @@ def _points(points, normals, sizes=None) -> SamplePoints:
     return SamplePoints(points, normals, np.arange(len(points), dtype=np.int64), sizes=sizes)
 
 
+@pytest.mark.slow
 def test_any_split_gives_the_same_bits_and_zero_normals_say_nothing(gl):
     """A point's value depends on that point alone: all points in one call (one batch of
     tiles), reversed (every point in another tile), in two children (threads=2) and split
@@ -341,6 +344,7 @@ def test_any_split_gives_the_same_bits_and_zero_normals_say_nothing(gl):
     assert method.record(every)["parameters"]["points_drawn"] == len(normals) - 1
 
 
+@pytest.mark.slow
 def test_back_faces_occlude_as_rays_do(gl, resolution):
     """A ceiling whose back faces the floor blocks by default and is passed through with
     backfaces='ignore', as the ray-traced method does; its front-facing twin blocks
@@ -375,6 +379,7 @@ def test_a_tiny_near_plane_still_sees_the_scene(gl, resolution):
     assert result.ao[0] == result.ao[1] and result.ao[0] < 0.1
 
 
+@pytest.mark.slow
 def test_bake_per_vertex_runs_hemicube(gl, resolution):
     """``aobake.bake(mesh, method="hemicube")`` on a small mesh: the floor's vertices under
     the disc within their bounds, the disc's top vertices fully open, no rays or stderr;
