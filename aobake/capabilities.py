@@ -105,7 +105,9 @@ TARGETS = {
     # vertices or the caller's own
     "vertices": TargetCapabilities(("points",), ("instances",), what="a per-vertex bake"),
     "points": TargetCapabilities(("points",), ("instances",), what="query points"),
-    "texels": TargetCapabilities(("points", "triangles"), ("texels",), what="a lightmap"),
+    # (a lightmap of a set of instances: one region per baked instance, --bake)
+    "texels": TargetCapabilities(("points", "triangles"), ("texels", "instances"),
+                                 what="a lightmap"),
     "view": TargetCapabilities(("points", "triangles", "gbuffer"), ("view",),
                                what="a camera view"),
     "projected_texels": TargetCapabilities(("points",), ("texels", "studio"),

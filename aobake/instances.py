@@ -41,9 +41,10 @@ KINDS = ("node", "mesh")
 LISTED = 20
 #: the glTF extension read for per-node copies
 EXTENSION = "EXT_mesh_gpu_instancing"
-#: the targets and methods that can bake some instances only (their points are the scene's
-#: vertices, every ray goes through the occluders): see :func:`check`
-TARGETS = ("vertices", "points")
+#: the targets that can bake some instances only (their points are the scene's vertices, or
+#: a lightmap of the set: one region per baked instance, every ray through the occluders):
+#: see :func:`check`
+TARGETS = ("vertices", "points", "texels")
 
 
 @dataclass(frozen=True)
@@ -58,7 +59,10 @@ class Instances:
     scene's own (in this order); vertex_offsets, face_offsets : (b + 1,) int64 where each
     baked instance's vertices and faces start in the scene's arrays; bounds : (2, 3)
     float64 min and max corner over every instance's used vertices (scene units);
-    patterns : the ``--bake`` patterns that chose ``baked`` (() : every instance).
+    patterns : the ``--bake`` patterns that chose ``baked`` (() : every instance); uvs :
+    per unique mesh its own UVs ((v, 2) float64, OBJ convention: v = 0 at the bottom) or
+    None (() : not read), what a lightmap of the set lays out per instance
+    (``aobake.targets.texels.instanced``).
     """
 
     meshes: tuple
@@ -72,6 +76,7 @@ class Instances:
     face_offsets: np.ndarray = field(repr=False)
     bounds: np.ndarray = field(repr=False)
     patterns: tuple = ()
+    uvs: tuple = field(default=(), repr=False)
 
     def __len__(self) -> int:
         return len(self.mesh)
@@ -95,6 +100,21 @@ class Instances:
                 "instanced_triangles": int(self.triangles().sum()),
                 "baked": int(len(self.baked)), "patterns": list(self.patterns)}
 
+    def source(self) -> dict:
+        """Where the baked vertices and faces stand in the whole set's flattened arrays (what
+        a bake of every instance, or of the flattened scene, holds: instance after instance,
+        each mesh's every vertex): {"vertices": V, "faces": F, the whole set's counts;
+        "vertex_runs", "face_runs": [[start, stop), ...] of the whole set's arrays that the
+        bake's arrays are, one after the other}.  ``aobake compare`` lines a subset bake up
+        with the whole set's bake by it."""
+        vertex_counts = np.array([len(v) for v, _ in self.meshes], dtype=np.int64)[self.mesh]
+        face_counts = np.array([len(f) for _, f in self.meshes], dtype=np.int64)[self.mesh]
+        vertex_start = np.concatenate([[0], np.cumsum(vertex_counts)])
+        face_start = np.concatenate([[0], np.cumsum(face_counts)])
+        return {"vertices": int(vertex_start[-1]), "faces": int(face_start[-1]),
+                "vertex_runs": runs(vertex_start[self.baked], vertex_start[self.baked + 1]),
+                "face_runs": runs(face_start[self.baked], face_start[self.baked + 1])}
+
     def layout(self) -> list:
         """One entry per baked instance: its name, node, mesh (name), transform (4x4 rows,
         mesh -> scene units) and the ranges [start, stop) of its vertices and faces in the
@@ -107,6 +127,27 @@ class Instances:
                         "vertices": [int(self.vertex_offsets[k]), int(self.vertex_offsets[k + 1])],
                         "faces": [int(self.face_offsets[k]), int(self.face_offsets[k + 1])]})
         return out
+
+
+def runs(starts, stops) -> list:
+    """[[start, stop), ...] of the ranges given, adjacent ones merged (JSON-ready ints)."""
+    out = []
+    for start, stop in zip(np.asarray(starts).tolist(), np.asarray(stops).tolist()):
+        if out and out[-1][1] == start:
+            out[-1][1] = stop
+        elif stop > start:
+            out.append([int(start), int(stop)])
+    return out
+
+
+def expand_runs(given) -> np.ndarray:
+    """(n,) int64 the indices of runs [[start, stop), ...] one after the other."""
+    pairs = np.asarray(given, dtype=np.int64).reshape(-1, 2)
+    if not len(pairs):
+        return np.zeros(0, dtype=np.int64)
+    lengths = pairs[:, 1] - pairs[:, 0]
+    offsets = np.repeat(pairs[:, 0] - np.concatenate([[0], np.cumsum(lengths)[:-1]]), lengths)
+    return np.arange(int(lengths.sum()), dtype=np.int64) + offsets
 
 
 # ---------------------------------------------------------------------------------------------
@@ -164,11 +205,21 @@ def read(loaded, path, patterns=()) -> Read | None:
                           np.asarray(chosen, dtype=np.int64),
                           np.asarray(vertex_offsets, dtype=np.int64),
                           np.asarray(face_offsets, dtype=np.int64),
-                          world_bounds(meshes, mesh, transforms), tuple(patterns))
+                          world_bounds(meshes, mesh, transforms), tuple(patterns),
+                          tuple(_own_uv(loaded.geometry[name]) for name in geometry_names))
     log.info("%s: %d instances of %d meshes (%d triangles placed, %d unique), %d baked",
              path, len(mesh), len(meshes), int(instances.triangles().sum()),
              sum(len(f) for _, f in meshes), len(chosen))
     return Read(instances, receivers)
+
+
+def _own_uv(geometry) -> np.ndarray | None:
+    """(v, 2) float64 a trimesh mesh's own UVs (OBJ convention, as trimesh gives them), or
+    None where it has none (or not one per vertex)."""
+    uv = getattr(getattr(geometry, "visual", None), "uv", None)
+    if uv is None or len(uv) != len(geometry.vertices):
+        return None
+    return np.asarray(uv, dtype=np.float64)
 
 
 def _placements(loaded, path) -> list:
@@ -418,8 +469,9 @@ def local_placements(instances: Instances, center: np.ndarray, scale: float):
 def check(method: str, target: str, config) -> None:
     """UsageError before any work for a ``--bake`` a bake cannot honour: a method that does
     not trace every ray through the occluders (it would see only the baked instances), a
-    target whose points are not the scene's vertices (a lightmap's atlas would lay every
-    instance's UVs over each other; a view's first hits may land on instances not baked)."""
+    target whose points are not the baked faces' (a view's first hits may land on instances
+    not baked; a high-to-low bake projects onto its own source), a lightmap of a UV set other
+    than 0 (the set's atlas lays each instance's own set-0 UVs out in a region)."""
     from aobake import capabilities
     from aobake.errors import UsageError
 
@@ -431,5 +483,10 @@ def check(method: str, target: str, config) -> None:
                          "(use --method rays)")
     if target not in TARGETS:
         what = capabilities.TARGETS[target].what if target in capabilities.TARGETS else target
-        raise UsageError(f"--bake bakes per-vertex values of the instances it names: not "
-                         f"{what} ({target}); write .npz, .ply or .glb")
+        raise UsageError(f"--bake bakes the instances it names, per vertex or in a lightmap "
+                         f"of the set: not {what} ({target}); write .npz, .ply, .glb or an "
+                         "image")
+    if target == "texels" and getattr(config, "uv_set", 0):
+        raise UsageError(f"--bake: a lightmap of the baked instances lays each one's UV set "
+                         f"0 out in a region of the set's atlas: not --uv-set "
+                         f"{config.uv_set}")

@@ -80,7 +80,10 @@ def write_instanced(path, meshes, nodes, roots=None) -> str:
     .glb by the suffix of ``path``.
 
     meshes : list of {"name": str (optional), "primitives": [{"vertices" (v, 3), "faces"
-    (f, 3), "normals" (v, 3) optional}, ...]} (or one primitive's keys at the top level);
+    (f, 3), "normals" (v, 3) optional, "uv" (v, 2) optional (OBJ convention, v = 0 at the
+    bottom: written as glTF's TEXCOORD_0, v flipped, with a plain material: trimesh reads a
+    primitive's UVs only where it has a material)}, ...]} (or one primitive's keys at the top
+    level);
     nodes : list of glTF node dicts (name, mesh, matrix | translation / rotation / scale,
     children) as written, except "instancing": {"TRANSLATION" (k, 3), "ROTATION" (k, 4)
     xyzw, "SCALE" (k, 3)} (any of them) becomes the node's EXT_mesh_gpu_instancing with
@@ -115,8 +118,15 @@ def write_instanced(path, meshes, nodes, roots=None) -> str:
             if part.get("normals") is not None:
                 attributes["NORMAL"] = add(np.asarray(part["normals"], np.float32), 34962, 5126,
                                            "VEC3")
-            primitives.append({"attributes": attributes, "indices": add(
-                np.asarray(part["faces"], np.uint32).ravel(), 34963, 5125, "SCALAR")})
+            if part.get("uv") is not None:
+                uv = np.asarray(part["uv"], np.float64)
+                attributes["TEXCOORD_0"] = add(np.column_stack([uv[:, 0], 1.0 - uv[:, 1]])
+                                               .astype(np.float32), 34962, 5126, "VEC2")
+            primitive = {"attributes": attributes, "indices": add(
+                np.asarray(part["faces"], np.uint32).ravel(), 34963, 5125, "SCALAR")}
+            if part.get("uv") is not None:
+                primitive["material"] = 0
+            primitives.append(primitive)
         out_meshes.append({"name": mesh.get("name", f"mesh{i}"), "primitives": primitives})
     out_nodes, used = [], set()
     for node in nodes:
@@ -137,6 +147,9 @@ def write_instanced(path, meshes, nodes, roots=None) -> str:
             "bufferViews": views}
     if used:
         gltf["extensionsUsed"] = sorted(used)
+    if any("material" in p for m in out_meshes for p in m["primitives"]):
+        gltf["materials"] = [{"name": "plain", "pbrMetallicRoughness": {
+            "baseColorFactor": [0.8, 0.8, 0.8, 1.0], "metallicFactor": 0.0}}]
     if Path(path).suffix.lower() == ".glb":
         blob.extend(b"\0" * (-len(blob) % 4))
         gltf["buffers"] = [{"byteLength": len(blob)}]

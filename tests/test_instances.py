@@ -194,9 +194,12 @@ def test_bake_is_refused_where_it_cannot_hold(tmp_path, rocks):
     config = BakeConfig(bake="rock1")
     with pytest.raises(UsageError, match="--method discs builds its occluders"):
         placed.check("discs", "vertices", config)
-    with pytest.raises(UsageError, match="a lightmap"):
-        placed.check("rays", "texels", config)
+    with pytest.raises(UsageError, match="a camera view"):
+        placed.check("rays", "view", config)
+    with pytest.raises(UsageError, match="--uv-set 1"):  # the set's atlas lays out set 0
+        placed.check("rays", "texels", BakeConfig(bake="rock1", uv_set=1))
     placed.check("rays", "vertices", config)
+    placed.check("rays", "texels", config)  # a lightmap of the set: a region per instance
     placed.check("discs", "texels", BakeConfig())  # nothing to check without --bake
     # a scene loaded without the selection: the occluders refuse, nothing bakes quietly
     with pytest.raises(InputError, match="loaded without it"):

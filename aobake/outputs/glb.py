@@ -25,6 +25,9 @@ Two writers, and ``read`` (any GLB's triangle meshes as a ``Table``, what
 - ``write_textured``: a lightmap bake.  The AO atlas is an embedded PNG used as
   the material's ``occlusionTexture`` (glTF reads occlusion from the R channel,
   1 = unoccluded).
+- ``write_textured_instances``: a lightmap of a set of instances (one region per
+  instance): each mesh's geometry once, per instance a node and materials whose
+  occlusionTexture reads its region through ``KHR_texture_transform`` (offset, scale).
 
 Conventions:
 
@@ -349,6 +352,120 @@ def write_textured(
     _add_mesh(gltf, blob, attributes, parts)
     _write_glb(path, gltf, blob)
     log.debug("wrote %s: %d vertices, %d faces, textured", path, n, len(faces))
+
+
+#: the extension a lightmap of a set of instances reads its regions through
+TEXTURE_TRANSFORM = "KHR_texture_transform"
+
+
+def write_textured_instances(
+    path: str | os.PathLike,
+    meshes: Sequence[Mapping],
+    instances: Sequence[Mapping],
+    occlusion_png: bytes,
+    metadata: Mapping | None,
+    materials: Sequence[Mapping] | None = None,
+    packed_orm: bool = False,
+) -> None:
+    """Write a set of instances lit by one atlas: every mesh's geometry once, every instance
+    a node whose materials read its region of the atlas through ``KHR_texture_transform``.
+
+    meshes : per unique mesh {"name", "positions" (v, 3) mesh units, "normals" (v, 3) | None,
+      "uv" (L, 2) its lightmap layout (OBJ convention), "faces" (f, 3) into it, "vertex" (L,)
+      the mesh vertex of each layout vertex, "own_uv" (v, 2) | None its own UVs (a base
+      colour's; when the layout is not them), "face_material" (f,) | None};
+    instances : per instance {"name", "mesh" (index into ``meshes``), "matrix" (4, 4) mesh ->
+      scene units, "transform" {"offset", "scale"} (glTF UVs) into the atlas, "extras"};
+    occlusion_png : the atlas (R = AO; with ``packed_orm`` an ORM map, also the
+      metallicRoughnessTexture, as ``write_textured``'s); materials : the input's (as
+      ``write_textured``'s), or None: one white material.
+
+    One POSITION, NORMAL, TEXCOORD and index accessor per mesh (per material) is shared by
+    all its instances; each instance has its own glTF mesh (the same accessors) and its own
+    materials, whose occlusionTexture (and packed metallicRoughnessTexture) carry the
+    instance's offset and scale.  The layout is TEXCOORD_0, or TEXCOORD_1 beside the mesh's
+    own UVs (TEXCOORD_0, for base colours) when it is a new atlas.
+    """
+    occlusion_png = _check_png("occlusion_png", occlusion_png)
+    if not meshes or not instances:
+        raise ValueError("a set needs at least one mesh and one instance")
+    gltf = _new_gltf(metadata)
+    gltf["extensionsUsed"] = [TEXTURE_TRANSFORM]
+    blob = bytearray()
+    occlusion = _add_texture(gltf, blob, occlusion_png, _CLAMP_TO_EDGE,
+                             "orm" if packed_orm else "occlusion")
+    if materials is None:
+        materials = [{"name": GENERATOR}]
+    base_textures = {}  # input material -> its base colour texture, embedded once
+    shared = []
+    for mesh in meshes:
+        vertex = np.asarray(mesh["vertex"], dtype=np.int64)
+        positions, faces, fields = check_vertex_data(
+            np.asarray(mesh["positions"])[vertex], mesh["faces"],
+            {} if mesh.get("normals") is None else
+            {"normals": np.asarray(mesh["normals"])[vertex]})
+        _check_not_empty(positions, faces)
+        layout = _check_uv("uv", mesh["uv"], len(positions))
+        attributes = _add_geometry(gltf, blob, positions, fields.get("normals"))
+        own = mesh.get("own_uv")
+        sets = [layout] if own is None else [np.asarray(own, np.float64)[vertex], layout]
+        for i, uv in enumerate(sets):
+            attributes[f"TEXCOORD_{i}"] = _add_accessor(gltf, blob, _flip_v(uv), _ARRAY_BUFFER)
+        by_material = np.zeros(len(faces), np.int64) if mesh.get("face_material") is None \
+            else np.asarray(mesh["face_material"], dtype=np.int64)
+        if by_material.shape != (len(faces),) or by_material.min() < 0 \
+                or by_material.max() >= len(materials):
+            raise ValueError(f"mesh {mesh['name']!r}: face_material must be ({len(faces)},) "
+                             f"indices into {len(materials)} materials")
+        parts = [(int(j), _add_accessor(gltf, blob, faces[by_material == j].reshape(-1),
+                                        _ELEMENT_ARRAY_BUFFER, _UNSIGNED_INT))
+                 for j in np.unique(by_material)]
+        shared.append((attributes, parts, len(sets) - 1, own is not None))
+    gltf["materials"], gltf["meshes"], gltf["nodes"] = [], [], []
+    for k, instance in enumerate(instances):
+        attributes, parts, tex_coord, has_own = shared[instance["mesh"]]
+        transform = {"offset": [float(v) for v in instance["transform"]["offset"]],
+                     "scale": [float(v) for v in instance["transform"]["scale"]]}
+        primitives = []
+        for j, indices in parts:
+            given = materials[j]
+            reads = {"index": occlusion, "texCoord": tex_coord,
+                     "extensions": {TEXTURE_TRANSFORM: dict(transform)}}
+            pbr = _white_pbr()
+            factor = given.get("base_color_factor")
+            if factor is not None:
+                pbr["baseColorFactor"] = [float(c) for c in factor]
+            png = given.get("base_color_png")
+            if png is not None and has_own:
+                if j not in base_textures:
+                    base_textures[j] = _add_texture(gltf, blob, _check_png("base_color_png",
+                                                                           png),
+                                                    _REPEAT, "base_color")
+                pbr["baseColorTexture"] = {"index": base_textures[j], "texCoord": 0}
+            if packed_orm:
+                pbr["metallicFactor"] = pbr["roughnessFactor"] = 1.0
+                pbr["metallicRoughnessTexture"] = {
+                    "index": occlusion, "texCoord": tex_coord,
+                    "extensions": {TEXTURE_TRANSFORM: dict(transform)}}
+            gltf["materials"].append({"name": f"{given.get('name') or GENERATOR}"
+                                              f"@{instance['name']}",
+                                      "occlusionTexture": reads, "pbrMetallicRoughness": pbr})
+            primitives.append({"attributes": attributes, "indices": indices,
+                               "material": len(gltf["materials"]) - 1,
+                               "mode": _MODE_TRIANGLES})
+        gltf["meshes"].append({"name": str(meshes[instance["mesh"]]["name"]),
+                               "primitives": primitives})
+        matrix = np.asarray(instance["matrix"], dtype=np.float64).reshape(4, 4)
+        node = {"name": str(instance["name"]), "mesh": len(gltf["meshes"]) - 1,
+                "extras": dict(instance.get("extras") or {}, aobake_instance=k)}
+        if not np.array_equal(matrix, np.eye(4)):  # glTF matrices are column-major
+            node["matrix"] = [float(x) for x in matrix.T.reshape(-1)]
+        gltf["nodes"].append(node)
+    gltf["scenes"] = [{"nodes": list(range(len(instances)))}]
+    gltf["scene"] = 0
+    _write_glb(path, gltf, blob)
+    log.debug("wrote %s: %d instances of %d meshes lit by one atlas", path, len(instances),
+              len(meshes))
 
 
 def _new_gltf(metadata: Mapping | None) -> dict:

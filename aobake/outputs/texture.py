@@ -154,6 +154,8 @@ def _write_glb(path, result, value, metadata: dict, orm=None, own_factors=False)
     from aobake.outputs import glb, image
 
     atlas = result.atlas
+    if atlas.instances is not None:  # a set: every mesh once, each instance its region
+        return _write_set_glb(path, result, value, metadata, orm)
     base_uv = atlas.base_uv
     textured = any(m["base_color_png"] is not None for m in atlas.materials or [])
     if base_uv is None and textured and not atlas.uv_set:
@@ -181,3 +183,18 @@ def _write_glb(path, result, value, metadata: dict, orm=None, own_factors=False)
                        face_material=atlas.face_material,
                        occlusion_wrap=atlas.wrap, uv_sets=uv_sets, occlusion_set=atlas.uv_set,
                        packed_orm=orm is not None)
+
+
+def _write_set_glb(path, result, value, metadata: dict, orm=None) -> None:
+    """A lightmap of a set of instances as a GLB whose instances share their geometry, each
+    reading its region of the one atlas through ``KHR_texture_transform``
+    (``glb.write_textured_instances``; ``aobake.targets.texels.instanced``)."""
+    from aobake.outputs import glb, image
+
+    if orm is None:
+        png = image.png_bytes(value, np.ones_like(value), bit_depth=8, r_only=True)
+    else:
+        png = image.rgb_png_bytes(orm, bit_depth=8)
+    meshes, instances = result.atlas.instances.gltf()
+    glb.write_textured_instances(path, meshes, instances, png, metadata,
+                                 materials=result.atlas.materials, packed_orm=orm is not None)

@@ -8,9 +8,11 @@ A record like the others (``aobake.settings.spec``), composed into ``BakeConfig`
     aobake LOW.obj --from HIGH.obj --out ao.exr [--cage-offset D | --cage CAGE.obj]
            [--low-occludes] [--alpha-cutout] [--exclude NAME ...] [--receive-only NAME ...] [--occluder-only NAME ...]
     aobake SET.glb --bake NODE_GLOB --out ao.npz [--instances trace|flatten]
+    aobake LEVEL.obj --bake 'object:crate*' --out crates.npz
 
 ``--bake`` and ``--instances`` shape a scene of instances (``aobake.instances``): which
-glTF nodes are baked while every node occludes, and how the placements are traced.
+glTF nodes (or OBJ objects and groups) are baked while everything occludes, and how the
+placements are traced.
 
 With ``--from`` the positional mesh is the low mesh (where the values are stored: its UVs
 for an image, its vertices for .ply/.npz/.glb) and ``--from`` the source, the pipeline's
@@ -118,9 +120,11 @@ class StudioOptions:
         parse=_patterns("occluder_only"),
         multiple=True, show_default=False)
     bake: tuple = setting(
-        (), "parsed", "glTF nodes to bake (a glob on node names, 'mesh:NAME' for every node of "
-        "a mesh; repeatable): only their vertices are sampled, every other node still "
-        "occludes. Nodes that share a mesh stay instances (docs/scale.md).",
+        (), "parsed", "What to bake, by name (a glob; repeatable): glTF nodes ('mesh:NAME' "
+        "for every node of a mesh) or OBJ objects and groups ('object:NAME', 'group:NAME'). "
+        "Only they are sampled (per vertex, or one lightmap region per glTF instance); "
+        "everything else still occludes. Nodes that share a mesh stay instances "
+        "(docs/scale.md).",
         # its own section: the targets whose points are the scene's vertices read it
         # (capabilities.TARGETS), so a view does not offer it
         section="instances", panel="studio", parse=_patterns("bake"), multiple=True,
@@ -151,8 +155,8 @@ class StudioOptions:
                                 (self.exclude, "--exclude"), (self.receive_only, "--receive-only"),
                                 (self.occluder_only, "--occluder-only")):
                 if given:
-                    raise InputError(f"--bake chooses the baked glTF nodes and lets every other "
-                                     f"one occlude: not with {flag}")
+                    raise InputError(f"--bake chooses what is baked and lets everything else "
+                                     f"occlude: not with {flag}")
             if "indirect" in getattr(self, "quantities", ()):
                 raise InputError("--bake: -q indirect follows paths across every instance's "
                                  "faces, which a selection does not hold: bake without --bake")

@@ -16,6 +16,11 @@ SEAMS = ("erase", "off")
 #: own UVs anyway with shared texels averaging the surfaces that share them
 UV_OVERLAP = ("atlas", "refuse", "average")
 DEFAULT_RESOLUTION = (1024, 1024)
+#: how a lightmap of a set of instances sizes each instance's region
+#: (``aobake.targets.texels.instanced``): density (equal texels per scene unit on every
+#: instance: its world area, the scale of its transform) or mesh (one size per mesh, at the
+#: density its instances have on average: the instance's own scale ignored)
+INSTANCE_REGIONS = ("density", "mesh")
 
 
 def parse_resolution(value) -> tuple[int, int]:
@@ -88,6 +93,11 @@ class LightmapOptions:
         None, "parsed", "With --uv-overlap refuse: write a PNG of the own UVs' overlap "
         "(red: texels covered twice or more, grey: once) to this path before refusing.",
         section="texels", optional=True, parse=_path, show_default=False)
+    instance_regions: str = setting(
+        "density", "choice", "A lightmap of a glTF set of instances holds one region per "
+        "baked instance: density (the same texels per scene unit on every instance, by its "
+        "world area) or mesh (every instance of a mesh the same region, its scale ignored) "
+        "(docs/scale.md).", section="texels", choices=INSTANCE_REGIONS)
     bent_space: str = setting(
         "object", "choice", "Lightmap bent normals in object space or tangent space "
         "(MikkTSpace-style frames of the atlas UVs).", section="texels", choices=BENT_SPACES)

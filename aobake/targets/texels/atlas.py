@@ -47,7 +47,9 @@ class Atlas:
     uv_set : int the input's UV set the map belongs to (``--uv-set``): a GLB writes ``uv``
     as TEXCOORD_<uv_set>,
     other_uv : {k: (m, 2) float64} | None with uv_set > 0, the input's other UV sets at the
-    atlas vertices (OBJ convention), written unchanged beside it.
+    atlas vertices (OBJ convention), written unchanged beside it,
+    instances : ``aobake.targets.texels.instanced.SetLayout`` | None a lightmap of a set of
+    instances (one region per baked instance; the fields above are the flattened scene's).
     """
 
     positions: np.ndarray
@@ -66,6 +68,7 @@ class Atlas:
     charting: str | None = None
     uv_set: int = 0
     other_uv: dict | None = None
+    instances: object = None
 
 
 def check_texture_budget(width: int, height: int, texel_samples: int) -> int:

@@ -48,11 +48,19 @@ class TexelTarget:
         width, height = config.resolution
         phases: dict = {}
         compiled = _native.kernels() is not None  # decided once, recorded as decided
-        atlas, bake_uv, bake_faces_uv, check, samples = make_atlas(
-            scene, config.unwrap, width, height, config.padding, config.texel_samples,
-            config.seed, threads, warnings, phases, compiled, phase or (lambda name: None),
-            texel_density=config.texel_density, uv_overlap=config.uv_overlap,
-            overlap_mask=config.overlap_mask)
+        if scene.instances is not None and hasattr(scene.instances, "transforms"):
+            # a set of instances: one region per baked instance (targets.texels.instanced)
+            from aobake.targets.texels.instanced import make_set_atlas
+
+            atlas, bake_uv, bake_faces_uv, check, samples = make_set_atlas(
+                scene, config, width, height, threads, warnings, phases, compiled,
+                phase or (lambda name: None))
+        else:
+            atlas, bake_uv, bake_faces_uv, check, samples = make_atlas(
+                scene, config.unwrap, width, height, config.padding, config.texel_samples,
+                config.seed, threads, warnings, phases, compiled, phase or (lambda name: None),
+                texel_density=config.texel_density, uv_overlap=config.uv_overlap,
+                overlap_mask=config.overlap_mask)
         timings["uv_check_s"] = phases["uv_check_s"]
         timings["unwrap_s"] = phases["unwrap_s"]
         clock = time.perf_counter()
@@ -129,6 +137,9 @@ class TexelTarget:
             else None
         if config.texel_density is not None:  # the size was chosen for it
             texture["texel_density_requested"] = config.texel_density
+        if state["atlas"].instances is not None:  # a set: where each instance's region is
+            texture["atlas"] = "instance regions"
+            texture["instances"] = state["atlas"].instances.record()
         # Texels per scene unit along the surface, and a warning where charts shrink to a few
         # texels (the map then holds little more than one value per chart).
         area = float(scene.areas().sum())
