@@ -212,6 +212,33 @@ def _record(scene, selection, exclude, receive_only, occluder_only) -> dict:
             "faces": counts, "names": names}
 
 
+#: the kinds of names ``--bake`` chooses an OBJ's faces by (``aobake.instances.subset``)
+BAKE_KINDS = ("object", "group")
+
+
+def bake_faces(scene, patterns) -> np.ndarray:
+    """(f,) bool the faces of a flat scene (an OBJ) that ``--bake`` ``patterns`` name: a face
+    is baked when its object or its group name matches a glob (``object:`` or ``group:``
+    restricts it to one kind).  InputError for a pattern of another kind or one that matches
+    no face's name (with the names the file has)."""
+    chosen = np.zeros(len(scene.faces), dtype=bool)
+    for pattern in patterns:
+        kind, sep, _ = pattern.partition(":")
+        if sep and kind in KINDS and kind not in BAKE_KINDS:
+            raise InputError(f"{scene.source}: --bake {pattern!r}: an OBJ's faces are baked "
+                             f"by their object or group name ('object:NAME', 'group:NAME'), "
+                             f"not by {kind} (--exclude and the other roles take {kind} "
+                             "names)")
+        hit = match(scene, pattern if sep and kind in BAKE_KINDS else f"object:{pattern}")
+        if not (sep and kind in BAKE_KINDS):
+            hit |= match(scene, f"group:{pattern}")
+        if not hit.any():
+            raise InputError(f"{scene.source}: --bake {pattern!r} matches no object or group "
+                             f"({_available(scene, pattern)})")
+        chosen |= hit
+    return chosen
+
+
 class GroupedTarget:
     """``inner`` (any target) baking only the receiving faces of an :class:`Applied`
     selection: points on occluder-only faces get a zero normal (not traced); a high-to-low

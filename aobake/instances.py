@@ -78,6 +78,9 @@ class Instances:
     patterns: tuple = ()
     uvs: tuple = field(default=(), repr=False)
 
+    #: traced as Embree instances where the backend has them
+    instanced = True
+
     def __len__(self) -> int:
         return len(self.mesh)
 
@@ -148,6 +151,107 @@ def expand_runs(given) -> np.ndarray:
     lengths = pairs[:, 1] - pairs[:, 0]
     offsets = np.repeat(pairs[:, 0] - np.concatenate([[0], np.cumsum(lengths)[:-1]]), lengths)
     return np.arange(int(lengths.sum()), dtype=np.int64) + offsets
+
+
+# ---------------------------------------------------------------------------------------------
+# some faces of a flat file (an OBJ's objects and groups)
+
+
+@dataclass(frozen=True)
+class Subset:
+    """The faces of a flat file (an OBJ) that ``--bake`` chose, every other face occluding:
+    ``Scene.instances`` of the scene of the chosen faces (:func:`subset`).
+
+    vertices (V, 3) float64, faces (F, 3) int64 : the whole file's, what the occluders trace;
+    baked_faces : (b,) int64 the file's faces that are the scene's, in file order;
+    source_vertex : (n,) int64 the file's vertex of each of the scene's (in file order);
+    bounds : (2, 3) float64 the whole file's used vertices' corners (the diagonal, relative
+    distances and the ground plane are the file's); patterns : ``--bake``'s; names : {kind:
+    [the chosen faces' names]}.
+    """
+
+    vertices: np.ndarray = field(repr=False)
+    faces: np.ndarray = field(repr=False)
+    baked_faces: np.ndarray = field(repr=False)
+    source_vertex: np.ndarray = field(repr=False)
+    bounds: np.ndarray = field(repr=False)
+    patterns: tuple = ()
+    names: dict = field(default_factory=dict)
+
+    #: traced as the file's triangles (a flat file has no placements to instance)
+    instanced = False
+
+    @property
+    def everything(self) -> bool:
+        return len(self.baked_faces) == len(self.faces)
+
+    def record(self) -> dict:
+        return {"file_faces": int(len(self.faces)), "file_vertices": int(len(self.vertices)),
+                "baked_faces": int(len(self.baked_faces)),
+                "baked_vertices": int(len(self.source_vertex)),
+                "baked": {kind: list(given) for kind, given in self.names.items()},
+                "patterns": list(self.patterns)}
+
+    def layout(self) -> list:
+        """No per-instance cut: the scene's arrays are the chosen faces' (``source``)."""
+        return []
+
+    def source(self) -> dict:
+        """As ``Instances.source``: the scene's vertices and faces as runs of the file's (what a
+        bake of the whole file holds, in file order)."""
+        vertex = self.source_vertex
+        face = self.baked_faces
+        return {"vertices": int(len(self.vertices)), "faces": int(len(self.faces)),
+                "vertex_runs": runs(*_consecutive(vertex)),
+                "face_runs": runs(*_consecutive(face))}
+
+
+def _consecutive(index: np.ndarray):
+    """(starts, stops) of the runs of consecutive integers in ``index``."""
+    index = np.asarray(index, dtype=np.int64)
+    if not len(index):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    breaks = np.flatnonzero(np.diff(index) != 1) + 1
+    starts = index[np.concatenate([[0], breaks])]
+    stops = index[np.concatenate([breaks - 1, [len(index) - 1]])] + 1
+    return starts, stops
+
+
+def subset(whole, patterns):
+    """The scene of the faces of flat scene ``whole`` (an OBJ, loaded whole: its normals,
+    repairs and areas are the whole file's) that ``patterns`` name (``groups.bake_faces``),
+    the rest occluding: its vertices the ones those faces use, in file order, each with the
+    whole file's normal, so each baked vertex is the whole file's bake's vertex; its
+    ``instances`` a :class:`Subset`.  InputError for a pattern that names nothing."""
+    from dataclasses import replace
+
+    from aobake import groups
+
+    chosen = groups.bake_faces(whole, tuple(patterns))
+    baked = np.flatnonzero(chosen)
+    used = np.zeros(len(whole.vertices), dtype=bool)
+    used[whole.faces[baked].ravel()] = True
+    source_vertex = np.flatnonzero(used)
+    remap = np.full(len(whole.vertices), -1, dtype=np.int64)
+    remap[source_vertex] = np.arange(len(source_vertex))
+    names = None if whole.names is None else {
+        kind: (given, index[baked]) for kind, (given, index) in whole.names.items()}
+    chosen_names = {kind: [given[j] for j in np.unique(index[baked]).tolist() if j >= 0]
+                    for kind, (given, index) in (whole.names or {}).items()
+                    if kind in groups.BAKE_KINDS}
+    record = Subset(whole.vertices, whole.faces, baked, source_vertex,
+                    np.array(whole.bounds, dtype=np.float64), tuple(patterns), chosen_names)
+    log.info("%s: %d of %d faces baked (%s), the rest occluding", whole.source, len(baked),
+             len(whole.faces), ", ".join(patterns))
+    return replace(whole, vertices=whole.vertices[source_vertex],
+                   faces=remap[whole.faces[baked]],
+                   vertex_normals=whole.vertex_normals[source_vertex],
+                   face_normals=whole.face_normals[baked],
+                   faces_uv=None if whole.faces_uv is None else whole.faces_uv[baked],
+                   face_material=None if whole.face_material is None
+                   else whole.face_material[baked],
+                   face_areas=None if whole.face_areas is None else whole.face_areas[baked],
+                   names=names, occluding=None, instances=record)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -409,9 +513,11 @@ def flattened(instances: Instances) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (V, 3) float64 scene units, faces (F, 3) int64) of every instance placed,
     in instance order, as ``Scene.dump`` places them (trimesh's ``apply_transform``: the same
     bits, faces reversed where a transform mirrors): what a backend without instances
-    traces.  Its memory grows with the instances."""
+    traces.  Its memory grows with the instances.  A :class:`Subset`: the whole file's."""
     import trimesh
 
+    if isinstance(instances, Subset):
+        return instances.vertices, instances.faces
     vertices, faces, offset = [], [], 0
     for i in range(len(instances)):
         v, f = instances.meshes[instances.mesh[i]]

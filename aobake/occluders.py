@@ -227,7 +227,9 @@ def build(scene, config) -> Occluders:
                      config.backend, ground, subset, tuple(extras), cutout, traversal,
                      None if how is None else _instanced_record(
                          scene, "flattened: the scene's own faces are every instance's ("
-                         + _why_flat(scene, config) + ")"))
+                         + _why_flat(scene, config) + ")"
+                         if getattr(scene.instances, "instanced", True) else
+                         "the file's faces: every one is baked"))
 
 
 def _others(scene, config, center, scale, step, members) -> tuple[list, dict | None]:
@@ -276,8 +278,9 @@ def _why_flat(scene, config) -> str:
 def _instancing(scene, config) -> str | None:
     """How a scene's instances are traced: None (a scene loaded flat), "embree" (Embree
     instances: ``backends.instanced``), "scene" (the scene's own faces, which are every
-    instance's: nothing baked is left out) or "flatten" (every instance's triangles copied
-    into one triangle backend: a backend without instances, with some instances not baked).
+    instance's: nothing baked is left out), "flatten" (every instance's triangles copied
+    into one triangle backend: a backend without instances, with some instances not baked)
+    or "file" (some faces of a flat file baked, ``instances.Subset``: the file's faces).
     InputError where a ``--bake`` selection cannot be honoured."""
     from aobake.backends.instanced import available
 
@@ -289,6 +292,8 @@ def _instancing(scene, config) -> str | None:
                          "baked instances; this caller did not pass the setting on)")
     if instances is None:
         return None
+    if not getattr(instances, "instanced", True):  # an OBJ's objects: the file's faces
+        return "scene" if instances.everything else "file"
     embree = (config.backend == "embree" and getattr(config, "instances", "trace") == "trace"
               and not getattr(config, "alpha_cutout", False) and scene.occluding is None)
     if embree and available():
@@ -305,12 +310,14 @@ def _instanced_record(scene, traced_as: str) -> dict:
     """The report's ``parameters.instances``: how they were traced, the counts, and the
     baked instances' layout (each one's vertex and face ranges in the outputs)."""
     instances = scene.instances
-    return {"traced_as": traced_as, **instances.record(), "layout": instances.layout()}
+    return {"traced_as": traced_as, **instances.record(), "layout": instances.layout(),
+            "source": instances.source()}
 
 
 def _build_instanced(scene, config, how: str) -> Occluders:
     """The occluders of a scene whose every instance occludes while only the baked ones
-    are its faces (``how`` "embree" or "flatten", see :func:`_instancing`).
+    are its faces (``how`` "embree" or "flatten", see :func:`_instancing`; "file": an OBJ's
+    faces chosen by name, every face of the file occluding).
 
     The frame is rebased on the baked instances' vertices (their median: where the rays
     start) and scaled by a power of two to span every instance (``Scene.bounds`` is the
@@ -322,7 +329,14 @@ def _build_instanced(scene, config, how: str) -> Occluders:
     scale = 2.0 ** -math.frexp(reach)[1]
     step = OFFSET_ULPS * float(np.spacing(np.float32(reach * scale)))
     robust = getattr(config, "embree_mode", "robust") == "robust"
-    if how == "embree":
+    if how == "file":  # some faces of a flat file baked: every face of it occludes
+        from aobake.scene import face_normals
+
+        vertices, faces = instances.vertices, instances.faces
+        backend = _triangles(config, (vertices - center) * scale, faces,
+                             face_normals(vertices, faces), step)
+        traced_as = "the file's faces: the baked ones and every other"
+    elif how == "embree":
         from aobake.backends.instanced import InstancedEmbree
 
         backend = InstancedEmbree(instances, center, scale, step, robust=robust)

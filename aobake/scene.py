@@ -732,9 +732,9 @@ def _load_with_trimesh(path: Path, uv_set: int = 0, bake: tuple = ()):
         raise InputError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from None
     placed = None
     if bake and not (isinstance(loaded, trimesh.Scene) and path.suffix.lower() in (".gltf", ".glb")):
-        raise InputError(f"{path}: --bake names glTF nodes; this file has none (to bake some "
-                         "objects of it and let the others occlude, give the others "
-                         "--occluder-only)")
+        raise InputError(f"{path}: --bake names glTF nodes or OBJ objects and groups; this "
+                         "file names none (to bake some of its faces and let the others "
+                         "occlude, give the others --occluder-only)")
     if isinstance(loaded, trimesh.Scene):
         meshes = []
         if not uv_set and path.suffix.lower() in (".gltf", ".glb"):
@@ -831,7 +831,10 @@ def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn",
     uv_set : which UV set becomes ``Scene.uv``: glTF ``TEXCOORD_<uv_set>`` (InputError naming
     the sets the file has when it lacks it); every other format has set 0 alone
     bake : glTF node patterns (``--bake``, ``aobake.instances``): the scene's faces are
-    those instances' alone, every other instance only occludes (``Scene.instances``)
+    those instances' alone, every other instance only occludes (``Scene.instances``); for an
+    OBJ, object and group patterns: the scene's faces are those objects' and groups' (their
+    vertices in file order, with the whole file's normals), every other face only occludes
+    (``Scene.instances`` an ``aobake.instances.Subset``)
     Raises InputError (naming the file and the problem) for a missing file, an
     unsupported extension, a corrupt or empty file or invalid geometry.
 
@@ -848,7 +851,7 @@ def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn",
                              "was loaded; load the file with these patterns")
         return source
     if bake and not isinstance(source, (str, os.PathLike)):
-        raise InputError("bake names glTF nodes: pass the glTF file's path")
+        raise InputError("bake names glTF nodes or OBJ objects: pass the file's path")
     if uv_set and not isinstance(source, (str, os.PathLike)):
         raise InputError(f"uv_set {uv_set}: an in-memory mesh has one UV set; pass the "
                          "glTF file (or give the Scene its uv)")
@@ -875,10 +878,10 @@ def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn",
         raise InputError(f"{path}: no such file")
     if path.stat().st_size == 0:
         raise InputError(f"{path}: file is empty")
-    if bake and suffix not in (".gltf", ".glb"):
-        raise InputError(f"{path}: --bake names glTF nodes; a {suffix} file has none (to bake "
-                         "some objects of it and let the others occlude, give the others "
-                         "--occluder-only)")
+    if bake and suffix not in (".gltf", ".glb", ".obj"):
+        raise InputError(f"{path}: --bake names glTF nodes or OBJ objects and groups; a "
+                         f"{suffix} file names none (to bake some of its faces and let the "
+                         "others occlude, give the others --occluder-only)")
     if uv_set and suffix not in (".gltf", ".glb"):
         raise InputError(f"{path}: a {suffix} file has one UV set (set 0); --uv-set {uv_set} "
                          "needs a glTF or GLB input (TEXCOORD_<N>)")
@@ -891,10 +894,15 @@ def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn",
         names = {"object": (data.objects, data.face_object),
                  "group": (data.groups, data.face_group),
                  "material": (data.materials, data.face_material)}
-        return make_scene(data.vertices, data.faces, _obj_normals(data), normals_mode,
-                          uv=data.uv if has_uv else None, faces_uv=data.faces_uv, source=str(path),
-                          warnings=data.warnings, materials=materials, face_material=face_material,
-                          fix_normals=fix_normals, names=names)
+        whole = make_scene(data.vertices, data.faces, _obj_normals(data), normals_mode,
+                           uv=data.uv if has_uv else None, faces_uv=data.faces_uv,
+                           source=str(path), warnings=data.warnings, materials=materials,
+                           face_material=face_material, fix_normals=fix_normals, names=names)
+        if not bake:
+            return whole
+        from aobake import instances  # the objects and groups named, the rest occluding
+
+        return instances.subset(whole, bake)
     vertices, faces, normals, uv, materials, names, sets, instances = _load_with_trimesh(
         path, uv_set, bake)
     materials, face_material = materials or (None, None)

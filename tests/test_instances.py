@@ -185,8 +185,12 @@ def test_bake_chooses_nodes_by_name_and_mesh(rocks):
 def test_bake_is_refused_where_it_cannot_hold(tmp_path, rocks):
     obj = tmp_path / "box.obj"
     trimesh.creation.box().export(obj)
-    with pytest.raises(InputError, match="--bake names glTF nodes"):
-        load_scene(obj, bake="box")
+    with pytest.raises(InputError, match="matches no object or group"):
+        load_scene(obj, bake="box")  # an OBJ's objects and groups (test_bake_obj.py)
+    ply = tmp_path / "box.ply"
+    trimesh.creation.box().export(ply)
+    with pytest.raises(InputError, match="--bake names glTF nodes or OBJ objects"):
+        load_scene(ply, bake="box")
     for other in (dict(exclude="floor"), dict(receive_only="floor"), dict(alpha_cutout=True),
                   dict(source=str(obj)), dict(quantities=("indirect",))):
         with pytest.raises(InputError, match="--bake"):

@@ -88,7 +88,7 @@ def test_config_round_trips_through_a_report_with_every_field_changed():
     # a texel density replaces the resolution: the third config sets it
     dense = replace(kept, resolution=DEFAULTS["resolution"], texel_density=12.5)
     # --bake goes with none of the groups, cut-outs or --from: a config of its own
-    chosen = BakeConfig(bake=("node*", "mesh:rock"))
+    chosen = BakeConfig(bake=("node*", "mesh:rock"), instance_regions="mesh")
     assert all(getattr(changed, k) != v or getattr(kept, k) != v or getattr(dense, k) != v
                or getattr(chosen, k) != v for k, v in DEFAULTS.items()), "change every field"
     for config in (BakeConfig(), changed, kept, dense, chosen, BakeConfig(max_distance=0.5)):

@@ -356,6 +356,8 @@ def format_table(result: dict) -> str:
         return format(value, spec) if abs(value) < 1e6 else format(value, ".6g")
 
     where = {"order": "vertices (same order)", "position": "vertices (matched by position)",
+             "instance": "vertices of the instances baked (by node and vertex index)",
+             "source": "vertices baked (by their place in the whole set)",
              "texel": "covered texels", "pixel": "covered pixels of a camera view"}[result["matched_by"]]
     rows = [
         ("rmse", num(result["rmse"])),

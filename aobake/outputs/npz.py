@@ -28,13 +28,17 @@ name                 shape        dtype     meaning
 ``instance_vertices`` (k, 2)      int64     [start, stop) of each instance's vertices in the arrays above (its mesh's vertex order)
 ``instance_faces``   (k, 2)       int64     [start, stop) of its faces
 ``instance_transforms`` (k, 4, 4) float64   its transform, mesh units -> scene units (rows)
+``source_vertex``    (n,)         int64     a ``--bake`` bake (glTF instances, OBJ objects): each vertex's index in the whole set's bake (every instance, or every face of the file, flattened)
 ==================== ============ ========= =====================================
 
 A scene of instances (glTF nodes sharing a mesh: ``aobake.instances``) stores the baked
 instances' vertices one after the other, in instance order: the per-vertex arrays are laid
 out as the flattened scene's bake of the same nodes (``aobake compare`` scores one against
 the other vertex by vertex), and the ``instance_*`` arrays cut them per instance
-(:func:`instance_slices`).
+(:func:`instance_slices`).  ``source_vertex`` (from the metadata's
+``parameters.instances.source``) places each vertex in the whole set's bake: ``aobake
+compare`` scores a bake of some instances (or of some objects of an OBJ) against the whole
+set's bake by it.
 
 A miss is stored as ``RAY_MISS`` (-1), never inf: no output holds NaN or inf, and every
 hit's distance is >= 0, so the sentinel cannot be taken for one.  In memory
@@ -214,6 +218,7 @@ def write(
     for name, value in (kept or {}).items():
         arrays[name] = encode_ray_distances(value) if name == "ray_distances" else value
     arrays.update(instance_arrays(metadata, len(positions), len(faces)))
+    arrays.update(source_arrays(metadata, len(positions)))
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as handle:
             _savez(handle, arrays)
@@ -239,6 +244,25 @@ def instance_arrays(metadata: Mapping | None, n_vertices: int, n_faces: int) -> 
             "instance_vertices": vertices, "instance_faces": faces,
             "instance_transforms": np.array([e["transform"] for e in layout],
                                             dtype=np.float64).reshape(-1, 4, 4)}
+
+
+def source_arrays(metadata: Mapping | None, n_vertices: int) -> dict:
+    """``source_vertex`` of a ``--bake`` bake (each vertex's index in the whole set's bake),
+    from its metadata's ``parameters.instances.source``, or {} for a bake of everything, any
+    other bake, or runs that do not cover these vertices."""
+    from aobake.instances import expand_runs
+
+    source = ((metadata or {}).get("parameters") or {}).get("instances", {}).get("source")
+    if not source:
+        return {}
+    index = expand_runs(source.get("vertex_runs", []))
+    if len(index) != n_vertices:
+        log.warning("the source runs cover %d vertices, the arrays %d: not written",
+                    len(index), n_vertices)
+        return {}
+    if n_vertices == source.get("vertices") and np.array_equal(index, np.arange(n_vertices)):
+        return {}  # the whole set: its own order
+    return {"source_vertex": index}
 
 
 def instance_slices(path) -> list:
