@@ -10,7 +10,8 @@ aobake writes one material per instance whose ``occlusionTexture`` (and, packed 
 ``metallicRoughnessTexture``) carries ``KHR_texture_transform`` (offset, scale: the
 instance's region).  Blender's glTF importer turns that into UV Map -> Mapping (Location,
 Scale, in Blender's UV space: v up) -> Image Texture -> Separate Color.Red -> the
-"Occlusion" input of its "glTF Material Output" group.  For every mesh object this script
+"Occlusion" input of its "glTF Material Output" group (and, for an ORM map, Separate
+Color.Green -> Roughness of the Principled BSDF from the same image, region and UV map).  For every mesh object this script
 checks: its material's occlusion is wired through R from the one atlas image, through a
 Mapping node fed by a UV map the object has; and every UV of the object, mapped by that
 node, lands inside the region the file's node names (``extras.aobake_region``, texels, y
@@ -33,15 +34,19 @@ def _source(links, node, socket):
     return None, None
 
 
-def _occlusion_image(material):
-    """(image node, mapping node, uv map name) of a material's occlusion, or Nones."""
+def _occlusion_image(material, socket="Occlusion", channel="Red"):
+    """(image node, mapping node, uv map name) of a material's occlusion (or, with
+    ``socket`` "Roughness" / channel "Green", of its packed ORM map's roughness), or Nones."""
     nodes, links = material.node_tree.nodes, material.node_tree.links
-    group = next((n for n in nodes if n.bl_idname == "ShaderNodeGroup" and n.node_tree
-                  and n.node_tree.name in ("glTF Material Output", "glTF Settings")), None)
+    if socket == "Occlusion":
+        group = next((n for n in nodes if n.bl_idname == "ShaderNodeGroup" and n.node_tree
+                      and n.node_tree.name in ("glTF Material Output", "glTF Settings")), None)
+    else:
+        group = next((n for n in nodes if n.bl_idname == "ShaderNodeBsdfPrincipled"), None)
     if group is None:
         return None, None, None
-    separate, out = _source(links, group, "Occlusion")
-    if separate is None or separate.bl_idname != "ShaderNodeSeparateColor" or out != "Red":
+    separate, out = _source(links, group, socket)
+    if separate is None or separate.bl_idname != "ShaderNodeSeparateColor" or out != channel:
         return None, None, None
     image, _ = _source(links, separate, "Color")
     if image is None or image.bl_idname != "ShaderNodeTexImage":
@@ -95,6 +100,18 @@ def check(path: str) -> dict:
                          mapped_box=[*mapped.min(axis=0).tolist(), *mapped.max(axis=0).tolist()],
                          region_box=[*lo.tolist(), *hi.tolist()])
             good &= inside
+            # a packed ORM map: roughness from G of the same image, through the same region
+            packed = any(m.get("pbrMetallicRoughness", {}).get("metallicRoughnessTexture")
+                         for m in gltf.get("materials", []))
+            if packed:
+                rough, rough_map, rough_uv = _occlusion_image(material, "Roughness", "Green")
+                same = (rough is not None and rough_map is not None
+                        and rough.image == image.image and rough_uv == uv_map
+                        and np.allclose(rough_map.inputs["Location"].default_value[:2],
+                                        location)
+                        and np.allclose(rough_map.inputs["Scale"].default_value[:2], scale))
+                entry["roughness_through_region"] = bool(same)
+                good &= bool(same)
             matrix = np.array(node.get("matrix", np.eye(4).T.reshape(-1).tolist())).reshape(4, 4).T
             # Blender's importer turns glTF's +Y up into its +Z up: compare the translation's
             # length (the conversion is a rotation)

@@ -276,6 +276,31 @@ def test_the_same_bits_on_processes(sets):
         np.testing.assert_array_equal(image, other.channels[name], err_msg=name)
 
 
+@pytest.mark.slow
+def test_the_same_bits_on_dask(sets):
+    pytest.importorskip("distributed")
+    from aobake.executors import dask as dask_executor
+
+    one = _texels(sets["own"], threads=1, bake=("rock*",))
+    with dask_executor.cluster(workers=2):
+        other = _texels(sets["own"], executor="dask", chunk_points=300, bake=("rock*",))
+    for name, image in one.channels.items():
+        np.testing.assert_array_equal(image, other.channels[name], err_msg=name)
+
+
+@pytest.mark.slow
+def test_denoised_and_tangent_space_maps_of_a_set(sets, tmp_path):
+    """The lightmap's other passes run on the set's atlas as on one mesh's."""
+    result = _texels(sets["none"], quantities=("ao", "bent_normal"), denoise=True,
+                     bent_space="tangent", rays=32)
+    assert {"ao_denoised", "bent_normal.X"} <= set(result.channels)
+    covered = result.covered
+    bent = np.stack([result.channels[f"bent_normal.{a}"][covered] for a in "XYZ"], axis=1)
+    lengths = np.linalg.norm(bent, axis=1)
+    assert np.median(bent[lengths > 0, 2] / lengths[lengths > 0]) > 0.5  # around +Z
+    aobake.write(result, tmp_path / "set.exr")
+
+
 def test_baking_some_instances_gives_their_regions_alone(sets):
     result = _texels(sets["own"], bake=("rock1", "rock3"))
     placed = result.report["texture"]["instances"]["placed"]
@@ -316,6 +341,42 @@ def _glb_checks(path, result, orm=False):
     # the layout's UVs through the offset and scale are the flattened atlas's
     scene_uv = result.atlas.uv
     assert scene_uv.min() >= 0 and scene_uv.max() <= 1
+
+
+@pytest.mark.slow
+def test_base_colours_stay_on_the_own_uvs_beside_a_new_atlas(tmp_path):
+    """A textured material: its base colour reads the mesh's own UVs (TEXCOORD_0); the
+    occlusion the layout: the same set where the own UVs are the layout, TEXCOORD_1 where a
+    new atlas was made (overlapping own UVs)."""
+    from gltf_scenes import png
+
+    vertices, faces, uv = _own_uv_rock()
+    slab = trimesh.creation.box((3.0, 0.2, 3.0))
+    flat_uv = np.asarray(slab.vertices)[:, [0, 2]] / 3.0 + 0.5  # top and bottom overlap
+    path = write_instanced(
+        tmp_path / "textured.glb",
+        [{"name": "rock", "vertices": vertices, "faces": faces, "uv": uv},
+         {"name": "slab", "vertices": slab.vertices, "faces": slab.faces, "uv": flat_uv}],
+        [{"name": "slab", "mesh": 1, "translation": [0.0, -1.2, 0.0]},
+         {"name": "r0", "mesh": 0}, {"name": "r1", "mesh": 0, "translation": [2.2, 0, 0]}],
+        base_color_png=png(np.ones((4, 4))))
+    result = _texels(path, rays=4)
+    kinds = {m["mesh"]: m["uvs"] for m in result.report["texture"]["instances"]["meshes"]}
+    assert kinds == {"rock": "own UVs (set 0)", "slab": "new xatlas atlas of the mesh"}
+    out = tmp_path / "set.glb"
+    aobake.write(result, out)
+    gltf, _ = read_gltf(out)
+    for node in gltf["nodes"]:
+        primitive = gltf["meshes"][node["mesh"]]["primitives"][0]
+        material = gltf["materials"][primitive["material"]]
+        pbr = material["pbrMetallicRoughness"]
+        assert pbr["baseColorTexture"]["texCoord"] == 0
+        assert pbr["baseColorFactor"] == [0.8, 0.8, 0.8, 1.0]
+        layout = 0 if node["name"].startswith("r") else 1
+        assert material["occlusionTexture"]["texCoord"] == layout
+        assert ("TEXCOORD_1" in primitive["attributes"]) == (layout == 1)
+    assert len(gltf["images"]) == 2  # the atlas and the one base colour
+    _validate(out)
 
 
 def _validate(path):
@@ -390,12 +451,14 @@ def test_a_batch_manifest_bakes_a_set_to_an_atlas(sets, tmp_path):
 @pytest.mark.slow
 @pytest.mark.skipif(not os.environ.get("AOBAKE_BLENDER_PYTHON"),
                     reason="AOBAKE_BLENDER_PYTHON (a Python with bpy) not set")
-@pytest.mark.parametrize("kind", ["own", "none"])
-def test_blender_reads_each_instance_through_its_region(sets, tmp_path, kind):
+@pytest.mark.parametrize("kind, orm", [("own", False), ("none", False), ("own", True)])
+def test_blender_reads_each_instance_through_its_region(sets, tmp_path, kind, orm):
     out = tmp_path / "set.glb"
-    aobake.write(_texels(sets[kind], rays=4), out)
+    aobake.write(_texels(sets[kind], rays=4), out, orm=orm)
     done = subprocess.run([os.environ["AOBAKE_BLENDER_PYTHON"], str(BLENDER_CHECK), str(out)],
                           capture_output=True, text=True, timeout=600)
     result = json.loads(done.stdout.strip().splitlines()[-1])
     assert done.returncode == 0 and result["ok"], result
     assert result["objects"] == 6 and len(result["images"]) == 1
+    if orm:
+        assert all(entry["roughness_through_region"] for entry in result["instances"])

@@ -372,8 +372,9 @@ def write_textured_instances(
 
     meshes : per unique mesh {"name", "positions" (v, 3) mesh units, "normals" (v, 3) | None,
       "uv" (L, 2) its lightmap layout (OBJ convention), "faces" (f, 3) into it, "vertex" (L,)
-      the mesh vertex of each layout vertex, "own_uv" (v, 2) | None its own UVs (a base
-      colour's; when the layout is not them), "face_material" (f,) | None};
+      the mesh vertex of each layout vertex, "own_uv" (v, 2) | None its own UVs (what a base
+      colour texture reads; the layout itself when it is them), "face_material" (f,) |
+      None};
     instances : per instance {"name", "mesh" (index into ``meshes``), "matrix" (4, 4) mesh ->
       scene units, "transform" {"offset", "scale"} (glTF UVs) into the atlas, "extras"};
     occlusion_png : the atlas (R = AO; with ``packed_orm`` an ORM map, also the
@@ -408,7 +409,10 @@ def write_textured_instances(
         layout = _check_uv("uv", mesh["uv"], len(positions))
         attributes = _add_geometry(gltf, blob, positions, fields.get("normals"))
         own = mesh.get("own_uv")
-        sets = [layout] if own is None else [np.asarray(own, np.float64)[vertex], layout]
+        if own is not None:
+            own = np.asarray(own, np.float64)[vertex]
+        # the mesh's own UVs as its layout: one set serves the base colour and the atlas
+        sets = [layout] if own is None or np.array_equal(own, layout) else [own, layout]
         for i, uv in enumerate(sets):
             attributes[f"TEXCOORD_{i}"] = _add_accessor(gltf, blob, _flip_v(uv), _ARRAY_BUFFER)
         by_material = np.zeros(len(faces), np.int64) if mesh.get("face_material") is None \

@@ -175,7 +175,7 @@ class SetLayout:
             vertices, normals, face_material = self.geometry[m]
             meshes.append({"name": layout.name, "positions": vertices, "normals": normals,
                            "uv": layout.uv, "faces": layout.faces, "vertex": layout.vertex,
-                           "own_uv": layout.own if layout.kind == "xatlas" else None,
+                           "own_uv": layout.own,
                            "face_material": face_material})
         by_name = {layout.name: m for m, layout in self.layouts.items()}
         instances = [{"name": region.name, "mesh": index[by_name[region.mesh]],
