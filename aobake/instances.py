@@ -20,6 +20,14 @@ every instance gives the flattened loader's vertices, faces and normals, bit for
 Which instances are baked (``--bake NODE_GLOB``, :func:`select`): a glob (``fnmatch``,
 case-sensitive) matched against each instance's name and its node's name, or with a prefix
 against one kind only: ``node:tree*``, ``mesh:ogre``.  No pattern: every instance is baked.
+A lightmap of the baked instances is one atlas with a region per instance
+(``aobake.targets.texels.instanced``).
+
+An OBJ has no placements, but ``--bake`` chooses its objects and groups the same way
+(:func:`subset`, a :class:`Subset` as ``Scene.instances``): the chosen faces are the scene,
+every face of the file occludes.  Either way ``source()`` says where the baked vertices
+stand in the whole set's bake (every instance flattened, or the whole file), which the
+outputs carry (the NPZ's ``source_vertex``) and ``aobake compare`` lines a subset up by.
 """
 
 from __future__ import annotations

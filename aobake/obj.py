@@ -13,7 +13,8 @@ quads and n-gons (fan-triangulated from the first corner, as most tools do),
 GLB can keep the base colour), line continuations.  Ignored with a count in the
 warnings: ``l``/``p`` elements.  ``o``/``g`` names are recorded per triangle (the whole rest of
 the line is one name; all faces are baked as one mesh, and ``aobake.groups`` selects faces by
-these names).  Ignored silently: ``s``, comments.
+these names, ``--bake`` the faces to bake while the rest occludes:
+``aobake.instances.subset``).  Ignored silently: ``s``, comments.
 
 Two readers give the same :class:`ObjData`: a vectorised one (:func:`_read_fast`, numpy over
 the whole file) for files in the forms exporters write, and the line-by-line one

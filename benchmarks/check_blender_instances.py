@@ -11,8 +11,8 @@ aobake writes one material per instance whose ``occlusionTexture`` (and, packed 
 instance's region).  Blender's glTF importer turns that into UV Map -> Mapping (Location,
 Scale, in Blender's UV space: v up) -> Image Texture -> Separate Color.Red -> the
 "Occlusion" input of its "glTF Material Output" group (and, for an ORM map, Separate
-Color.Green -> Roughness of the Principled BSDF from the same image, region and UV map).  For every mesh object this script
-checks: its material's occlusion is wired through R from the one atlas image, through a
+Color.Green -> Roughness of the Principled BSDF from the same image, region and UV map).
+For every mesh object this script checks: its material's occlusion is wired through R from the one atlas image, through a
 Mapping node fed by a UV map the object has; and every UV of the object, mapped by that
 node, lands inside the region the file's node names (``extras.aobake_region``, texels, y
 from the top row) with its margin.  It also checks that each object stands where its node's
