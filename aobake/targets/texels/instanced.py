@@ -83,6 +83,8 @@ class MeshLayout:
     charts: int | None = None
     side: int | None = None
     own: np.ndarray | None = None
+    charting: str | None = None
+    packing_compiled: bool | None = None
 
     def __post_init__(self):
         if len(self.faces):
@@ -273,7 +275,8 @@ def _unwrapped(scene, m, side, padding, compiled, own) -> MeshLayout:
         raise RuntimeError("xatlas changed the face order")
     return MeshLayout(m, instances.mesh_names[m], "xatlas", result.uv, result.faces,
                       np.asarray(result.vmapping, dtype=np.int64), charts=result.charts,
-                      side=int(side), own=own)
+                      side=int(side), own=own, charting=result.charting,
+                      packing_compiled=result.packing_compiled)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -512,6 +515,10 @@ def make_set_atlas(scene, config, width, height, threads, warnings, timings, com
     # atlas.new: the map is laid out in regions, so the input's UVs alone do not read it
     atlas.charts = sum(layouts[int(instances.mesh[i])].charts or 0
                        for i in instances.baked.tolist()) or None
+    made = [layout for layout in layouts.values() if layout.kind == "xatlas"]
+    if made:  # which xatlas charted, which packer packed (the report's, as for one mesh)
+        atlas.charting = made[0].charting
+        atlas.packing_compiled = made[0].packing_compiled
     atlas.instances = SetLayout(layouts, regions, mode, float(density), (width, height),
                                 padding, np.asarray(start, dtype=np.int64),
                                 _geometry(scene, layouts),
