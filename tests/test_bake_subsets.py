@@ -181,6 +181,12 @@ def test_compare_scores_some_objects_against_the_whole_file(level, tmp_path):
     reverse = compare(tmp_path / "crates.npz", tmp_path / "whole.npz",
                       heatmap=tmp_path / "crates_error.ply")
     assert reverse["n"] == 16 and math.isclose(reverse["rmse"], result["rmse"])
+    # every format carries the metadata that places the vertices
+    crates = aobake.bake(level, rays=64, sampler="random", seed=3, bake="crate*")
+    for suffix in (".ply", ".glb"):
+        aobake.write(crates, tmp_path / f"crates{suffix}")
+        other = compare(tmp_path / "whole.npz", tmp_path / f"crates{suffix}")
+        assert other["matched_by"] == "source" and other["n"] == 16
     # two subsets, one inside the other
     aobake.write(aobake.bake(level, rays=64, bake="crate_a"), tmp_path / "a.npz")
     assert compare(tmp_path / "crates.npz", tmp_path / "a.npz")["n"] == 8
