@@ -241,3 +241,22 @@ def test_compare_scores_some_instances_against_the_flattened_set(rocks, tmp_path
     aobake.write(aobake.bake(other, rays=8, bake=("rock5",)), tmp_path / "other.npz")
     with pytest.raises(InputError, match="not the same set"):
         compare(tmp_path / "flat.npz", tmp_path / "other.npz")
+
+
+def test_compare_places_a_node_of_a_set_loaded_flat(tmp_path):
+    """A glTF file that places no mesh twice loads flat (its bake has no instance layout):
+    a bake of one node of it is lined up by its place in the whole set."""
+    from gltf_scenes import write_instanced
+
+    box, ball = trimesh.creation.box(), trimesh.creation.icosphere(2)
+    path = write_instanced(tmp_path / "two.gltf",
+                           [{"name": "box", "vertices": box.vertices, "faces": box.faces},
+                            {"name": "ball", "vertices": ball.vertices, "faces": ball.faces}],
+                           [{"name": "box", "mesh": 0},
+                            {"name": "ball", "mesh": 1, "translation": [1.6, 0.0, 0.0]}])
+    whole = aobake.bake(path, rays=64, seed=1)
+    assert "instances" not in whole.report["parameters"]
+    aobake.write(whole, tmp_path / "whole.npz")
+    aobake.write(aobake.bake(path, rays=64, seed=2, bake="ball"), tmp_path / "ball.npz")
+    result = compare(tmp_path / "whole.npz", tmp_path / "ball.npz")
+    assert result["matched_by"] == "source" and result["n"] == len(ball.vertices)
