@@ -75,7 +75,8 @@ def write_gltf(path, parts) -> str:
     return str(path)
 
 
-def write_instanced(path, meshes, nodes, roots=None, base_color_png=None) -> str:
+def write_instanced(path, meshes, nodes, roots=None, base_color_png=None,
+                    metallic_roughness_png=None) -> str:
     """A glTF scene whose nodes may share meshes (instances), as .gltf (embedded buffers) or
     .glb by the suffix of ``path``.
 
@@ -88,7 +89,8 @@ def write_instanced(path, meshes, nodes, roots=None, base_color_png=None) -> str
     children) as written, except "instancing": {"TRANSLATION" (k, 3), "ROTATION" (k, 4)
     xyzw, "SCALE" (k, 3)} (any of them) becomes the node's EXT_mesh_gpu_instancing with
     its accessors; roots : the scene's root nodes (default: every node no other lists as a
-    child); base_color_png : PNG bytes the plain material's baseColorTexture (TEXCOORD_0)."""
+    child); base_color_png, metallic_roughness_png : PNG bytes the plain material's
+    baseColorTexture and metallicRoughnessTexture (TEXCOORD_0)."""
     import struct
     from pathlib import Path
 
@@ -150,14 +152,18 @@ def write_instanced(path, meshes, nodes, roots=None, base_color_png=None) -> str
     if any("material" in p for m in out_meshes for p in m["primitives"]):
         gltf["materials"] = [{"name": "plain", "pbrMetallicRoughness": {
             "baseColorFactor": [0.8, 0.8, 0.8, 1.0], "metallicFactor": 0.0}}]
-        if base_color_png is not None:
+        for key, data in (("baseColorTexture", base_color_png),
+                          ("metallicRoughnessTexture", metallic_roughness_png)):
+            if data is None:
+                continue
             blob.extend(b"\0" * (-len(blob) % 4))
-            views.append({"buffer": 0, "byteOffset": len(blob),
-                          "byteLength": len(base_color_png)})
-            blob.extend(base_color_png)
-            gltf.update(images=[{"bufferView": len(views) - 1, "mimeType": "image/png"}],
-                        textures=[{"source": 0}])
-            gltf["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = {"index": 0}
+            views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(data)})
+            blob.extend(data)
+            images = gltf.setdefault("images", [])
+            images.append({"bufferView": len(views) - 1, "mimeType": "image/png"})
+            textures = gltf.setdefault("textures", [])
+            textures.append({"source": len(images) - 1})
+            gltf["materials"][0]["pbrMetallicRoughness"][key] = {"index": len(textures) - 1}
     if Path(path).suffix.lower() == ".glb":
         blob.extend(b"\0" * (-len(blob) % 4))
         gltf["buffers"] = [{"byteLength": len(blob)}]

@@ -379,6 +379,31 @@ def test_base_colours_stay_on_the_own_uvs_beside_a_new_atlas(tmp_path):
     _validate(out)
 
 
+@pytest.mark.slow
+def test_an_orm_map_of_a_set_takes_g_and_b_from_a_texture_in_its_layout(tmp_path):
+    """The meshes' own metallic-roughness texture is laid out in their own UVs, not in the
+    regions: refused with the reason; --orm-from a texture of the atlas's size is used."""
+    from aobake.errors import OutputError
+    from aobake.outputs import image
+    from gltf_scenes import png
+
+    vertices, faces, uv = _own_uv_rock()
+    path = write_instanced(tmp_path / "mr.glb",
+                           [{"name": "rock", "vertices": vertices, "faces": faces, "uv": uv}],
+                           [{"name": "a", "mesh": 0}, {"name": "b", "mesh": 0,
+                                                       "translation": [2.2, 0.0, 0.0]}],
+                           metallic_roughness_png=png(np.full((4, 4), 255, np.uint8)))
+    result = _texels(path, rays=4, resolution=(64, 64))
+    with pytest.raises(OutputError, match="one region per instance"):
+        aobake.write(result, tmp_path / "orm.glb", orm=True)
+    source = tmp_path / "mr_atlas.png"
+    image.write_rgb(source, np.random.default_rng(1).random((64, 64, 3)))
+    aobake.write(result, tmp_path / "orm.glb", orm_from=source)
+    gltf, _ = read_gltf(tmp_path / "orm.glb")
+    assert all("metallicRoughnessTexture" in m["pbrMetallicRoughness"]
+               for m in gltf["materials"])
+
+
 def _validate(path):
     from test_orm import _validator
 

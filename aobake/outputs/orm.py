@@ -114,9 +114,11 @@ def _own(result, width: int, height: int) -> tuple[np.ndarray | None, str | None
     if not textures:
         return None, None
     if atlas.new or atlas.uv_set:
+        where = ("the map in one region per instance of the set's atlas"
+                 if getattr(atlas, "instances", None) is not None else
+                 "the map on a new atlas" if atlas.new else f"the map on UV set {atlas.uv_set}")
         raise OutputError("the input's metallicRoughnessTexture is laid out on its UV set 0, "
-                          + ("the map on a new atlas" if atlas.new else
-                             f"the map on UV set {atlas.uv_set}")
+                          + where
                           + ": its G and B cannot be copied texel for texel; give --orm-from "
                             "a texture in the map's layout")
     if len(textures) > 1:
