@@ -233,6 +233,16 @@ def test_each_region_is_its_instances_lightmap_with_the_rest_occluding(sets, tmp
             np.testing.assert_array_equal(got, want)
             np.testing.assert_array_equal(result.channels["ao_stderr"][window][covered],
                                           alone.channels["ao_stderr"][window][covered])
+            # the instance's faces alone as the scene (--bake of its OBJ object: other point
+            # ids, another tracing frame), the rest occluding: within the error bars
+            only = _texels(flat, seams=seams, bake=(region["name"],), sampler="random",
+                           seed=7)
+            assert np.array_equal(only.covered[window], covered)
+            se = np.hypot(only.channels["ao_stderr"][window][covered],
+                          alone.channels["ao_stderr"][window][covered])
+            known = se > 0
+            z = (only.channels["ao"][window][covered] - want)[known] / se[known]
+            assert np.abs(z).max() <= z_bound(int(known.sum()), None)
         else:
             se = alone.channels["ao_stderr"][window][covered]
             assert np.abs(got - want).max() < 0.05 * float(np.median(se[se > 0]))
