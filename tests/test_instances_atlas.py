@@ -454,7 +454,12 @@ def test_the_command_line_writes_the_image_and_the_flattened_atlas_mesh(sets, tm
     done = run_cli(sets["none"], "--out", out, "--rays", 8, "--resolution", 96,
                    "--bake", "rock*", "--report", tmp_path / "r.json")
     assert done.exit_code == 0, done.output
-    assert out.is_file() and (tmp_path / "set_ao.obj").is_file()
+    # beside the image, the set itself (each mesh once, each instance reading its region),
+    # not every instance flattened into an OBJ
+    assert out.is_file() and (tmp_path / "set_ao.glb").is_file()
+    assert not (tmp_path / "set_ao.obj").exists()
+    gltf, _ = read_gltf(tmp_path / "set_ao.glb")
+    assert gltf["extensionsUsed"] == ["KHR_texture_transform"] and len(gltf["nodes"]) == 5
     report = json.loads((tmp_path / "r.json").read_text())
     assert sorted(r["name"] for r in report["texture"]["instances"]["placed"]) == \
         [f"rock{i}" for i in range(5)]
@@ -464,6 +469,15 @@ def test_the_command_line_writes_the_image_and_the_flattened_atlas_mesh(sets, tm
     from readers import read_image
 
     _, _, attrs = read_image(exr)
+    # asked for: the flattened set in the atlas's UVs; and where <stem>.glb is the input,
+    # the set's GLB is <stem>.set.glb
+    flat = tmp_path / "flat.obj"
+    assert run_cli(sets["none"], "--out", tmp_path / "b.png", "--rays", 4, "--resolution", 64,
+                   "--mesh-out", flat).exit_code == 0
+    assert flat.read_text().count("\nf ") == len(load_scene(sets["none"]).faces)
+    source = _write_set(tmp_path / "set.glb", own_uvs=False)
+    done = run_cli(source, "--out", tmp_path / "set.png", "--rays", 4, "--resolution", 64)
+    assert done.exit_code == 0 and (tmp_path / "set.set.glb").is_file(), done.output
     meta = json.loads(attrs["aobake:metadata"])
     assert meta["texture"]["instances"]["instance_regions"] == "mesh"
 

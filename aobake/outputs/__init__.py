@@ -174,6 +174,12 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
     import time
 
     clock = time.perf_counter()
+    if where.mesh_out is not None and not where.mesh_out_given \
+            and getattr(getattr(result, "atlas", None), "instances", None) is not None:
+        # a set's atlas: its mesh is the set, each mesh once (a GLB of instances), not every
+        # instance flattened into an OBJ (which grows with the copies)
+        where = _set_mesh(where, target, mesh, orm,
+                          {k: v for k, v in read.items() if v is not None})
     write_mesh = None  # the atlas mesh's writer, its text formatted while `out` is written
     if where.mesh_out is not None and (result.atlas.new or where.mesh_out_given):
         write_mesh = prepare_atlas_mesh(where.mesh_out, result, meta, options.orm,
@@ -201,6 +207,24 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
             with _naming(where.report):
                 write_report(where.report, full)
     return written
+
+
+def _set_mesh(where: Outputs, target: str, mesh, orm: bool, inputs: dict) -> Outputs:
+    """``where`` with the default mesh of a set's lightmap: ``<out stem>.glb`` (or, where that
+    is taken by an input or another output, ``<out stem>.set.glb``), the set's instances
+    each reading its region (``aobake.outputs.glb.write_textured_instances``); the OBJ of
+    ``plan`` where neither can be written."""
+    from dataclasses import replace
+
+    for name in (where.out.stem + ".glb", where.out.stem + ".set.glb"):
+        candidate = where.out.with_name(name)
+        try:
+            plan(where.out, target, mesh=mesh, mesh_out=candidate, report=where.report,
+                 orm=orm, inputs=inputs)
+        except OutputError:
+            continue
+        return replace(where, mesh_out=candidate)
+    return where
 
 
 def _check_write_arguments(result, out, mesh_out, report, half, bit_depth, r_only) -> None:
