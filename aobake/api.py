@@ -56,6 +56,7 @@ def run(
     workers: int | None = None,
     chunk_points: int | None = None,
     scheduler: str | None = None,
+    given=(),
 ):
     """Bake ``mesh`` (a path, trimesh mesh/scene or Scene) at ``target``'s points.
 
@@ -65,7 +66,8 @@ def run(
     Returns the target's result (BakeResult or TexelResult) with its report.
     ``threads``, ``chunk_rays``, ``executor`` (``EXECUTORS``: threads | processes | dask),
     ``workers``, ``chunk_points`` and ``scheduler`` (dask: an existing scheduler's address)
-    change the speed and memory, never the numbers.
+    change the speed and memory, never the numbers.  ``given``: the names of the settings
+    the caller gave one by one (``capabilities.check``).
     ``method``: ``METHODS`` key.  ``progress(done, total)`` is called as points are
     estimated; if it has a ``phase(name)`` attribute, that is called as each stage starts
     ("loading", "unwrapping", "rasterising", "tracing", ...), so a long unwrap shows too.
@@ -73,9 +75,11 @@ def run(
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; choose from {', '.join(sorted(METHODS))}")
     # what the method and target declare they can do, checked before any file is read
-    capabilities.check(method, target.name, config)
+    capabilities.check(method, target.name, config, given)
     if getattr(target, "check", None):
         target.check(config)
+    if getattr(target, "uses_method", None):  # a target whose sampling depends on the method
+        target.uses_method(method)
     if executor not in EXECUTORS:
         raise InputError(f"unknown executor {executor!r}; choose from "
                          f"{', '.join(sorted(EXECUTORS))}")
@@ -223,13 +227,17 @@ def _config(config: BakeConfig | None, options: dict) -> BakeConfig:
     return replace(config, **options) if options else config
 
 
-#: run()'s keywords that change where and how fast, never the numbers (or the method)
-RUN_OPTIONS = ("method", "executor", "workers", "chunk_points", "scheduler")
+#: run()'s keywords that change where and how fast, never the numbers (or the method);
+#: ``given`` carries the names of the settings a caller gave as keywords
+RUN_OPTIONS = ("method", "executor", "workers", "chunk_points", "scheduler", "given")
 
 
 def _split(options: dict) -> tuple[dict, dict]:
-    """(BakeConfig fields, run() keywords) of a bake function's keyword arguments."""
+    """(BakeConfig fields, run() keywords) of a bake function's keyword arguments; the
+    fields' names go to run() as ``given`` (a setting only another target reads, given as a
+    keyword, is refused: ``capabilities.check_settings``)."""
     run_kw = {k: options.pop(k) for k in RUN_OPTIONS if k in options}
+    run_kw["given"] = tuple(run_kw.get("given", ())) + tuple(options)
     return options, run_kw
 
 

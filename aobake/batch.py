@@ -41,6 +41,8 @@ log = logging.getLogger(__name__)
 
 #: manifest extensions: a CSV with a header row, or one JSON object per line
 MANIFESTS = (".csv", ".jsonl", ".ndjson")
+#: an asset whose output nothing names (no --format, no manifest column): its error's end
+NO_FORMAT = "no output format: give --format"
 #: where the summary goes in the output folder unless told otherwise
 SUMMARY_NAME = "batch-summary.json"
 #: an output's report: <output name> + this
@@ -156,7 +158,7 @@ def _named(mesh: Path, relative: Path, suffix, target, source) -> Asset:
     extension."""
     if suffix is None:
         return Asset(mesh, None, target, source=source,
-                     error=f"{mesh}: no output format: give --format")
+                     error=f"{mesh}: {NO_FORMAT}")
     return Asset(mesh, relative.with_suffix(suffix), target, source=source)
 
 
@@ -463,8 +465,10 @@ def _bake(asset: Asset, out_dir: Path, settings: dict, run: dict, write: dict,
         raise InputError(f"{asset.mesh}: no such file")
     out = output_path(out_dir, asset.output)
     report = output_path(out_dir, report_path(asset.output))
+    # the batch's own settings apply to every asset, whatever its output: only an asset's
+    # own options are held to its target (the command checks its settings against --format)
     planned = job.plan(asset.mesh, out, {**settings, **asset.options}, target=asset.target,
-                       report=report, **write, **run)
+                       report=report, given=tuple(asset.options), **write, **run)
     config, where = planned.config, planned.outputs
     for companion in (where.mesh_out, where.camera):  # beside the output, in the folder
         if companion is not None:
@@ -484,11 +488,17 @@ def _bake(asset: Asset, out_dir: Path, settings: dict, run: dict, write: dict,
 
 def check_summary(path, assets, out_dir, settings: dict) -> None:
     """OutputError when the summary at ``path`` would replace a file the batch reads (an
-    asset's mesh, --from, --cage or --ao-from) or writes (an asset's output or report):
-    checked before any asset is baked."""
+    asset's mesh, --from, --cage or --ao-from) or writes (an asset's output or report), or
+    its folder (other than the output folder) does not exist: checked before any asset is
+    baked."""
     from aobake.settings import INPUT_FILES
 
     where = Path(path).resolve()
+    folder = Path(path).parent
+    if where.parent != Path(out_dir).resolve() and not folder.is_dir():
+        # (the output folder itself is made by the batch; any other must exist, as for
+        # every output of the main command: found before the first asset, not after it)
+        raise OutputError(f"{path}: output directory {folder} does not exist")
     for asset in assets:
         options = {**settings, **asset.options}
         named = [("the input mesh", asset.mesh)]
@@ -510,7 +520,7 @@ def summary(records, out_dir, executor: dict, seconds: float) -> dict:
             "seconds": seconds, "counts": counts, "assets": records}
 
 
-__all__ = ["Asset", "MANIFESTS", "REPORT_SUFFIX", "SUMMARY_NAME", "bake_assets", "check_summary",
+__all__ = ["Asset", "MANIFESTS", "NO_FORMAT", "REPORT_SUFFIX", "SUMMARY_NAME", "bake_assets", "check_summary",
            "digest",
            "find_assets", "finished", "inputs", "output_path", "parse_setting", "report_path",
            "summary"]

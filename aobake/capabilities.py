@@ -147,10 +147,13 @@ def sections_used(method: str, target: str) -> tuple:
     return tuple(out)
 
 
-def check(method: str, target: str, config) -> None:
+def check(method: str, target: str, config, given=()) -> None:
     """Refuse a request the declarations say cannot run, before any work.
 
-    method : a ``METHODS`` name; target : a ``TARGETS`` name; config : a ``BakeConfig``.
+    method : a ``METHODS`` name; target : a ``TARGETS`` name; config : a ``BakeConfig``;
+    given : the names of the settings the caller gave one by one (flags, keywords, a
+    manifest's or a dict's keys), of which a setting only another target reads is refused
+    (a whole ``BakeConfig`` passed as one record is not: it carries every section).
     Raises UsageError (an InputError) with one line naming both sides.
     """
     if method not in METHODS:
@@ -212,6 +215,38 @@ def check(method: str, target: str, config) -> None:
                          "with --pixel-filter box (which averages over the pixel's area)")
     if method == "file" and config.ao_from is None:
         raise UsageError("--method file needs --ao-from FILE (a per-vertex bake of the mesh)")
+    check_settings(target, config, given)
     from aobake import instances  # --bake: the methods and targets that can honour it
 
     instances.check(method, target, config)
+
+
+#: the settings sections that belong to a target, and what asks for one that reads them
+_TARGET_SECTIONS = {"texels": "a lightmap (an .exr/.png/.tif output, or --target texels)",
+                    "view": "aobake view"}
+
+
+def check_settings(target: str, config, given=()) -> None:
+    """Refuse a target's setting given where another target runs: a per-vertex bake does
+    not read ``--resolution`` or ``--uv-set``, and saying nothing would leave the user
+    believing it did.  ``given`` : the names the caller set one by one; of those, only
+    values other than the default count."""
+    from aobake.settings import DEFAULTS, SECTIONS, SPECS
+
+    reads = TARGETS[target].sections
+    given = set(given)
+    if "uv_set" in given and getattr(config, "uv_set", 0) \
+            and target in ("vertices", "points", "projected_vertices"):
+        raise UsageError(f"--uv-set {config.uv_set} picks the UV set a lightmap bakes into (or "
+                         f"a view looks a lightmap up by): {TARGETS[target].what} ({target}) "
+                         "does not read it")
+    for name, section in SECTIONS.items():
+        if name not in given or section not in _TARGET_SECTIONS or section in reads:
+            continue
+        value = getattr(config, name, DEFAULTS[name])
+        if value == DEFAULTS[name]:
+            continue
+        spec = SPECS[name]
+        flag = spec.flags[0] if spec.flags else "--" + name.replace("_", "-")
+        raise UsageError(f"{flag} is a setting of {_TARGET_SECTIONS[section]}: "
+                         f"{TARGETS[target].what} ({target}) does not read it")

@@ -99,18 +99,22 @@ class Job:
 def plan(mesh, out, config: BakeConfig | dict | None = None, *, target: str | None = None,
          method: str = "rays", view: dict | None = None, truths: bool = False,
          mesh_out=None, report=None, half: bool = False, bit_depth: int = 8,
-         r_only: bool = False, orm: bool = False, orm_from=None, **run) -> Job:
+         r_only: bool = False, orm: bool = False, orm_from=None, given=None, **run) -> Job:
     """Check a request to bake ``mesh`` into ``out`` before any work; the :class:`Job`.
 
     config : BakeConfig or its fields as a dict; target : 'vertices' | 'texels' | None
     (from ``out``'s extension); method : a ``METHODS`` name; view : camera keywords for a
     view (``camera``, ``look``, ``gltf``, ``size``, ``fov``: ``bake_view``'s) or None;
     truths : bake ``bake_view_truths``; mesh_out, report, half, bit_depth, r_only, orm,
-    orm_from : ``aobake.write``'s; run : ``aobake.run``'s keywords.
+    orm_from : ``aobake.write``'s; given : the names of the settings given one by one
+    (default: a dict config's keys; ``capabilities.check``); run : ``aobake.run``'s
+    keywords.
     Raises InputError / OutputError naming the problem.
     """
     from aobake import outputs
 
+    if given is None:
+        given = tuple(config or ()) if config is None or isinstance(config, dict) else ()
     if config is None or isinstance(config, dict):
         config = BakeConfig(**(config or {}))
     elif not isinstance(config, BakeConfig):
@@ -126,13 +130,14 @@ def plan(mesh, out, config: BakeConfig | dict | None = None, *, target: str | No
     kind = "view" if view is not None else target
     where = outputs.plan(out, kind, mesh=mesh, mesh_out=mesh_out, report=report,
                          quantities=config.quantities, inputs=reads, orm=orm,
-                         keep_distances=config.keep_distances, denoise=config.denoise)
+                         keep_distances=config.keep_distances, denoise=config.denoise,
+                         half=half, bit_depth=bit_depth, r_only=r_only)
     name = where.target
     if config.source is not None:
         if name not in ("vertices", "texels"):
             raise UsageError(f"--from bakes onto a low mesh's vertices or lightmap, not {name}")
         name = f"projected_{name}"
-    capabilities.check(method, name, config)
+    capabilities.check(method, name, config, given)
     if orm_from is not None and config.texel_density is None:
         from aobake.outputs.orm import check_source
 

@@ -171,7 +171,9 @@ def _context(command: str, name: str, files) -> tuple:
     if command == "view":
         out, extra = "view.exr", extra + ["--size", "16x12"]
         request["view"] = {"size": (16, 12)}
-    elif section == "texels" or method == "file":
+    elif section == "texels" or method == "file" or name == "uv_set":
+        # (--uv-set is common to lightmaps and a view's lightmap look: a per-vertex bake
+        # refuses it, capabilities.check_settings)
         out = "map.exr"
         if name not in ("texel_density", "resolution"):
             extra += ["--resolution", "32"]

@@ -133,8 +133,9 @@ def test_a_resumed_batch_with_a_report_nested_by_hand_bakes_again(baked, tmp_pat
 @pytest.mark.parametrize("fmt", ["npz", "ply", "exr"])
 def test_a_resumed_batch_bakes_a_damaged_output_again(baked, tmp_path, fmt):
     out_dir = tmp_path / "out"
-    args = ["batch", baked["mesh"], "--out-dir", out_dir, "--format", fmt, "--rays", 4,
-            "--resolution", 32]
+    args = ["batch", baked["mesh"], "--out-dir", out_dir, "--format", fmt, "--rays", 4]
+    if fmt == "exr":  # (a lightmap setting: a per-vertex format refuses it)
+        args += ["--resolution", 32]
     assert run_cli(*args).exit_code == 0
     out = out_dir / f"scene.{fmt}"
     whole = out.read_bytes()

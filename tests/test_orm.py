@@ -155,7 +155,8 @@ def test_orm_source_of_another_size_is_refused(two_sets, tmp_path):  # noqa: F81
         write(baked, out, orm_from=small)
     assert not out.exists()
     result = run_cli(two_sets, "--out", tmp_path / "v.ply", "--orm")
-    assert result.exit_code == 1 and "--orm packs a lightmap" in result.output
+    # a usage mistake (as --orm on a per-vertex .glb): exit 2, like every lightmap-only option
+    assert result.exit_code == 2 and "--orm packs a lightmap" in result.output
 
 
 def _orm_glb(two_sets, roughness_metal, tmp_path):  # noqa: F811

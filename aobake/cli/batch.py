@@ -93,10 +93,20 @@ def _run(inputs, out_dir, fmt, target, run, write, force, summary_path, quiet, s
     from aobake import batch
     from aobake.outputs.strictjson import write_report
 
-    aobake.BakeConfig(**config)  # the command's settings checked before anything is read
-    out_dir.mkdir(parents=True, exist_ok=True)
+    settings = aobake.BakeConfig(**config)  # checked before anything is read
+    if fmt is not None:  # every asset's output is a .<fmt>: its target reads the settings
+        from aobake.capabilities import check_settings
+        from aobake.outputs.registry import default_target
+
+        check_settings(target or default_target("asset." + fmt.lstrip(".")), settings, config)
     assets = batch.find_assets(inputs, out_dir, fmt, target)
+    if fmt is None and assets and all(a.output is None and (a.error or "").endswith(
+            batch.NO_FORMAT) for a in assets):
+        # nothing names an output: a usage error for the whole batch, not one per asset
+        raise click.UsageError("no output format: give --format (or a manifest that names "
+                               "each asset's output)")
     batch.check_summary(summary_path, assets, out_dir, config)
+    out_dir.mkdir(parents=True, exist_ok=True)
     executor = {"name": run["executor"], "workers": run["workers"],
                 "chunk_points": run["chunk_points"], "scheduler": scheduler}
     records, clock = [], time.perf_counter()

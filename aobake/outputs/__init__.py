@@ -43,7 +43,8 @@ class Outputs:
 
 def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=None,
          quantities=None, inputs=(), orm: bool = False, keep_distances: bool = False,
-         denoise: bool = False) -> Outputs:
+         denoise: bool = False, half: bool = False, bit_depth: int = 8,
+         r_only: bool = False) -> Outputs:
     """Resolve and check a bake's output paths before baking (fail before any work).
 
     target : 'vertices' | 'texels' | 'view' | None (from the extension; texels with
@@ -51,17 +52,30 @@ def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=Non
     files the bake reads (a dict flag -> path, or paths), none of which an output may
     overwrite either; quantities : what will be baked (an image needs ao or obscurance);
     keep_distances : the bake keeps its rays' distances (only .npz holds them); denoise :
-    the lightmap has denoised channels (only .exr holds them beside the raw ones).  Raises
-    OutputError naming the path and the problem.
+    the lightmap has denoised channels (only .exr holds them beside the raw ones); half,
+    bit_depth, r_only : how an image is stored (each refused where the output is not such
+    an image, as a setting the writer would silently not read).  Raises OutputError (or
+    UsageError) naming the path and the problem.
     """
     out = Path(out)
     # the extension picks the output, --orm included: a .glb is per vertex unless the
     # target says texels (an ORM .glb without it would bake what the user did not name)
     target = target or default_target(out)
     if orm and out.suffix.lower() not in suffixes("texels"):
-        raise OutputError(f"{out}: --orm packs a lightmap: write one of "
+        raise UsageError(f"{out}: --orm packs a lightmap: write one of "
                           f"{', '.join(suffixes('texels'))}")
     writer_for(out, target)  # the format exists for this target
+    suffix = out.suffix.lower()
+    image = target in ("texels", "view")
+    if half and not (image and suffix == ".exr"):
+        raise UsageError(f"{out}: --half stores an EXR image's channels as half floats: not "
+                         f"a {target} {suffix or 'suffix-less'} output")
+    if int(bit_depth) != 8 and not (image and suffix in (".png", ".tif", ".tiff")):
+        raise UsageError(f"{out}: --bit-depth is a PNG or TIFF image's: not a {target} "
+                         f"{suffix or 'suffix-less'} output")
+    if r_only and not (target == "texels" and suffix in (".png", ".tif", ".tiff")):
+        raise UsageError(f"{out}: --r-only stores a PNG or TIFF lightmap's AO in R only: not "
+                         f"a {target} {suffix or 'suffix-less'} output")
     if keep_distances and out.suffix.lower() != ".npz":
         raise UsageError(f"{out}: --keep-distances needs an .npz output (only it holds the "
                          f"ray distances; a {out.suffix or 'suffix-less'} file would drop them)")
@@ -160,6 +174,7 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
     read = {flag: config.get(name) for name, flag in INPUT_FILES.items()}
     read["--orm-from"] = orm_from
     where = plan(out, target, mesh=mesh, mesh_out=mesh_out, report=report, orm=orm,
+                 half=half, bit_depth=bit_depth, r_only=r_only,
                  inputs={k: v for k, v in read.items() if v is not None},
                  # a bake asked to keep its distances (a refit keeps them for another
                  # refit, and may be written to any format: ``aobake refit``'s help)
