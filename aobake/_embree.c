@@ -38,6 +38,7 @@
 #define EMBREE_FUNCTIONS(X)                                                              \
     X(rtcNewDevice) X(rtcReleaseDevice) X(rtcGetDeviceError) X(rtcGetDeviceProperty)      \
     X(rtcNewScene) X(rtcSetSceneFlags) X(rtcNewGeometry) X(rtcSetNewGeometryBuffer)       \
+    X(rtcSetSharedGeometryBuffer)                                                          \
     X(rtcCommitGeometry) X(rtcAttachGeometry) X(rtcReleaseGeometry) X(rtcCommitScene)     \
     X(rtcReleaseScene) X(rtcOccluded1) X(rtcOccluded4) X(rtcOccluded8) X(rtcOccluded16)   \
     X(rtcIntersect1) X(rtcSetGeometryInstancedScene) X(rtcSetGeometryTransform)          \
@@ -66,21 +67,33 @@ static int device_error(const char *what)
 }
 
 /* A committed scene of one triangle mesh; vertices (nv, 3) float32, faces (nf, 3) uint32.
- * Embree owns copies of both (its own buffers carry the padding its SIMD loads need). */
+ * shared 0: Embree owns copies of both (its own buffers carry the padding its SIMD loads
+ * need); shared 1: Embree reads the caller's arrays in place (the vertices padded by the
+ * caller, one float beyond the last vertex, and both kept alive and unchanged while the
+ * scene lives: new_scene holds them in the scene's capsule), so the mesh is not held twice
+ * while the BVH is built, nor after. */
 static RTCScene build(const float *vertices, Py_ssize_t nv, const uint32_t *faces,
-                      Py_ssize_t nf, int robust)
+                      Py_ssize_t nf, int robust, int shared)
 {
     RTCScene scene = p_rtcNewScene(device);
     if (robust)
         p_rtcSetSceneFlags(scene, RTC_SCENE_FLAG_ROBUST);
     RTCGeometry geometry = p_rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
-    float *v = p_rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                         3 * sizeof(float), (size_t)nv);
-    uint32_t *f = p_rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                            3 * sizeof(uint32_t), (size_t)nf);
-    if (v && f) {
-        memcpy(v, vertices, (size_t)nv * 3 * sizeof(float));
-        memcpy(f, faces, (size_t)nf * 3 * sizeof(uint32_t));
+    if (shared) {
+        p_rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                     vertices, 0, 3 * sizeof(float), (size_t)nv);
+        p_rtcSetSharedGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                     faces, 0, 3 * sizeof(uint32_t), (size_t)nf);
+    } else {
+        float *v = p_rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_VERTEX, 0,
+                                             RTC_FORMAT_FLOAT3, 3 * sizeof(float), (size_t)nv);
+        uint32_t *f = p_rtcSetNewGeometryBuffer(geometry, RTC_BUFFER_TYPE_INDEX, 0,
+                                                RTC_FORMAT_UINT3, 3 * sizeof(uint32_t),
+                                                (size_t)nf);
+        if (v && f) {
+            memcpy(v, vertices, (size_t)nv * 3 * sizeof(float));
+            memcpy(f, faces, (size_t)nf * 3 * sizeof(uint32_t));
+        }
     }
     p_rtcCommitGeometry(geometry);
     p_rtcAttachGeometry(scene, geometry);
@@ -89,11 +102,22 @@ static RTCScene build(const float *vertices, Py_ssize_t nv, const uint32_t *face
     return scene;
 }
 
+/* The arrays a scene built on shared buffers reads (its capsule's context). */
+typedef struct {
+    Py_buffer vertices, faces;
+} SharedArrays;
+
 static void release_scene(PyObject *capsule)
 {
     RTCScene scene = PyCapsule_GetPointer(capsule, SCENE_CAPSULE);
     if (scene)
         p_rtcReleaseScene(scene);
+    SharedArrays *arrays = PyCapsule_GetContext(capsule);
+    if (arrays) { /* after the scene: Embree no longer reads them */
+        PyBuffer_Release(&arrays->vertices);
+        PyBuffer_Release(&arrays->faces);
+        PyMem_Free(arrays);
+    }
 }
 
 /* Does a packet of W rays work here?  (An ISA this CPU or this Embree build lacks sets an
@@ -164,7 +188,7 @@ static PyObject *open_library(PyObject *self, PyObject *args)
         /* Probe the packet widths on one triangle: an unsupported width sets an error. */
         const float tri[9] = {-1, -1, 1, 1, -1, 1, 0, 1, 1};
         const uint32_t idx[3] = {0, 1, 2};
-        RTCScene probe = build(tri, 3, idx, 1, 1);
+        RTCScene probe = build(tri, 3, idx, 1, 1, 0);
         if (device_error("building a probe scene")) {
             p_rtcReleaseScene(probe);
             p_rtcReleaseDevice(device);
@@ -195,7 +219,9 @@ static PyObject *open_library(PyObject *self, PyObject *args)
                          packet_width, native_width);
 }
 
-/* scene(vertices float32 (nv*3), faces uint32 (nf*3), robust) -> capsule */
+/* scene(vertices float32 (nv*3), faces uint32 (nf*3), robust) -> capsule.  Vertices of at
+ * least nv*3 + 1 floats (padded for Embree's 16-byte loads) are read in place, with the
+ * faces: the capsule keeps both buffers (their exporters cannot resize them meanwhile). */
 static PyObject *new_scene(PyObject *self, PyObject *args)
 {
     Py_buffer vb = {0}, fb = {0};
@@ -208,7 +234,8 @@ static PyObject *new_scene(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "y*ny*np", &vb, &nv, &fb, &nf, &robust))
         return NULL;
     PyObject *result = NULL;
-    if (check(&vb, "vertices", sizeof(float), 3 * nv) || check(&fb, "faces", 4, 3 * nf))
+    int padded = vb.len == (3 * nv + 1) * (Py_ssize_t)sizeof(float);
+    if (check(&vb, "vertices", sizeof(float), 3 * nv + padded) || check(&fb, "faces", 4, 3 * nf))
         goto done;
     for (Py_ssize_t i = 0; i < 3 * nf; i++) { /* Embree would read past the vertices */
         uint32_t corner = ((const uint32_t *)fb.buf)[i];
@@ -217,17 +244,37 @@ static PyObject *new_scene(PyObject *self, PyObject *args)
             goto done;
         }
     }
+    int shared = padded && ((uintptr_t)vb.buf % sizeof(float)) == 0 &&
+                 ((uintptr_t)fb.buf % 4) == 0;
+    SharedArrays *arrays = NULL;
+    if (shared) {
+        arrays = PyMem_Malloc(sizeof(SharedArrays));
+        if (arrays == NULL) {
+            PyErr_NoMemory();
+            goto done;
+        }
+    }
     RTCScene scene;
     Py_BEGIN_ALLOW_THREADS
-    scene = build(vb.buf, nv, fb.buf, nf, robust);
+    scene = build(vb.buf, nv, fb.buf, nf, robust, shared);
     Py_END_ALLOW_THREADS
     if (device_error("building the scene")) {
         p_rtcReleaseScene(scene);
+        PyMem_Free(arrays);
         goto done;
     }
     result = PyCapsule_New(scene, SCENE_CAPSULE, release_scene);
-    if (result == NULL)
+    if (result == NULL) {
         p_rtcReleaseScene(scene);
+        PyMem_Free(arrays);
+        goto done;
+    }
+    if (arrays) { /* the capsule owns the two buffer views now */
+        arrays->vertices = vb;
+        arrays->faces = fb;
+        PyCapsule_SetContext(result, arrays);
+        return result;
+    }
 done:
     PyBuffer_Release(&vb);
     PyBuffer_Release(&fb);
@@ -288,7 +335,7 @@ static PyObject *new_instances(PyObject *self, PyObject *args)
         }
         if (!bad) {
             Py_BEGIN_ALLOW_THREADS
-            children[j] = build(vb.buf, nv, fb.buf, nf, robust);
+            children[j] = build(vb.buf, nv, fb.buf, nf, robust, 0);
             Py_END_ALLOW_THREADS
         }
         PyBuffer_Release(&vb);
@@ -683,7 +730,8 @@ static PyMethodDef methods[] = {
     {"open", open_library, METH_VARARGS,
      "open(path) -> (version, widest packet, native packet): load libembree4 from path (once)."},
     {"scene", new_scene, METH_VARARGS,
-     "scene(vertices f32, nv, faces u32, nf, robust) -> a committed triangle scene."},
+     "scene(vertices f32, nv, faces u32, nf, robust) -> a committed triangle scene (vertices "
+     "of nv*3 + 1 floats or more: both arrays read in place, kept by the scene)."},
     {"instances", new_instances, METH_VARARGS,
      "instances(meshes [(vertices f32, nv, faces u32, nf)], mesh_of i32, transforms f32 (n*12 "
      "row-major 3x4), robust) -> a committed scene of instances of committed child scenes."},

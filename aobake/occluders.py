@@ -23,6 +23,7 @@ from aobake.backends.plane import PlaneOccluder
 from aobake.backends.union import Union
 from aobake.constants import AXES, OFFSET_ULPS
 from aobake.errors import InputError
+from aobake.scene import release_freed_memory
 from aobake.vectors import distinct
 
 log = logging.getLogger(__name__)
@@ -192,14 +193,17 @@ def build(scene, config) -> Occluders:
     # Stepping past a back face (--backfaces ignore): OFFSET_ULPS ulps of the scene's
     # largest local coordinate, a length any point of the scene can resolve.
     step = OFFSET_ULPS * float(np.spacing(np.float32(reach * scale)))
-    local = (scene.vertices - center) * scale
     # Vertices no face uses never reach a ray; zero them so a far-off one cannot overflow
     # the backend's float32 cast.
-    unused = np.ones(len(local), dtype=bool)
+    unused = np.ones(len(scene.vertices), dtype=bool)
     unused[faces.ravel()] = False
-    local[unused] = 0.0
-    normals = scene.face_normals if subset is None else scene.face_normals[subset]
     cut = cutout_faces(scene) if getattr(config, "alpha_cutout", False) else None
+    local = _local(scene.vertices, center, scale, unused,
+                   float32=config.backend == "embree" and cut is None)
+    del unused
+    # (the scene's own rows, read per hit; a subset's as float32: the bits the backend reads)
+    normals = scene.face_normals if subset is None else \
+        scene.face_normals[subset].astype(np.float32)
     cutout = None
     if cut is not None:  # the alpha-tested faces in a member of their own
         index = np.arange(len(scene.faces)) if subset is None else subset
@@ -218,6 +222,8 @@ def build(scene, config) -> Occluders:
                 faces, normals = np.zeros((1, 3), dtype=np.int64), np.zeros((1, 3))
                 subset = np.full(1, -1, dtype=np.int64)
     backend = _triangles(config, local, faces, normals, step)
+    del local, normals
+    release_freed_memory()  # the frame's and the BVH build's temporaries
     members = [backend]
     if cutout is not None:
         members.append(cutout)
@@ -230,6 +236,29 @@ def build(scene, config) -> Occluders:
                          + _why_flat(scene, config) + ")"
                          if getattr(scene.instances, "instanced", True) else
                          "the file's faces: every one is baked"))
+
+
+#: vertices put in the local frame at a time (bounds the float64 temporary)
+LOCAL_BLOCK = 1 << 16
+
+
+def _local(vertices, center, scale, unused, float32: bool) -> np.ndarray:
+    """(v, 3) ``(vertices - center) * scale``, rows ``unused`` zero: float64, or with
+    ``float32`` the float32 rows Embree reads in place (``backends.embree.padded_rows``; the
+    bits of the float64 rows cast), made a block at a time so that no float64 copy of the
+    whole mesh exists."""
+    if not float32:
+        local = (vertices - center) * scale
+        local[unused] = 0.0
+        return local
+    from aobake.backends.embree import padded_rows
+
+    local = padded_rows(len(vertices))
+    for start in range(0, len(vertices), LOCAL_BLOCK):
+        block = slice(start, start + LOCAL_BLOCK)
+        local[block] = (vertices[block] - center) * scale
+    local[unused] = 0.0
+    return local
 
 
 def _others(scene, config, center, scale, step, members) -> tuple[list, dict | None]:

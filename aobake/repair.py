@@ -53,6 +53,8 @@ UNDECIDED_VOLUME = 1e-8
 #: its area is oriented by its capped volume, like a closed one (a bowl's cap is half its
 #: area, a plane's all of it: both stay open; the ogre's body, 0.6%, is nearly closed)
 NEARLY_CLOSED = 0.05
+#: faces per block of the per-face geometry
+BLOCK = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -129,36 +131,45 @@ def manifold_pairs(faces: np.ndarray, n_vertices: int) -> EdgePairs:
 
     faces : (f, 3) int64, n_vertices : int.  Triangles with a repeated corner index are
     left out (they have no orientation).
-    """
+
+    Memory: the edge keys and their order (16 bytes an edge, 48 a triangle) while the
+    sort runs; every other per-edge value is read back through the order (edge e is
+    corner e % 3 of proper triangle e // 3) where it is needed."""
     faces = np.asarray(faces, dtype=np.int64)
     proper = _proper(faces)
     index = np.flatnonzero(proper)
-    tri = faces[index]
-    start = tri.reshape(-1)
-    end = tri[:, [1, 2, 0]].reshape(-1)
-    owner = np.repeat(index, 3)
-    lo, hi = np.minimum(start, end), np.maximum(start, end)
-    forward = start < end
+    tri = faces if len(index) == len(faces) else faces[index]  # every triangle: no copy
     if n_vertices >= 3_037_000_499:  # lo * n + hi would overflow int64
         raise ValueError(f"too many vertices ({n_vertices}) for the edge keys")
-    key = lo * np.int64(n_vertices) + hi
-    # The stable order (unique, so any stable sort gives it): a radix sort when the keys
-    # fit 32 bits and the kernel is built (meshes up to 65k vertices), else numpy's.
+    start = np.ascontiguousarray(tri).reshape(-1)
+    end = np.roll(tri, -1, axis=1).reshape(-1)
+    forward = start < end
+    key = np.minimum(start, end)
+    key *= np.int64(n_vertices)
+    key += np.maximum(start, end, out=end)  # the larger end in place of ``end``
+    del end, start
     order, key = stable_sort(key, n_vertices * n_vertices, _native.kernels())
-    owner, forward = owner[order], forward[order]
-    start, end = start[order], end[order]
     new = np.ones(len(key), dtype=bool)
-    new[1:] = key[1:] != key[:-1]
-    group = np.cumsum(new) - 1
-    size = np.bincount(group)[group] if len(group) else np.zeros(0, dtype=np.int64)
-    other = size != 2
+    np.not_equal(key[1:], key[:-1], out=new[1:])
+    del key
+    starts = np.flatnonzero(new)
+    del new
+    lengths = np.diff(np.append(starts, len(order)))
+    first = starts[lengths == 2]
+    other = order[np.repeat(lengths != 2, lengths)]
+    del starts, lengths
+    edge = order[first]
+    a = index[edge // 3]
+    same = forward[edge]
+    edge = order[first + 1]
+    b = index[edge // 3]
+    same = same == forward[edge]
+    del edge, order, first, forward
+    t, c = other // 3, other % 3
+    open_start, open_end, open_owner = tri[t, c], tri[t, (c + 1) % 3], index[t]
     open_face = ~proper
-    open_face[owner[other]] = True
-    # Groups of exactly two: the first of each pair is where a group starts.
-    first = np.flatnonzero(new & (size == 2))
-    a, b = owner[first], owner[first + 1]
-    same = forward[first] == forward[first + 1]
-    return EdgePairs(a, b, same, start[other], end[other], owner[other], open_face)
+    open_face[open_owner] = True
+    return EdgePairs(a, b, same, open_start, open_end, open_owner, open_face)
 
 
 def _parity_union_find(n: int, a: np.ndarray, b: np.ndarray, odd: np.ndarray, kernels=None):
@@ -237,9 +248,24 @@ def orient(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
     n_comp = len(roots)
     comp, colour = component[proper], parity[proper]
 
-    tri = vertices[faces[proper]]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    area = 0.5 * np.linalg.norm(cross, axis=1)
+    # Per-face terms a block of faces at a time (each row's arithmetic as on the whole
+    # array: the same bits), so no (f, 3, 3) corner array lives for the whole mesh.
+    corners = faces[proper]
+    m = len(corners)
+    area = np.empty(m)
+    mean = np.empty((3, m))
+    agree = None if normals is None else np.empty(m)
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float64)
+    for lo in range(0, m, BLOCK):
+        blk = slice(lo, lo + BLOCK)
+        tri = vertices[corners[blk]]
+        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        area[blk] = 0.5 * np.linalg.norm(cross, axis=1)
+        for k in range(3):
+            mean[k, blk] = tri[:, :, k].mean(axis=1)
+        if agree is not None:
+            agree[blk] = np.einsum("ij,ij->i", cross, normals[corners[blk]].sum(axis=1))
     area1 = np.bincount(comp, weights=area * colour, minlength=n_comp)
     area0 = np.bincount(comp, weights=area * ~colour, minlength=n_comp)
     count1 = np.bincount(comp, weights=colour, minlength=n_comp)
@@ -253,10 +279,15 @@ def orient(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
     closed = np.bincount(comp, weights=open_face[proper], minlength=n_comp) == 0
     # Signed volume about each component's mean corner (smaller terms, less cancellation).
     size = np.maximum(np.bincount(comp, minlength=n_comp), 1)
-    centre = np.stack([np.bincount(comp, weights=tri[:, :, k].mean(axis=1), minlength=n_comp)
+    centre = np.stack([np.bincount(comp, weights=mean[k], minlength=n_comp)
                        for k in range(3)], axis=1) / size[:, None]
-    rel = tri - centre[comp][:, None, :]
-    det = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
+    del mean
+    det = np.empty(m)
+    for lo in range(0, m, BLOCK):
+        blk = slice(lo, lo + BLOCK)
+        rel = vertices[corners[blk]] - centre[comp[blk]][:, None, :]
+        det[blk] = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
+    del corners
     volume = np.bincount(comp, weights=sign * det, minlength=n_comp)
     scale = np.bincount(comp, weights=np.abs(det), minlength=n_comp)
     face_sign = np.zeros(n_faces)
@@ -268,9 +299,6 @@ def orient(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
     volume, scale = volume + cap_volume, scale + cap_scale  # zero for closed components
     inward = (closed | nearly_closed) & (volume < -UNDECIDED_VOLUME * scale)
     if normals is not None:
-        normals = np.asarray(normals, dtype=np.float64)
-        corner_sum = normals[faces[proper]].sum(axis=1)
-        agree = np.einsum("ij,ij->i", cross, corner_sum)
         vote = np.bincount(comp, weights=sign * agree, minlength=n_comp)
         spread = np.bincount(comp, weights=np.abs(agree), minlength=n_comp)
         inward |= ~closed & ~nearly_closed & (vote < -UNDECIDED_VOLUME * spread)

@@ -31,6 +31,7 @@ the check.  ``Scene.repair`` (report: ``scene.fix_normals``) says what was found
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 from dataclasses import dataclass, field, replace
@@ -56,6 +57,29 @@ MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 
 #: a float64 coordinate step above this fraction of the median triangle size is warned of
 QUANTISED_FRACTION = 1e-3
+
+_trim = []  # [glibc's malloc_trim, or None], looked up once
+
+
+def release_freed_memory() -> None:
+    """Hand the pages of freed heap blocks back to the system (glibc's ``malloc_trim(0)``;
+    nothing where the C library has none).
+
+    glibc serves arrays up to 32 MiB from its heap once a larger one has been freed (its
+    mmap threshold follows the frees), and keeps the holes they leave resident: after the
+    loader's temporaries are freed, ~90 MiB of a 2M-triangle mesh's load stayed in the
+    process and under every later stage's peak (benchmarks/bench_memory.py).  Called
+    where a stage's temporaries have just been freed (the end of a load and of the
+    occluders' build); it takes milliseconds and changes no value."""
+    if not _trim:
+        import ctypes
+
+        try:
+            _trim.append(ctypes.CDLL(None).malloc_trim)
+        except (AttributeError, OSError):  # not glibc
+            _trim.append(None)
+    if _trim[0] is not None:
+        _trim[0](0)
 
 
 @dataclass(frozen=True)
@@ -296,11 +320,8 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray, weighting: str = "an
                                  cosines=weighting == "angle")
     if compiled is not None:
         unit, _, cross, cosines = compiled
-        out = np.empty((len(vertices), 3))
-        # np.arccos is numpy's own: its float64 arccos is not the C library's everywhere
-        rows, angles = (cross, np.empty((3, 0))) if cosines is None else (unit, np.arccos(cosines))
-        if _native.kernels().vertex_normal_sums(np.ascontiguousarray(faces, dtype=np.int64),
-                                                rows, angles, out):
+        out = _summed_normals(faces, len(vertices), unit, cross, cosines)
+        if out is not None:
             return out
     tri = vertices[faces]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -317,6 +338,22 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray, weighting: str = "an
     accum = np.stack([np.bincount(index, weights=w[:, d], minlength=len(vertices))
                       for d in range(3)], axis=1)
     return _normalize(accum)
+
+
+def _summed_normals(faces, n_vertices: int, unit, cross, cosines):
+    """The compiled ``vertex_normal_sums`` of :func:`vertex_normals`: (v, 3) unit normals
+    from the face rows ``cross`` (area weighting; ``cosines`` None) or ``unit`` weighted by
+    the corner angles ``np.arccos(cosines)`` ((3, f), taken in place: ``cosines`` is
+    consumed), or None where the kernel declines."""
+    out = np.empty((n_vertices, 3))
+    if cosines is None:
+        rows, angles = cross, np.empty((3, 0))
+    else:  # np.arccos is numpy's own: its float64 arccos is not the C library's everywhere
+        rows, angles = unit, np.arccos(cosines, out=cosines)
+    if _native.kernels().vertex_normal_sums(np.ascontiguousarray(faces, dtype=np.int64),
+                                            rows, angles, out):
+        return out
+    return None
 
 
 #: the largest coordinate magnitude and the smallest extent a scene may have: beyond them
@@ -357,7 +394,7 @@ def make_scene(
                          else f"{source}: faces must be (n, 3) triangles, got {faces.shape}")
     if not np.issubdtype(faces.dtype, np.integer):
         raise InputError(f"{source}: face indices must be integers, got {faces.dtype}")
-    faces = faces.astype(np.int64)
+    faces = faces.astype(np.int64, copy=False)  # the loader's own array: no copy
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise InputError(f"{source}: face index out of range (have {len(vertices)} vertices)")
     bad = ~np.isfinite(vertices).all(axis=1)  # unreferenced ones too: nothing unchecked
@@ -369,6 +406,7 @@ def make_scene(
     lo, hi = used.min(axis=0), used.max(axis=0)
     extent = float((hi - lo).max())
     largest = float(np.abs(used).max())
+    del used
     if largest > MAX_COORDINATE or 0 < extent < MIN_EXTENT:
         raise InputError(f"{source}: coordinates up to {largest:.3g} and extent {extent:.3g} are "
                          f"outside what aobake bakes: |coordinates| <= {MAX_COORDINATE:g} and "
@@ -415,15 +453,21 @@ def make_scene(
             if text:
                 warnings.append(text)
         record = repair_record(fix_normals, counts, 0 if flipped is None else flipped.sum())
-    compiled = _triangle_normals(local, faces)
+    # Angle-weighted vertex normals need the face normals and the corner cosines: one pass
+    # of the kernel gives both (the same bits as two), and the cosines are dropped as soon
+    # as the normals are summed.
+    angles = normals_mode == "angle" or (normals_mode == "file" and normals is None)
+    compiled = _triangle_normals(local, faces, cosines=angles)
+    cosines = None
     if compiled is not None:  # the bits of the lines below (normalize's length is norm's)
-        fnormals, length = compiled[0], compiled[1]
+        fnormals, length, cosines = compiled[0], compiled[1], compiled[3]
     else:
         tri = local[faces]
         cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         fnormals = _normalize(cross)  # as face_normals(), sharing the cross product
         length = np.linalg.norm(cross, axis=1)
     areas = 0.5 * length / (scale * scale)
+    del length
     n_degenerate = int(np.count_nonzero(~fnormals.any(axis=1)))
     if n_degenerate == len(faces):
         raise InputError(f"{source}: every face has zero area")
@@ -446,11 +490,16 @@ def make_scene(
         else:
             mode = "angle"
     if mode != "file":
-        vnormals = vertex_normals(local, faces, mode)
+        vnormals = None
+        if cosines is not None and mode == "angle":
+            vnormals = _summed_normals(faces, len(vertices), fnormals, None, cosines)
+        if vnormals is None:
+            vnormals = vertex_normals(local, faces, mode)
     elif not vnormals[referenced].any(axis=1).all():
         # Fill the file's missing (zero) normals rather than leaving holes.
         computed = vertex_normals(local, faces, "angle")
         vnormals = np.where(vnormals.any(axis=1, keepdims=True), vnormals, computed)
+    del cosines, local
     if uv is not None:
         uv = np.asarray(uv, dtype=np.float64)
         if faces_uv.shape != faces.shape or faces_uv.min() < 0 or faces_uv.max() >= len(uv):
@@ -772,13 +821,17 @@ def _load_with_trimesh(path: Path, uv_set: int = 0, bake: tuple = ()):
                   for m in meshes)
     for mesh in meshes:
         vertices.append(np.asarray(mesh.vertices, dtype=np.float64))
-        faces.append(np.asarray(mesh.faces, dtype=np.int64) + offset)
+        own = np.asarray(mesh.faces, dtype=np.int64)
+        faces.append(own + offset if offset else own)
         if have_normals:
             normals.append(np.asarray(mesh.vertex_normals, dtype=np.float64))
         if have_uv:
             uvs.append(np.asarray(mesh.visual.uv, dtype=np.float64))
         offset += len(mesh.vertices)
-    vertices, faces = np.concatenate(vertices), np.concatenate(faces)
+    if len(meshes) == 1:  # no copies of one mesh's arrays
+        vertices, faces = vertices[0], faces[0]
+    else:
+        vertices, faces = np.concatenate(vertices), np.concatenate(faces)
     if path.suffix.lower() == ".stl":
         # STL is a triangle soup: weld identical positions so vertices are shared.
         vertices, inverse = np.unique(vertices, axis=0, return_inverse=True)
@@ -798,8 +851,10 @@ def _load_with_trimesh(path: Path, uv_set: int = 0, bake: tuple = ()):
     if uvs:
         broken = _gltf_broken_textures(path) if path.suffix.lower() in (".gltf", ".glb") else {}
         materials = _trimesh_materials(meshes, broken)
-    return (vertices, faces, np.concatenate(normals) if normals else None,
-            np.concatenate(uvs) if uvs else None, materials, names, sets,
+    def joined(arrays):  # one mesh's array as it is (no copy)
+        return None if not arrays else arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
+
+    return (vertices, faces, joined(normals), joined(uvs), materials, names, sets,
             None if placed is None else placed.instances)
 
 
@@ -811,13 +866,16 @@ def _trimesh_names(meshes) -> dict:
                           ("mesh", lambda m: m.metadata.get("name")),
                           ("material", lambda m: getattr(getattr(m.visual, "material", None),
                                                          "name", None))):
-        names, index = [], []
+        names = []
         for mesh in meshes:
             name = name_of(mesh)
             if name is not None and str(name) not in names:
                 names.append(str(name))
-            index.append(np.full(len(mesh.faces), -1 if name is None else
-                                 names.index(str(name)), dtype=np.int64))
+        if not names:  # nothing named: no per-face index (make_scene drops the kind)
+            out[kind] = (names, None)
+            continue
+        index = [np.full(len(mesh.faces), -1 if name_of(mesh) is None else
+                         names.index(str(name_of(mesh))), dtype=np.int64) for mesh in meshes]
         out[kind] = (names, np.concatenate(index))
     return out
 
@@ -898,6 +956,8 @@ def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn",
                            uv=data.uv if has_uv else None, faces_uv=data.faces_uv,
                            source=str(path), warnings=data.warnings, materials=materials,
                            face_material=face_material, fix_normals=fix_normals, names=names)
+        del data
+        release_freed_memory()  # the reader's and make_scene's temporaries
         if not bake:
             return whole
         from aobake import instances  # the objects and groups named, the rest occluding
@@ -905,6 +965,7 @@ def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn",
         return instances.subset(whole, bake)
     vertices, faces, normals, uv, materials, names, sets, instances = _load_with_trimesh(
         path, uv_set, bake)
+    gc.collect()  # trimesh's objects are cycles: free them (and their copies) before make_scene
     materials, face_material = materials or (None, None)
     if sets is not None:
         uv = sets[uv_set]
@@ -917,4 +978,5 @@ def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn",
         scene = replace(scene, uv_set=uv_set, uv_sets=sets)
     if instances is not None:
         scene = replace(scene, instances=instances)
+    release_freed_memory()  # the loader's and make_scene's temporaries
     return scene

@@ -55,15 +55,17 @@ class TriangleBackend:
     """
 
     def __init__(self, face_normals: np.ndarray, step: float):
-        self._face_normals = np.asarray(face_normals).astype(np.float32)
+        # kept as given (the scene's own float64 rows: no copy); each hit's row is rounded to
+        # float32 as it is read, the bits a float32 copy of the whole array would give
+        self._face_normals = np.asarray(face_normals)
         self._step = np.float32(step)
 
     def intersect_normals(self, origins, directions, tmax):
-        """``intersect`` and the face normal of each hit, (k, 3) (any row on a miss): the
-        front-face test's (a backend whose faces are not one array, Embree instances,
+        """``intersect`` and the face normal of each hit, (k, 3) float32 (any row on a miss):
+        the front-face test's (a backend whose faces are not one array, Embree instances,
         computes them per hit)."""
         t, prim = self.intersect(origins, directions, tmax)
-        return t, prim, self._face_normals[np.maximum(prim, 0)]
+        return t, prim, self._face_normals[np.maximum(prim, 0)].astype(np.float32)
 
     def front_distance(self, origins, directions, tmax) -> np.ndarray:
         """(n,) float32 distance to the nearest front-face hit; inf if none within tmax."""

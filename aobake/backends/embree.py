@@ -36,7 +36,6 @@ class EmbreeBackend(TriangleBackend):
         from aobake.backends.native import binding, packet_width
 
         super().__init__(face_normals, step)
-        local = np.ascontiguousarray(np.asarray(vertices, dtype=np.float64).astype(np.float32))
         native = binding()
         if native is not None:
             self._native = native[0]
@@ -45,10 +44,18 @@ class EmbreeBackend(TriangleBackend):
             # (benchmarks/bench_peers.py reads "packets of N" back)
             chosen = {"native": "Embree's native width on this CPU"}.get(source, source)
             self.binding = f"aobake._embree (occlusion in packets of {self._width}: {chosen})"
-            self._handle = self._native.scene(
-                local, len(local), np.ascontiguousarray(faces, dtype=np.uint32), len(faces),
-                bool(robust))
+            # Embree reads both arrays in place (the scene's capsule keeps them): the mesh
+            # is held once, also while the BVH is built
+            padded = padded_float32(vertices)
+            faces32 = np.ascontiguousarray(faces, dtype=np.uint32)
+            try:
+                self._handle = self._native.scene(padded, len(vertices), faces32, len(faces),
+                                                  bool(robust))
+            except ValueError:  # a module built before it read arrays in place: it copies
+                self._handle = self._native.scene(padded[:-1], len(vertices), faces32,
+                                                  len(faces), bool(robust))
             return
+        local = np.ascontiguousarray(np.asarray(vertices, dtype=np.float64).astype(np.float32))
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
 
@@ -110,6 +117,30 @@ class EmbreeBackend(TriangleBackend):
         prim = np.empty(len(origins), dtype=np.int32)
         self._native.intersect(self._handle, _f32(origins), _f32(directions), tfar, t, prim)
         return t, np.where((prim >= 0) & (t < tfar), prim, -1)
+
+
+def padded_rows(n: int) -> np.ndarray:
+    """(n, 3) float32 rows to fill, a view of a flat array with one float beyond the last row
+    (the padding Embree's 16-byte loads need of a buffer it reads in place): what
+    :func:`padded_float32` takes without a copy."""
+    flat = np.empty(3 * n + 1, dtype=np.float32)
+    flat[-1] = 0.0
+    return flat[:-1].reshape(n, 3)
+
+
+def padded_float32(vertices) -> np.ndarray:
+    """(3 v + 1,) float32: the rows of ``vertices`` (v, 3) cast to float32 (the bits of
+    ``astype``) and one float of padding; rows from :func:`padded_rows` are returned as
+    their flat array, not copied."""
+    base = getattr(vertices, "base", None)
+    if (isinstance(vertices, np.ndarray) and vertices.dtype == np.float32
+            and isinstance(base, np.ndarray) and base.dtype == np.float32 and base.ndim == 1
+            and base.size == vertices.size + 1 and vertices.flags.c_contiguous
+            and vertices.ctypes.data == base.ctypes.data):
+        return base
+    rows = padded_rows(len(vertices))
+    rows[:] = vertices
+    return rows.base
 
 
 def _f32(rows) -> np.ndarray:

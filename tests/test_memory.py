@@ -1,0 +1,142 @@
+"""The memory work of issue 34 point 3 changes no bit: blocked passes give the whole pass's
+values at any block size, Embree reading the mesh in place answers as on its own copies,
+and the one-pass angle-weighted normals equal the two-pass ones.
+(benchmarks/bench_memory.py measures the bytes; docs/scale.md, "Memory".)"""
+
+from __future__ import annotations
+
+import gc
+
+import numpy as np
+import pytest
+import trimesh
+
+from aobake import occluders, repair
+from aobake.backends import native
+from aobake.backends.embree import EmbreeBackend, padded_float32, padded_rows
+from aobake.scene import face_normals, load_scene, make_scene, vertex_normals
+
+
+def _shells():
+    """Two spheres and an open sheet, some faces flipped, a sphere turned inside out, a
+    degenerate face: every branch of the orientation, over ~2,600 faces."""
+    a = trimesh.creation.icosphere(3)
+    b = trimesh.creation.icosphere(2)
+    b.apply_translation([3.0, 0.0, 0.0])
+    sheet = trimesh.creation.box(extents=(1, 1, 0.1))
+    sheet.apply_translation([0.0, 3.0, 0.0])
+    mesh = trimesh.util.concatenate([a, b, sheet])
+    faces = mesh.faces.astype(np.int64).copy()
+    rng = np.random.default_rng(4)
+    flip = rng.choice(len(a.faces), 40, replace=False)
+    faces[flip] = faces[flip][:, [0, 2, 1]]
+    inside_out = slice(len(a.faces), len(a.faces) + len(b.faces))
+    faces[inside_out] = faces[inside_out][:, [0, 2, 1]]
+    faces[-1] = [faces[-1][0], faces[-1][0], faces[-1][1]]  # repeated corner
+    return np.asarray(mesh.vertices, dtype=np.float64), faces
+
+
+def _same(x, y):
+    for name in x.__dataclass_fields__:
+        a, b = getattr(x, name), getattr(y, name)
+        assert np.asarray(a).tobytes() == np.asarray(b).tobytes(), name
+
+
+@pytest.mark.parametrize("with_normals", [False, True])
+def test_orientation_is_the_same_at_any_block_size(monkeypatch, with_normals):
+    vertices, faces = _shells()
+    normals = vertex_normals(vertices, faces) if with_normals else None
+    whole = repair.orient(vertices, faces, normals)
+    monkeypatch.setattr(repair, "BLOCK", 7)
+    _same(repair.orient(vertices, faces, normals), whole)
+    assert whole.flip.any() and whole.inward.any()
+
+
+def test_local_frame_in_blocks_is_the_cast_of_the_whole(monkeypatch):
+    rng = np.random.default_rng(1)
+    vertices = rng.normal(size=(1001, 3)) * 1e3 + 5e5
+    unused = np.zeros(len(vertices), dtype=bool)
+    unused[::17] = True
+    center, scale = np.median(vertices, axis=0), 2.0 ** -11
+    whole = (vertices - center) * scale
+    whole[unused] = 0.0
+    monkeypatch.setattr(occluders, "LOCAL_BLOCK", 64)
+    local = occluders._local(vertices, center, scale, unused, float32=True)
+    assert local.dtype == np.float32
+    assert local.tobytes() == whole.astype(np.float32).tobytes()
+    assert padded_float32(local) is local.base  # handed to Embree as it is, padded
+    assert occluders._local(vertices, center, scale, unused, False).tobytes() == whole.tobytes()
+
+
+def test_padded_float32_is_the_cast_with_one_float_more():
+    rows = np.random.default_rng(2).normal(size=(10, 3))
+    flat = padded_float32(rows)
+    assert flat.shape == (31,) and flat[-1] == 0
+    assert flat[:-1].tobytes() == rows.astype(np.float32).tobytes()
+    filled = padded_rows(4)
+    assert padded_float32(filled) is filled.base
+    assert padded_float32(filled[1:]) is not filled.base  # not the whole array: a copy
+
+
+def test_embree_reading_the_mesh_in_place_answers_as_on_its_copies():
+    found = native.binding()
+    if found is None:
+        pytest.skip("aobake._embree was not built or embreex's libembree4 was not found")
+    module, widest = found
+    vertices, faces = _shells()
+    v32 = vertices.astype(np.float32)
+    f32 = np.ascontiguousarray(faces, dtype=np.uint32)
+    f32[-1] = [0, 1, 2]  # the degenerate row as a proper one: any triangle will do
+    copied = module.scene(v32, len(v32), f32, len(f32), True)
+    shared = module.scene(padded_float32(v32), len(v32), f32.copy(), len(f32), True)
+    gc.collect()  # the arrays live on in the capsule only
+    rng = np.random.default_rng(3)
+    n = 4096
+    o = rng.uniform(-2, 4, (n, 3)).astype(np.float32)
+    d = rng.normal(size=(n, 3))
+    d = (d / np.linalg.norm(d, axis=1)[:, None]).astype(np.float32)
+    tfar = rng.choice([0.1, 1.0, 1e30], n).astype(np.float32)
+    answers = []
+    for scene in (copied, shared):
+        hit = np.empty(n, dtype=bool)
+        module.occluded(scene, o, d, tfar, hit, min(8, widest))
+        t, prim = np.empty(n, np.float32), np.empty(n, np.int32)
+        module.intersect(scene, o, d, tfar, t, prim)
+        answers.append((hit.tobytes(), t.tobytes(), prim.tobytes()))
+    assert answers[0] == answers[1]
+    assert 0 < np.frombuffer(answers[0][0], bool).mean() < 1
+    del copied, shared
+    gc.collect()  # the capsules release the scene, then the arrays
+
+
+def test_front_face_normals_are_read_from_the_scene_without_a_copy():
+    vertices, faces = _shells()
+    normals = face_normals(vertices, faces)
+    backend = EmbreeBackend(vertices, faces, normals, 1e-6)
+    assert backend._face_normals is normals
+    o = np.zeros((3, 3), np.float32)
+    d = np.eye(3, dtype=np.float32)
+    t, prim, rows = backend.intersect_normals(o, d, np.full(3, 10, np.float32))
+    assert rows.dtype == np.float32
+    assert rows.tobytes() == normals.astype(np.float32)[np.maximum(prim, 0)].tobytes()
+
+
+@pytest.mark.parametrize("mode", ["angle", "area", "file"])
+def test_one_pass_normals_equal_the_two_pass_ones(mode):
+    vertices, faces = _shells()
+    scene = make_scene(vertices, faces, None, mode, fix_normals="off")
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)  # make_scene's frame
+    local = (vertices - 0.5 * (lo + hi)) * 2.0 ** -np.frexp((hi - lo).max())[1]
+    expected = vertex_normals(local, faces, "area" if mode == "area" else "angle")
+    assert scene.vertex_normals.tobytes() == expected.tobytes()
+    assert scene.face_normals.tobytes() == face_normals(local, faces).tobytes()
+
+
+def test_a_single_mesh_file_is_not_copied_on_load(tmp_path):
+    mesh = trimesh.creation.icosphere(3)
+    path = tmp_path / "sphere.ply"
+    mesh.export(path)
+    scene = load_scene(path)
+    assert scene.faces.dtype == np.int64 and scene.faces.flags.c_contiguous
+    assert scene.names is None  # nothing named: no per-face name index was made
+    assert np.array_equal(scene.faces, mesh.faces)
