@@ -1,14 +1,19 @@
-"""Peak resident memory per unique triangle: the ogre subdivided to ~2M and ~8M triangles.
+"""Peak resident memory per unique triangle: the ogre subdivided to ~2M and ~8M triangles,
+and sets of ogres placed as instances.
 
     python benchmarks/bench_memory.py [--cases imports,floor,vertices-2m,vertices-8m,lightmap-2m]
-        [--rays 64] [--lightmap-rays 16] [--threads 2] [--before TREE] [--repeat 1]
-        [--breakdown] [--meshes /tmp/aobake_memory] [--max-mib 8192] [--json OUT.json]
+        [--rays 64] [--lightmap-rays 16] [--instance-rays 4] [--threads 2] [--before TREE]
+        [--repeat 1] [--breakdown] [--meshes /tmp/aobake_memory] [--max-mib 8192]
+        [--json OUT.json]
 
-Every case runs in a fresh interpreter, and its peak is that process's own (``os.wait4``'s
-``ru_maxrss``: everything it ever held resident, imports included), with its wall and CPU
-seconds.  Bytes per triangle are that peak over the mesh's unique triangles: the issue's
-measure (1.09 GB for the 2M-triangle per-vertex bake, ~550 bytes a triangle).  A case
-whose process grows past ``--max-mib`` is stopped and reported so (the machine is shared).
+Every case runs in a fresh interpreter, and its peak is that process's own high-water mark
+(``VmHWM`` of /proc/self/status, read as the case ends: everything it ever held resident,
+imports included; ``os.wait4``'s ``ru_maxrss`` is kept beside it, but on Linux it also
+counts the parent's resident size when it forked), with its wall and CPU seconds
+(``os.wait4``).  Bytes per triangle are that peak over the mesh's unique triangles: the
+issue's measure (1.09 GB for the 2M-triangle per-vertex bake, ~550 bytes a triangle).  A
+case whose process grows past ``--max-mib`` is stopped and reported so (the machine is
+shared).
 
 * ``vertices-2m``, ``vertices-8m``: ``aobake.bake`` of the ogre (../shared/meshes)
   subdivided twice (1,984,128 triangles) and three times (7,936,512) by trimesh, written
@@ -21,6 +26,10 @@ whose process grows past ``--max-mib`` is stopped and reported so (the machine i
   it, the file is flattened to 124M triangles and the case stops at ``--max-mib``) with
   every node occluding: the instancing work's row (Embree instances, ``aobake.instances``;
   its own benchmark measures more).
+* ``instances-all-N`` (not run unless named; any N): N nodes sharing the ogre's mesh, every
+  one baked (``aobake.bake(path)``), ``--instance-rays`` per vertex (4: the memory does not
+  depend on it).  Its row also gives the bytes of the result's own arrays (positions,
+  faces, normals, rays, values: the outputs) and the peak less them.
 * ``floor``: trimesh's load of the 2M PLY plus a bare Embree scene of it (embreex,
   committed): what any tool holding that mesh and its BVH needs, the issue's 490 MB.
 * ``imports``: the interpreter with aobake's imports (numpy, trimesh, embreex, scipy):
@@ -34,10 +43,11 @@ side by side in one run.  The machine is shared: compare CPU seconds and rows of
 ``--breakdown`` runs the 2M per-vertex bake once more, its stages one after another (the
 bake overlaps the Embree build with the vertex sampling; here they are apart), and
 prints where the bytes are: each stage's peak (VmHWM reset before it) and the arrays it
-leaves, by explicit ``nbytes`` accounting (Embree's BVH and buffers: the build's resident
-growth less the arrays Python holds).  Its child runs with glibc's mmap threshold fixed
-(``MALLOC_MMAP_THRESHOLD_``), so that a freed array leaves the resident set and the
-growth of a stage is what it keeps; the case rows run with the allocator's defaults.
+leaves, by explicit ``nbytes`` accounting (Embree's BVH: the build's resident growth less
+the arrays Python holds and the vertex and index arrays Embree reads in place).  Its child
+runs with glibc's mmap threshold fixed (``MALLOC_MMAP_THRESHOLD_``), so that a freed array
+leaves the resident set and the growth of a stage is what it keeps; the case rows run with
+the allocator's defaults.
 """
 
 from __future__ import annotations
@@ -77,9 +87,9 @@ def mesh_path(folder: Path, size: str) -> Path:
     return path
 
 
-def instanced_path(folder: Path) -> Path:
-    """INSTANCES nodes on a grid sharing the ogre's one mesh, as .glb (made once)."""
-    path = folder / f"ogre_x{INSTANCES}.glb"
+def instanced_path(folder: Path, count: int = INSTANCES) -> Path:
+    """``count`` nodes on a grid sharing the ogre's one mesh, as .glb (made once)."""
+    path = folder / f"ogre_x{count}.glb"
     if path.exists():
         return path
     import numpy as np
@@ -89,10 +99,10 @@ def instanced_path(folder: Path) -> Path:
     vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float32)
     faces = np.ascontiguousarray(mesh.faces, dtype=np.uint32)
     step = 1.2 * float((vertices.max(0) - vertices.min(0)).max())
-    side = int(np.ceil(INSTANCES ** 0.5))
+    side = int(np.ceil(count ** 0.5))
     nodes = [{"name": f"n{i}", "mesh": 0,
               "translation": [step * (i % side), 0.0, step * (i // side)]}
-             for i in range(INSTANCES)]
+             for i in range(count)]
     blob = vertices.tobytes() + faces.tobytes()
     document = {
         "asset": {"version": "2.0"},
@@ -108,7 +118,7 @@ def instanced_path(folder: Path) -> Path:
         "meshes": [{"name": "ogre", "primitives": [{"attributes": {"POSITION": 0},
                                                     "indices": 1}]}],
         "nodes": nodes,
-        "scenes": [{"nodes": list(range(INSTANCES))}],
+        "scenes": [{"nodes": list(range(count))}],
         "scene": 0,
     }
     text = json.dumps(document).encode()
@@ -178,10 +188,31 @@ def child(case: str, args) -> dict:
         scene = load_scene(str(instanced_path(meshes)), bake=("n0",))
         result = aobake.bake(scene, rays=args.rays, threads=args.threads, bake=("n0",))
         out.update(triangles=len(result.faces), rays=int(result.report["rays_cast"]),
-                   timings=result.report["timings"])
+                   timings=result.report["timings"], outputs=_outputs(result),
+                   instances=INSTANCES, baked=1)
+    elif case.startswith("instances-all-"):
+        count = int(case.rsplit("-", 1)[1])
+        result = aobake.bake(str(instanced_path(meshes, count)), rays=args.instance_rays,
+                             threads=args.threads)
+        out.update(triangles=len(result.faces), rays=int(result.report["rays_cast"]),
+                   timings=result.report["timings"], outputs=_outputs(result),
+                   instances=count, baked=count)
     out["wall_s"] = time.perf_counter() - clock
     out["hwm"] = _status("VmHWM")
     return out
+
+
+def _outputs(result) -> int:
+    """Bytes of a per-vertex result's own arrays: positions, faces, normals, rays and the
+    values (what the bake hands back and the writers write)."""
+    arrays = [result.positions, result.faces, result.normals, result.rays,
+              *result.values.values()]
+    seen, total = set(), 0
+    for array in arrays:
+        if array is not None and id(array) not in seen:
+            seen.add(id(array))
+            total += int(array.nbytes)
+    return total
 
 
 def breakdown(args) -> dict:
@@ -231,12 +262,21 @@ def breakdown(args) -> dict:
         held("load", f"scene.names[{kind}]", index)
     built = stage("occluders", lambda: occluder_stage.build(scene, config))
     growth = stages[-1]["after"] - stages[-1]["before"]
-    normals32 = getattr(built.backend, "_face_normals", None)
+    normals = getattr(built.backend, "_face_normals", None)
     held("occluders", "scene.used (cached)", scene.used)
-    held("occluders", "backend._face_normals", normals32, "float32 copy for --backfaces ignore")
-    python_held = scene.used.nbytes + (0 if normals32 is None else normals32.nbytes)
-    arrays.append({"stage": "occluders", "array": "Embree (BVH, vertex and index buffers)",
-                   "bytes": max(growth - python_held, 0), "dtype": "native",
+    own = normals is scene.face_normals
+    held("occluders", "backend._face_normals", None if own else normals,
+         "the scene's own rows, cast per hit (--backfaces ignore): no copy" if own
+         else "copy for --backfaces ignore")
+    python_held = scene.used.nbytes + (0 if own or normals is None else normals.nbytes)
+    # the float32 vertices (one float of padding) and uint32 faces Embree reads in place
+    # (held by the scene's capsule, not by Python)
+    buffers = (3 * len(scene.vertices) + 1) * 4 + 12 * len(scene.faces)
+    arrays.append({"stage": "occluders", "array": "Embree's vertex and index arrays",
+                   "bytes": buffers, "dtype": "float32 (v, 3) + uint32 (f, 3)",
+                   "note": "read in place by Embree (shared buffers)"})
+    arrays.append({"stage": "occluders", "array": "Embree's BVH",
+                   "bytes": max(growth - python_held - buffers, 0), "dtype": "native",
                    "note": "resident growth of the build less the arrays above"})
     target = VertexTarget()
     plan = stage("sample", lambda: target.sample(scene, config, lambda: built, args.threads,
@@ -326,9 +366,10 @@ def _wait(command, environment, tree, cap: int):
 
 def measure(tree: Path, case: str, args, env=None) -> dict:
     """``case`` in a fresh interpreter importing aobake from ``tree``: its record plus its
-    peak (``ru_maxrss``) and CPU seconds, from ``os.wait4``."""
+    peak (its own VmHWM) and CPU seconds (``os.wait4``)."""
     command = [sys.executable, __file__, "--child", case, "--meshes", args.meshes,
                "--rays", str(args.rays), "--lightmap-rays", str(args.lightmap_rays),
+               "--instance-rays", str(args.instance_rays),
                "--threads", str(args.threads)]
     environment = dict(os.environ, PYTHONPATH=str(tree), **(env or {}))
     clock = time.perf_counter()
@@ -341,8 +382,13 @@ def measure(tree: Path, case: str, args, env=None) -> dict:
         lines = stderr.decode(errors="replace").strip().splitlines()
         return {"case": case, "tree": str(tree), "error": lines[-1] if lines else f"exit {code}"}
     record = json.loads(stdout.decode().strip().splitlines()[-1])
+    # The peak is the child's own VmHWM, read as it ends: ru_maxrss also counts the
+    # parent's resident size when it forked (Linux carries the old image's high-water mark
+    # across exec), which for a parent that has just written a .glb is above a small case's
+    # own peak.
     record.update(tree=str(tree), process_wall_s=time.perf_counter() - clock,
-                  peak=usage.ru_maxrss * 1024, cpu_s=usage.ru_utime + usage.ru_stime)
+                  peak=record.get("hwm", usage.ru_maxrss * 1024), ru_maxrss=usage.ru_maxrss * 1024,
+                  cpu_s=usage.ru_utime + usage.ru_stime)
     return record
 
 
@@ -377,6 +423,17 @@ def print_cases(rows: list, trees: list) -> None:
               f"{row['wall_s']:.1f} | {row['cpu_s']:.1f} | {speed} |")
     for tree, peak in imports.items():
         print(f"\nimports alone ({Path(tree).name}): {_mib(peak)} MiB")
+    placed = [r for r in rows if "outputs" in r and "error" not in r]
+    if placed:
+        print("\n| case | tree | instances | baked | baked triangles | peak RSS MiB | outputs "
+              "MiB | peak less outputs MiB | less imports too MiB | wall s |")
+        print("|---|---|---|---|---|---|---|---|---|---|")
+        for row in placed:
+            rest = row["peak"] - row["outputs"]
+            print(f"| {row['case']} | {Path(row['tree']).name} | {row['instances']:,} | "
+                  f"{row['baked']:,} | {row['triangles']:,} | {_mib(row['peak'])} | "
+                  f"{_mib(row['outputs'])} | {_mib(rest)} | "
+                  f"{_mib(rest - imports.get(row['tree'], 0))} | {row['wall_s']:.1f} |")
     if len(trees) == 2:
         print("\n| case | peak this / before | CPU s this / before | wall s this / before |")
         print("|---|---|---|---|")
@@ -416,6 +473,9 @@ def main(argv=None) -> int:
                         help=f"some of {','.join(CASES)}")
     parser.add_argument("--rays", type=int, default=64)
     parser.add_argument("--lightmap-rays", type=int, default=16)
+    parser.add_argument("--instance-rays", type=int, default=4,
+                        help="rays per vertex of the instances-all-N cases (memory does not "
+                             "depend on it; N ogres all baked are N x 62k vertices)")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--before", type=Path, default=None,
                         help="another checkout to run every case on too (alternating)")
@@ -432,7 +492,8 @@ def main(argv=None) -> int:
         print(json.dumps(record))
         return 0
     cases = [c for c in args.cases.split(",") if c]
-    unknown = set(cases) - set(CASES)
+    unknown = {c for c in cases if c not in CASES and not (
+        c.startswith("instances-all-") and c.rsplit("-", 1)[1].isdigit())}
     if unknown:
         parser.error(f"unknown cases {sorted(unknown)}; choose from {CASES}")
     meshes = Path(args.meshes)
@@ -443,6 +504,8 @@ def main(argv=None) -> int:
             mesh_path(meshes, "8m")
         if case == "instances":
             instanced_path(meshes)
+        if case.startswith("instances-all-"):
+            instanced_path(meshes, int(case.rsplit("-", 1)[1]))
     trees = [ROOT] + ([args.before.resolve()] if args.before else [])
     print(f"load average {os.getloadavg()[0]:.1f}", flush=True)
     rows = []
