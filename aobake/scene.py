@@ -65,8 +65,8 @@ def release_freed_memory() -> None:
     """Hand the pages of freed heap blocks back to the system (glibc's ``malloc_trim(0)``;
     nothing where the C library has none).
 
-    glibc serves arrays up to 32 MiB from its heap once a larger one has been freed (its
-    mmap threshold follows the frees), and keeps the holes they leave resident: after the
+    glibc raises its mmap threshold to the size of each large block freed (up to 32 MiB), so
+    later arrays below it come from its heap, and keeps the holes they leave resident: after the
     loader's temporaries are freed, ~90 MiB of a 2M-triangle mesh's load stayed in the
     process and under every later stage's peak (benchmarks/bench_memory.py).  Called
     where a stage's temporaries have just been freed (the end of a load and of the
