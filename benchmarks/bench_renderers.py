@@ -4,30 +4,41 @@ test.
 
     python benchmarks/bench_renderers.py                       # still life, 160x90
     python benchmarks/bench_renderers.py --mesh M.obj --size 96x54 --budgets 16 64 256
+    python benchmarks/bench_renderers.py --aobake joint positions:16 --tools aobake
     AOBAKE_BLENDER_PYTHON=/path/to/bpy/python python benchmarks/bench_renderers.py
 
 The view: ``aobake view MESH --pixel-filter box`` (the mean AO over each pixel, what a
 box-filtered renderer computes), exported with ``--export-camera`` / ``--export-mitsuba``
 and rendered by each tool from those files (docs/renderers.md).  The reference is an aobake
-view with many more rays (cached in the temporary directory); each row's error is the
-per-pixel RMSE against it over the pixels every image covers fully, with the reference's
-own noise taken out: sqrt(max(0, mean(e^2) - mean(se_ref^2))).
+view with many more rays (the joint estimator, by default, at another seed; cached in the
+temporary directory); each row's error is the per-pixel RMSE against it over the pixels
+every image covers fully, with the reference's own noise taken out: sqrt(max(0, mean(e^2)
+- mean(se_ref^2))).  The errors are deterministic (fixed seeds): a rerun prints the same;
+the seconds are indications, exact only on a quiet machine.
 
-Budgets are rays per pixel: aobake's ``--rays`` (over ``--pixel-samples`` positions), a
-renderer's samples per pixel (each sample one primary ray and one AO ray: Mitsuba's direct
-integrator with one BSDF sample, Cycles' AO pass).  Times are the tool's own: aobake's
-report (load, BVH, trace), Mitsuba's load_file + render (its fastest CPU variant that runs
-here; the LLVM variant's first render also compiles its kernels, timed apart), Cycles'
-render call inside Blender (BVH build and the Combined pass it cannot skip, kept cheap:
-no bounces, a black world).  Process start-up and imports are left out for all three.
+aobake's series (``--aobake``): ``joint`` (the default box estimator of the ray-traced
+method, ``--box-sampling joint``: --rays AO rays per pixel, 4 from each of rays/4 positions,
+positions and directions stratified together; aobake.targets.view_box), and for
+comparison ``positions:S`` (``--box-sampling positions --pixel-samples S``: each position a
+sample point with rays/S rays) and ``positions:rays`` (one AO ray per position, at most
+256 positions).
+
+Budgets are AO rays per pixel: aobake's ``--rays``, a renderer's samples per pixel (each
+sample one primary ray and one AO ray: Mitsuba's direct integrator with one BSDF sample,
+Cycles' AO pass; aobake's joint estimator casts one primary ray per 4 AO rays).  Times
+are the tool's own: aobake's report (load, BVH, trace), Mitsuba's load_file + render (its
+fastest CPU variant that runs here; the LLVM variant's first render also compiles its
+kernels, timed apart), Cycles' render call inside Blender (BVH build and the Combined pass
+it cannot skip, kept cheap: no bounces, a black world).  Process start-up and imports are
+left out for all three.
 
 Time to the target error: between the two budgets whose errors bracket it (log error
 against log budget; quasi-Monte Carlo samplers fall faster than 1/sqrt(rays), so no slope
 is assumed), seconds linear in the budget between them; past the largest budget,
 extrapolated from it as 1/sqrt(rays) (said so in the table).  An extrapolation is only
-as good as that law: aobake with a fixed --pixel-samples S stops improving at the error of
-S positions over the pixel's area (S = 16: about 0.010 on the still life at 160x90), which
-more rays per position do not reduce.
+as good as that law: aobake's ``positions:S`` stops improving at the error of S positions
+over the pixel's area (S = 16: about 0.010 on the still life at 160x90), which more rays
+per position do not reduce.
 
 The machine may be shared: each row records the other work on the cores meanwhile (the
 busy time of every CPU from /proc/stat less this process's and its children's CPU time,
@@ -56,7 +67,7 @@ ROOT = Path(__file__).resolve().parent.parent
 BLENDER_SCRIPT = ROOT / "tests" / "blender_renderers.py"
 #: other work (cores) above which a row is "not comparable"
 LOAD_THRESHOLD = 0.3
-#: the most positions per pixel of aobake's "rays" series (a point each: memory)
+#: the most positions per pixel of aobake's "positions:rays" series (a point each: memory)
 MAX_POSITIONS = 256
 
 
@@ -97,17 +108,30 @@ def _covered(channels) -> np.ndarray:
     return np.asarray(channels["coverage"]) == 1.0
 
 
-def aobake_row(mesh, camera, budget, positions, threads, seed=0):
+def series_options(series: str, budget: int) -> dict:
+    """``bake_view``'s box options of an aobake series at ``budget`` rays per pixel:
+    ``joint``, ``positions:S`` or ``positions:rays``."""
+    if series == "joint":
+        return {"box_sampling": "joint"}
+    kind, _, positions = series.partition(":")
+    if kind != "positions" or not positions:
+        raise SystemExit(f"--aobake {series!r}: joint, positions:S or positions:rays")
+    count = min(budget, MAX_POSITIONS) if positions == "rays" else int(positions)
+    return {"box_sampling": "positions", "pixel_samples": count}
+
+
+def aobake_row(mesh, camera, budget, options: dict, threads, seed=0):
     import aobake
 
     with Load() as load:
         result = aobake.bake_view(str(mesh), camera=camera, rays=budget,
-                                  pixel_filter="box", pixel_samples=positions,
-                                  threads=threads, seed=seed)
+                                  pixel_filter="box", threads=threads, seed=seed, **options)
+    footprint = result.report["camera"]["pixel_footprint"]
     return {"image": np.asarray(result.channels["ao"], dtype=np.float64),
             "full": _covered(result.channels), "seconds": result.report["wall_time_s"],
             "cpu_s": load.cpu_s, "others": load.others, "load1": load.load1,
-            "note": f"{positions} positions"}
+            "note": f"{footprint['estimator']}: {footprint['positions']} positions, "
+                    f"{result.report['rays_cast']} AO rays"}
 
 
 def mitsuba_variant() -> tuple[str | None, str]:
@@ -185,20 +209,22 @@ def cycles_rows(glb, budgets, threads, work):
 
 # ---- the table -------------------------------------------------------------------------------
 
-def reference(mesh, camera, rays, positions, threads, cache: Path):
-    """aobake's view with ``rays`` per pixel (cached by mesh, camera and settings)."""
+def reference(mesh, camera, rays, series, threads, cache: Path):
+    """aobake's view with ``rays`` per pixel, ``series`` sampled (cached by mesh, camera
+    and settings)."""
     import aobake
 
+    options = series_options(series, rays)
     key = hashlib.sha256(json.dumps([str(mesh), Path(mesh).stat().st_size,
                                      camera.world_to_view().tolist(), camera.fov_y,
-                                     camera.width, camera.height, rays, positions, 987654321,
+                                     camera.width, camera.height, rays, options, 987654321,
                                      aobake.__version__]).encode()).hexdigest()[:12]
     path = cache / f"aobake_renderers_ref_{key}.npz"
     if path.is_file():
         data = np.load(path)
         return data["ao"], data["se"], data["full"]
     result = aobake.bake_view(str(mesh), camera=camera, rays=rays, pixel_filter="box",
-                              pixel_samples=positions, threads=threads, seed=987654321)
+                              threads=threads, seed=987654321, **options)
     ao = np.asarray(result.channels["ao"], dtype=np.float64)
     se = np.asarray(result.channels["ao_stderr"], dtype=np.float64)
     full = _covered(result.channels)
@@ -232,7 +258,13 @@ def time_to(rows, target, key="seconds"):
             return budget, a[key] + fraction * (b[key] - a[key]), "interpolated"
     last = rows[-1]
     budget = last["budget"] * (last["rmse"] / target) ** 2
-    return budget, last[key] * budget / last["budget"], "extrapolated"
+    how = "extrapolated"
+    if len(rows) > 1:  # a series whose error has stopped falling: the law does not hold
+        before = rows[-2]
+        if last["rmse"] > before["rmse"] * (before["budget"] / last["budget"]) ** 0.25:
+            how = (f"extrapolated, but its error stalls ({before['rmse']:.4f} -> "
+                   f"{last['rmse']:.4f}): it may not get there")
+    return budget, last[key] * budget / last["budget"], how
 
 
 def main(argv=None) -> int:
@@ -240,14 +272,15 @@ def main(argv=None) -> int:
     parser.add_argument("--mesh", type=Path, default=ROOT / "assets" / "still_life.obj")
     parser.add_argument("--size", default="160x90")
     parser.add_argument("--budgets", type=int, nargs="+", default=[16, 64, 256, 1024])
-    parser.add_argument("--positions", nargs="+", default=["16", "rays"],
-                        help="aobake's --pixel-samples (primary rays per pixel), one series "
-                             "each: a number, or 'rays' for one AO ray per position (as a "
-                             "renderer's sample), at most 256")
+    parser.add_argument("--aobake", nargs="+", default=["joint"],
+                        help="aobake's series: joint (the default box estimator), "
+                             "positions:S (S positions, rays/S rays each) or positions:rays "
+                             "(one AO ray per position, at most 256)")
     parser.add_argument("--reference-rays", type=int, default=16384)
-    parser.add_argument("--reference-positions", type=int, default=256)
-    parser.add_argument("--target", type=float, default=0.01,
-                        help="per-pixel RMSE to reach (default 0.01)")
+    parser.add_argument("--reference", default="joint",
+                        help="the reference's sampling, as an --aobake series")
+    parser.add_argument("--target", type=float, nargs="+", default=[0.01, 0.005],
+                        help="per-pixel RMSEs to reach (default 0.01 and 0.005)")
     parser.add_argument("--threads", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--tools", nargs="+", default=["aobake", "mitsuba", "cycles"])
     parser.add_argument("--json", type=Path, help="also write the rows here")
@@ -262,32 +295,31 @@ def main(argv=None) -> int:
     work = Path(tempfile.mkdtemp(prefix="aobake_bench_renderers_"))
     # the default view of the mesh, as aobake view frames it: one view for every tool
     probe = aobake.bake_view(str(args.mesh), size=(width, height), rays=1,
-                             pixel_filter="box", pixel_samples=1)
+                             pixel_filter="box")
     camera = probe.camera
     camera_export.export_view(probe, str(args.mesh), gltf=work / "view.glb",
                               mitsuba=work / "view.xml")
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} logical "
           f"CPUs, {args.threads} threads each; load average {os.getloadavg()[0]:.2f}")
     print(f"view: {args.mesh.name} {width}x{height}, box filter; reference: aobake "
-          f"{args.reference_rays} rays over {args.reference_positions} positions per pixel "
-          "(cached)")
+          f"{args.reference_rays} rays per pixel, {args.reference} (cached)")
     clock = time.perf_counter()
     ref, ref_se, ref_full = reference(args.mesh, camera, args.reference_rays,
-                                      args.reference_positions, args.threads,
+                                      args.reference, args.threads,
                                       Path(tempfile.gettempdir()))
     print(f"reference ready in {time.perf_counter() - clock:.1f} s; its noise rms "
           f"{math.sqrt(np.mean(ref_se[ref_full] ** 2)):.5f}")
 
     tools = {}
     if "aobake" in args.tools:
-        for series in args.positions:
+        for series in args.aobake:
             rows = []
             for budget in args.budgets:
-                positions = min(budget, MAX_POSITIONS) if series == "rays" else int(series)
-                row = aobake_row(args.mesh, camera, budget, positions, args.threads)
+                row = aobake_row(args.mesh, camera, budget, series_options(series, budget),
+                                 args.threads)
                 row["budget"] = budget
                 rows.append(row)
-            tools[f"aobake view (S={series})"] = rows
+            tools[f"aobake view ({series})"] = rows
     skipped = []
     if "mitsuba" in args.tools:
         variant, why = mitsuba_variant()
@@ -310,7 +342,7 @@ def main(argv=None) -> int:
         for row in rows:
             mask &= row["full"].reshape(ref.shape)
     print(f"pixels compared: {int(mask.sum())} (covered fully by every image)\n")
-    header = (f"{'tool':24} {'rays/px':>8} {'wall s':>8} {'cpu s':>8} {'rmse':>8} "
+    header = (f"{'tool':28} {'rays/px':>8} {'wall s':>8} {'cpu s':>8} {'rmse':>8} "
               f"{'others':>7}  comparable")
     print(header)
     print("-" * len(header))
@@ -320,16 +352,21 @@ def main(argv=None) -> int:
             row["rmse"] = error(row, ref, ref_se, mask)
             comparable = row["others"] <= LOAD_THRESHOLD
             row["comparable"] = comparable
-            print(f"{name:24} {row['budget']:8d} {row['seconds']:8.3f} {row['cpu_s']:8.2f} "
+            print(f"{name:28} {row['budget']:8d} {row['seconds']:8.3f} {row['cpu_s']:8.2f} "
                   f"{row['rmse']:8.5f} {row['others']:7.2f}  "
                   f"{'yes' if comparable else 'NO (load)'}  {row['note']}")
-        budget, seconds, how = time_to(rows, args.target)
-        cpu = time_to(rows, args.target, "cpu_s")[1]
-        summary.append((name, budget, seconds, cpu, how, all(r["comparable"] for r in rows)))
-    print(f"\ntime to per-pixel RMSE {args.target}:")
-    for name, budget, seconds, cpu, how, comparable in summary:
-        print(f"  {name:24} {budget:9.0f} rays/px  {seconds:8.2f} s wall  {cpu:8.2f} s cpu  "
-              f"{how}{'' if comparable else '   (not comparable: load)'}")
+        for target in args.target:
+            budget, seconds, how = time_to(rows, target)
+            cpu = time_to(rows, target, "cpu_s")[1]
+            summary.append((target, name, budget, seconds, cpu, how,
+                            all(r["comparable"] for r in rows)))
+    for target in args.target:
+        print(f"\ntime to per-pixel RMSE {target}:")
+        for at, name, budget, seconds, cpu, how, comparable in summary:
+            if at != target:
+                continue
+            print(f"  {name:28} {budget:9.0f} rays/px  {seconds:8.2f} s wall  {cpu:8.2f} s "
+                  f"cpu  {how}{'' if comparable else '   (not comparable: load)'}")
     for line in skipped:
         print(f"skipped: {line}")
     if args.json:

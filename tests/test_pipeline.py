@@ -78,7 +78,7 @@ def test_config_round_trips_through_a_report_with_every_field_changed():
                          ssao_blur_depth=2.0, ssao_blur_normal=20.0, crytek_normalise="none",
                          crytek_range="depth", gtao_slices=2, gtao_steps=8,
                          gtao_multiplier=1.0, gtao_falloff=0.5, heightfield_thickness=0.1,
-                         pixel_filter="box", pixel_samples=8,
+                         pixel_filter="box", pixel_samples=8, box_sampling="positions",
                          source="high.obj", cage_offset=0.25, low_occludes=True, alpha_cutout=True,
                          exclude=("a*",),
                          receive_only=("b",), occluder_only=("c",), instances="flatten")

@@ -45,8 +45,8 @@ needs_blender = pytest.mark.skipif(not BLENDER, reason="AOBAKE_BLENDER_PYTHON (a
 #: a view of the test scene: every pixel sees the floor
 LOOK = ["--look-from", "2.5,-3.5,4.5", "--look-at", "0.3,0,0.4", "--up", "0,0,1", "--fov", "35"]
 SIZE = (32, 24)
-#: independent renders whose spread is a render's stderr, and aobake's positions per pixel
-RENDERS, POSITIONS = 16, 16
+#: independent renders whose spread is a render's stderr
+RENDERS = 16
 #: Blender's import: glTF +Y up -> Blender +Z up, Blender (x, y, z) = glTF (x, -z, y)
 GLTF_TO_BLENDER = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
 
@@ -290,10 +290,12 @@ def test_the_exports_and_the_view_appear_together_or_not_at_all(tmp_path, monkey
 # ---- the renderers ---------------------------------------------------------------------------
 
 def _reference(tmp_path, pixel_filter="box"):
-    """aobake's view of the test scene (random positions: their spread has 15 dof), the
-    glTF and the Mitsuba scene beside it."""
-    mesh, report = _view(tmp_path, "--pixel-filter", pixel_filter, "--pixel-samples",
-                         POSITIONS, "--sampler", "random", "--rays", 256,
+    """aobake's view of the test scene (the joint box estimator with --sampler random: 1024
+    i.i.d. samples per pixel, whose spread has 1023 dof; its noise then below a render's,
+    so that a Gaussian filter's blur stands out), the glTF and the Mitsuba scene beside
+    it."""
+    mesh, report = _view(tmp_path, "--pixel-filter", pixel_filter, "--sampler", "random",
+                         "--rays", 1024,
                          "--export-camera", tmp_path / "view.glb",
                          "--export-mitsuba", tmp_path / "view.xml")
     return report

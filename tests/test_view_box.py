@@ -1,5 +1,10 @@
 """``aobake view --pixel-filter box``: each pixel's value estimates the mean AO over its area.
 
+These tests are of ``--box-sampling positions`` (each position a sample point of its own:
+what every method that casts no rays uses) unless they say otherwise; the joint estimator
+(the ray-traced method's default) has its own, tests/test_view_box_stratified.py, on the
+same scene.
+
 The oracle is a scene whose every pixel's area mean is known in closed form.  Seen straight
 down from z = 0.4, a floor strip (z = 0, x < its edge) under an infinite ceiling at height
 h = 0.5, with max distance D = h / sqrt(0.5): the cosine-weighted AO under a parallel
@@ -112,7 +117,8 @@ def test_a_centre_view_says_so_and_is_unchanged():
 
 def test_box_pixels_are_the_pooled_positions_bake_points_values():
     mesh, cam, _ = step_scene(size=(8, 6))
-    config = BakeConfig(rays=16, seed=5, max_distance=D, pixel_filter="box", pixel_samples=8)
+    config = BakeConfig(rays=16, seed=5, max_distance=D, pixel_filter="box", pixel_samples=8,
+                        box_sampling="positions")
     target = ViewTarget(cam)
     view = aobake.bake_view(mesh, config, camera=cam)
     scene = load_scene(mesh)
@@ -144,7 +150,7 @@ def test_coverage_is_the_fraction_of_positions_and_the_g_buffer_stays_at_the_cen
     # bottom 30% the lower strips
     mesh, cam, truths = step_scene(f=0.35, g=0.3)
     view = aobake.bake_view(mesh, camera=cam, rays=4, max_distance=D, pixel_filter="box",
-                            pixel_samples=16, seed=1)
+                            pixel_samples=16, seed=1, box_sampling="positions")
     ch = view.channels
     for region, (cover, _) in truths.items():
         got = ch["coverage"][:, COLUMNS[region]].astype(np.float64)
@@ -163,10 +169,11 @@ def test_coverage_is_the_fraction_of_positions_and_the_g_buffer_stays_at_the_cen
     assert (ch["ao"][:, COLUMNS["right"]][view.covered[:, COLUMNS["right"]]] == 1).all()
 
 
-def test_threads_and_chunks_change_no_bit():
+@pytest.mark.parametrize("sampling", ["positions", "joint"])
+def test_threads_and_chunks_change_no_bit(sampling):
     mesh, cam, _ = step_scene(size=(8, 16), g=0.5)
     options = dict(camera=cam, rays=8, max_distance=D, pixel_filter="box", pixel_samples=8,
-                   seed=3)
+                   seed=3, box_sampling=sampling)
     one = aobake.bake_view(mesh, threads=1, **options)
     two = aobake.bake_view(mesh, threads=2, chunk_rays=64, **options)
     for name, channel in one.channels.items():
@@ -181,13 +188,15 @@ def test_command_line_report_camera_file_and_compare(tmp_path):
               "--size", "8x12", "--max-distance", str(D)]
     truth, report = tmp_path / "truth.exr", tmp_path / "truth.json"
     result = run_cli("view", path, "--out", truth, "--report", report, "--pixel-filter", "box",
-                     "--pixel-samples", "4", "--rays", "16", *camera)
+                     "--box-sampling", "positions", "--pixel-samples", "4", "--rays", "16",
+                     *camera)
     assert result.exit_code == 0, result.output
     recorded = json.loads(report.read_text())
     assert recorded["config"]["pixel_filter"] == "box"
     assert recorded["config"]["pixel_samples"] == 4
     assert recorded["camera"]["pixel_filter"] == "box"
     assert recorded["camera"]["pixel_footprint"]["positions"] == 4
+    assert recorded["camera"]["pixel_footprint"]["estimator"] == "positions"
     side = json.loads((tmp_path / "truth.camera.json").read_text())
     assert side["camera"]["pixel_filter"] == "box"
     look = tmp_path / "look.exr"
@@ -200,6 +209,7 @@ def test_command_line_report_camera_file_and_compare(tmp_path):
 
 @pytest.mark.parametrize("args, code, message", [
     (["-q", "bent_normal"], 2, "not -q bent_normal"),
+    (["--box-sampling", "stripes"], 2, "stripes"),
     (["--tolerance", "0.05"], 2, "not with --pixel-filter box"),
     (["--method", "gtao"], 2, "not with --pixel-filter box"),
 ])
@@ -229,13 +239,15 @@ SCENES = [(0.35, 1.0), (0.9, 0.0), (0.5, 0.5)]
 @pytest.mark.parametrize("positions, rays", [(16, 16), (64, 64)])
 @pytest.mark.parametrize("f, g", SCENES)
 def test_the_interval_covers_the_pixel_mean(sampler, positions, rays, f, g):
+    """(--box-sampling positions; the joint estimator: test_view_box_stratified.py)"""
     """Coverage of the 95% interval and calibration of the stderr over 8 seeds x 128 rows:
     interior pixels, a step inside the pixel, silhouettes."""
     mesh, cam, truths = step_scene(f=f, g=g)
     errors = {region: [] for region in truths}
     for seed in range(8):
         view = aobake.bake_view(mesh, camera=cam, rays=rays, max_distance=D, seed=seed,
-                                sampler=sampler, pixel_filter="box", pixel_samples=positions)
+                                sampler=sampler, pixel_filter="box", pixel_samples=positions,
+                                box_sampling="positions")
         ch = view.channels
         for region, columns in COLUMNS.items():
             seen = ch["coverage"][:, columns] > 0
@@ -252,9 +264,11 @@ def test_the_interval_covers_the_pixel_mean(sampler, positions, rays, f, g):
         assert np.mean(error ** 2) <= 1.3 * np.mean(se ** 2), region
 
 
-def test_pixels_on_faces_that_only_occlude_get_no_information_quietly():
+@pytest.mark.parametrize("sampling", ["joint", "positions"])
+def test_pixels_on_faces_that_only_occlude_get_no_information_quietly(sampling):
     """--occluder-only faces cast no rays: a pixel whose positions all land there holds the
-    no-information values (0.5, stderr 0.5, interval [0, 1]), with no warning on the way."""
+    no-information values (0.5, stderr 0.5, interval [0, 1]), with no warning on the way
+    (joint: the target finds the faces from the patterns, ``view_box.receiving_faces``)."""
     import warnings
     from pathlib import Path
 
@@ -262,7 +276,8 @@ def test_pixels_on_faces_that_only_occlude_get_no_information_quietly():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         view = aobake.bake_view(still_life, size=(24, 18), rays=8, pixel_filter="box",
-                                pixel_samples=4, occluder_only=("floor",))
+                                pixel_samples=4, occluder_only=("floor",),
+                                box_sampling=sampling)
     ch = view.channels
     blind = view.covered & (ch["rays"] == 0)
     assert blind.any() and (view.covered & (ch["rays"] > 0)).any()

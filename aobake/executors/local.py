@@ -23,7 +23,7 @@ class ThreadsExecutor:
     def estimate(self, job, method, plan, threads: int, chunk_rays: int, progress=None):
         """Estimates of every point of ``plan`` (``SamplePoints``) by ``method``."""
         try:
-            if not self.chunk_points:
+            if not self.chunk_points or not len(plan.points):  # (no points: nothing to cut)
                 return method.estimate(plan, threads, chunk_rays, progress)
             # An explicit split runs item by item here too (the same bits: tested).
             parts, done = [], 0

@@ -3,10 +3,12 @@ estimate of.
 
 ``center`` (the default): one primary ray through the pixel's centre, the method's rays at
 its hit; the value is the AO of that one surface point.  ``box``: the pixel's primary rays
-spread over its area, ``--rays`` split over them, so the value estimates the *mean over the
-pixel's area* of the AO (what a renderer that averages its samples over the pixel, Mitsuba's
-or Cycles' box filter, computes), with an error bar for that mean
-(``aobake.targets.view``; docs/conventions.md, "Camera views").
+spread over its area, so the value estimates the *mean over the pixel's area* of the AO
+(what a renderer that averages its samples over the pixel, Mitsuba's or Cycles' box filter,
+computes), with an error bar for that mean (``aobake.targets.view``; docs/conventions.md,
+"Camera views").  ``--box-sampling joint`` (the default, the ray-traced method's:
+``aobake.targets.view_box``) draws the positions and their AO rays' directions together;
+``positions`` makes each of ``--pixel-samples`` positions a sample point of its own.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ from aobake.settings.spec import setting
 
 #: what a pixel's value estimates (``--pixel-filter``)
 PIXEL_FILTERS = ("center", "box")
+#: how a box-filtered pixel is sampled (``--box-sampling``)
+BOX_SAMPLINGS = ("joint", "positions")
 #: the most primary rays per pixel of a box-filtered view (a sample point each)
 MAX_PIXEL_SAMPLES = 1 << 16
 
@@ -28,12 +32,22 @@ class ViewOptions:
     pixel_filter: str = setting(
         "center", "choice", "What a pixel's value is: center (the AO at the surface point "
         "the pixel's centre sees: one primary ray) or box (the mean AO over the pixel's "
-        "area, the estimate a box-filtered renderer makes: --pixel-samples primary rays at "
-        "stratified positions in the pixel, --rays split over them; the covered part's mean "
-        "with coverage as a fraction, and a stderr for that mean).", section="view",
+        "area, the estimate a box-filtered renderer makes: --rays per pixel from positions "
+        "spread over it (--box-sampling); the covered part's mean with coverage as a "
+        "fraction, and a stderr for that mean).", section="view",
         choices=PIXEL_FILTERS, panel="camera")
+    box_sampling: str = setting(
+        "joint", "choice", "--pixel-filter box: joint (the ray-traced method: --rays AO rays "
+        "per pixel, 4 from each of rays/4 positions, fewer where a replicate would get "
+        "fewer than 4 positions, one with --sampler random; positions and directions "
+        "stratified together in --replicates replicates and traced in bulk, as a renderer "
+        "samples a pixel) or positions (--pixel-samples positions, each a sample point with "
+        "ceil(rays / pixel-samples) rays of its own: what a method that casts no rays always "
+        "uses).",
+        section="view", choices=BOX_SAMPLINGS, panel="camera")
     pixel_samples: int = setting(
-        16, "int", "--pixel-filter box: primary rays per pixel, each at its own jittered "
-        "position (stratified in --replicates groups; i.i.d. with --sampler random), each "
-        "casting ceil(rays / pixel-samples) rays. Equal to --rays: every AO ray has its own "
-        "primary ray.", section="view", low=1, high=MAX_PIXEL_SAMPLES, panel="camera")
+        16, "int", "--pixel-filter box --box-sampling positions (and the methods that cast "
+        "no rays): primary rays per pixel, each at its own jittered position (stratified in "
+        "--replicates groups; i.i.d. with --sampler random), each casting ceil(rays / "
+        "pixel-samples) rays.", section="view", low=1, high=MAX_PIXEL_SAMPLES,
+        panel="camera")

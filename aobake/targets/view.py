@@ -8,7 +8,12 @@ camera sees).  The sample-stream id of a pixel is its index r * W + c, so a pixe
 equals ``bake_points`` at its hit point with that id and the same seed.
 
 ``--pixel-filter box``: the value estimates the mean of the AO over the pixel's area, as a
-renderer that averages its samples over the pixel does.  Each pixel casts
+renderer that averages its samples over the pixel does.  With the ray-traced method and
+``--box-sampling joint`` (the default) the target traces every pixel's samples itself:
+positions in the pixel and their AO rays' directions stratified together, in bulk
+(``aobake.targets.view_box``; the method is handed no points, ``finish`` pools the sums).
+Otherwise (``--box-sampling positions``, and every method that casts no rays: the target
+is told the method by ``uses_method``) each pixel casts
 ``--pixel-samples`` primary rays at positions inside it (:class:`Footprint`: R independent
 jittered grids, or i.i.d. positions with ``--sampler random``; a pure function of (seed,
 pixel, position) through ``aobake.rng``), each position that sees the scene is a sample
@@ -78,11 +83,36 @@ class ViewTarget:
         self.camera, self.look, self.gltf = camera, _look(look), _gltf(gltf)
         self.size, self.fov = cameras.check_size(size), fov
 
+    #: the method that will estimate this view's values (``uses_method``), or None when
+    #: not told: a box filter then samples as ``--box-sampling`` says
+    method = None
+
+    def uses_method(self, method: str) -> None:
+        """Told by ``aobake.api.run`` which method estimates the values: the joint box
+        estimator is the ray-traced method's (a method that casts no rays averages its
+        values over positions)."""
+        self.method = method
+
+    def footprint(self, config):
+        """Where this view's primary rays go: ``Footprint`` (the centre, or the positions
+        of a box filter) or ``view_box.Joint`` (the joint box estimator)."""
+        if config.pixel_filter != "box":
+            return Footprint.centre()
+        if config.box_sampling == "joint" and self.method in (None, "rays"):
+            from aobake.targets.view_box import Joint
+
+            return Joint.of(config)
+        return Footprint.of(config)
+
     def rays_per_point(self, config) -> int:
-        """Rays per pixel, or per position of a box-filtered pixel (``--rays`` split over
+        """Rays per pixel (joint box estimator: the pixel's AO rays, ``--rays`` as the
+        sampler rounds it), or per position of a box-filtered pixel (``--rays`` split over
         its ``--pixel-samples`` positions, rounded up)."""
-        if config.pixel_filter == "box":
-            return -(-config.rays // Footprint.of(config).positions)
+        footprint = self.footprint(config)
+        if footprint.estimator == "joint":
+            return footprint.rays
+        if footprint.box:
+            return -(-config.rays // footprint.positions)
         return config.rays
 
     def resolve(self, scene, config) -> cameras.Camera:
@@ -116,9 +146,16 @@ class ViewTarget:
         centre = _surface(scene, config, built, cam.eye, directions[index], t[index],
                           prim[index], ground[index], shading=True)
         box = config.pixel_filter == "box"
+        footprint = self.footprint(config)
         if not box and config.pixel_samples != DEFAULTS["pixel_samples"]:
             warnings.append(f"--pixel-samples {config.pixel_samples} is for --pixel-filter "
                             "box: a centre-filtered view casts one primary ray per pixel")
+        if footprint.estimator == "joint" \
+                and config.pixel_samples != DEFAULTS["pixel_samples"]:
+            warnings.append(f"--pixel-samples {config.pixel_samples} is for --box-sampling "
+                            f"positions: the joint estimator casts {footprint.rays} AO rays "
+                            f"per pixel from {footprint.positions} positions (--rays sets "
+                            "both)")
         if not hit.any() and not box:
             raise InputError(f"{scene.source}: the view sees nothing (no pixel's ray hits the "
                              "scene): check --look-from/--look-at/--fov")
@@ -130,8 +167,11 @@ class ViewTarget:
         if len(scene.faces) > EXACT_IDS:
             warnings.append(f"{scene.source}: {len(scene.faces)} triangles: primitive_id is "
                             f"float32, exact only below {EXACT_IDS}")
+        if footprint.estimator == "joint":
+            timings["primary_s"] = time.perf_counter() - clock
+            return _joint_plan(scene, config, built, cam, footprint, index, t[index], centre,
+                               threads, timings, phase)
         if box:
-            footprint = Footprint.of(config)
             subs = _box_samples(scene, config, built, cam, footprint)
             if not len(subs["pixel"]):
                 raise InputError(f"{scene.source}: the view sees nothing (none of the pixels' "
@@ -187,7 +227,18 @@ class ViewTarget:
         channels["object_id"][:] = objects
         channels["primitive_id"][:] = -1.0
         channels["primitive_id"][index] = gb["prim"]
-        if footprint.box:
+        cast = None if estimates.rays is None else estimates.rays_cast
+        if footprint.estimator == "joint":
+            from aobake.targets import view_box
+
+            fields, rays = view_box.pool(config, footprint, state["sums"], index,
+                                         scene.diagonal)
+            channels["coverage"][:] = state["sums"]["hits"] / footprint.positions
+            cast = int(rays.sum())
+            dark = _dark(fields, rays, scene.source)
+            if dark:
+                warnings.append(dark)
+        elif footprint.box:
             fields, rays = pool(config, footprint, state, estimates, n, scene.diagonal)
             hits = state["hits"]
             channels["coverage"][:] = hits / footprint.positions
@@ -218,7 +269,6 @@ class ViewTarget:
                              "ids": f"float32, exact below {EXACT_IDS}",
                              "where": footprint.gbuffer}
         rays = rays if rays is not None else np.zeros(len(index), np.int32)
-        cast = None if estimates.rays is None else estimates.rays_cast
         return Finished(result, fields, rays, n, cast=cast,
                         report={"camera": record, "pixels_covered": int(len(index))},
                         rays_key="rays_per_pixel")
@@ -301,6 +351,12 @@ class Footprint:
         return self.name == "box"
 
     @property
+    def estimator(self) -> str | None:
+        """``positions`` for a box filter (``view_box.Joint`` is the joint one), None for
+        the centre."""
+        return "positions" if self.box else None
+
+    @property
     def positions(self) -> int:
         """Primary rays per pixel."""
         return self.groups * self.per_group
@@ -316,7 +372,8 @@ class Footprint:
     def record(self, rays_per_position: int) -> dict:
         """The camera record's ``pixel_footprint`` (the same keys for both filters)."""
         if not self.box:
-            return {"positions": 1, "groups": None, "grid": None, "iid": None,
+            return {"estimator": None, "positions": 1, "groups": None, "grid": None,
+                    "iid": None,
                     "rays_per_position": rays_per_position,
                     "where": "the pixel's centre (c + 0.5, r + 0.5)",
                     "value": "the method's value at the surface point the centre ray hits",
@@ -330,8 +387,9 @@ class Footprint:
                   "the spread of the replicates' ratio sum(values) / covered positions "
                   "(linearised: sqrt(sum_g (Y_g - v C_g)^2 / (G (G - 1) Cbar^2)), G - 1 "
                   "degrees of freedom)")
-        return {"positions": self.positions, "groups": self.groups,
-                "grid": None if self.iid else list(self.grid), "iid": self.iid,
+        return {"estimator": "positions", "positions": self.positions,
+                "groups": self.groups, "grid": None if self.iid else list(self.grid),
+                "iid": self.iid,
                 "rays_per_position": rays_per_position, "where": where,
                 "value": "the mean over the covered positions of the method's value at each "
                          "one's hit: the mean of the AO over the part of the pixel that sees "
@@ -436,6 +494,74 @@ def _box_samples(scene, config, built, cam, footprint: Footprint) -> dict:
     subs["group"] = subs["position"] // footprint.per_group
     subs["hits"] = np.bincount(subs["pixel"], minlength=n)
     return subs
+
+
+def _joint_plan(scene, config, built, cam, joint, index, t, centre, threads, timings,
+                phase) -> SamplePoints:
+    """The plan of a view with the joint box estimator: every pixel's rays traced here, in
+    bulk (``aobake.targets.view_box``), so the method is handed no points; ``finish``
+    pools the sums.  ``index``, ``t``, ``centre``: the centre rays' hit pixels, distances
+    and ``_surface``."""
+    from aobake.targets import view_box
+
+    clock = time.perf_counter()
+    if phase is not None:
+        phase("tracing")
+    n = cam.height * cam.width
+    centre_hit = np.zeros(n, dtype=bool)
+    centre_hit[index] = True
+    sums = view_box.trace(scene, config, built, cam, joint, threads, centre_hit,
+                          view_box.receiving_faces(scene, config))
+    covered = np.flatnonzero(sums["hits"] > 0)
+    if not len(covered):
+        raise InputError(f"{scene.source}: the view sees nothing (none of the pixels' "
+                         f"{joint.positions} positions hits the scene): check "
+                         "--look-from/--look-at/--fov")
+    # the G-buffer: the centre's hit, else the covered position nearest the centre
+    out = {"index": covered}
+    k = len(covered)
+    row = np.full(n, -1, dtype=np.int64)
+    row[index] = np.arange(len(index))
+    at = row[covered]
+    at_centre = at >= 0
+    for key, source in (("t", t), ("prim", centre["faces"]), ("points", centre["points"]),
+                        ("ng", centre["ng"]), ("ns", centre["ns"])):
+        out[key] = np.zeros((k,) + source.shape[1:], dtype=source.dtype)
+        out[key][at_centre] = source[at[at_centre]]
+    out["ground"] = np.zeros(k, dtype=bool)
+    out["ground"][at_centre] = centre["faces"][at[at_centre]] < 0
+    missing = np.flatnonzero(~at_centre)
+    if len(missing):
+        pixels, directions, tn, prim, ground = view_box.nearest_hits(sums["context"],
+                                                                     sums["near"])
+        assert np.array_equal(pixels, covered[missing])  # one chosen position each
+        near = _surface(scene, config, built, cam.eye, directions, tn, prim, ground,
+                        shading=True)
+        out["t"][missing] = tn
+        out["prim"][missing] = near["faces"]
+        out["ground"][missing] = ground
+        for key in ("points", "ng", "ns"):
+            out[key][missing] = near[key]
+    # what ran (the report's parameters.kernels): the rays' generator, and no escape
+    # counts (the pixels' sums are taken here)
+    kernels = {"ray_generation": sums.pop("context").compiled,
+               "escape_counts": None}
+    timings["pixels_s"] = time.perf_counter() - clock
+    state = dict(camera=cam, footprint=joint, gbuffer=out, sums=sums)
+    empty = np.zeros((0, 3))
+    # the method gets no points: the rays are traced (a method that would trace points of
+    # its own gets a view with --box-sampling positions: ViewTarget.footprint)
+    return SamplePoints(empty, empty, np.zeros(0, dtype=np.int64), sizes=np.zeros(0),
+                        kernels=kernels, state=state, faces=np.zeros(0, dtype=np.int64),
+                        bary=empty, image=BoxFiltered())
+
+
+def _dark(fields: dict, rays: np.ndarray, source) -> str | None:
+    """``groups.dark_warning`` of a view's pixels (the method estimated no points)."""
+    from aobake.groups import dark_warning
+    from aobake.records import Estimates
+
+    return dark_warning(Estimates(fields, rays), source)
 
 
 def _box_gbuffer(scene, cam, index, t, centre, subs, footprint) -> dict:
