@@ -68,6 +68,7 @@ def test_open_plane_is_fully_open(sampler, backend):
     assert np.all(res.bent_normal[:, 2] > 0.9)
 
 
+@pytest.mark.slow
 def test_inside_closed_box_is_fully_occluded(sampler, backend):
     import trimesh
 

@@ -58,6 +58,7 @@ def _load_objects(path):
 
 
 @pytest.mark.parametrize("name", OBJ_FILES)
+@pytest.mark.slow
 def test_committed_assets_are_what_the_generator_writes(generated, name):
     out_dir, _ = generated
     committed = (ASSETS / name).read_bytes()
@@ -67,6 +68,7 @@ def test_committed_assets_are_what_the_generator_writes(generated, name):
     )
 
 
+@pytest.mark.slow
 def test_generator_is_deterministic(generated, tmp_path):
     out_dir, _ = generated
     _import_generator().main(tmp_path)
@@ -75,6 +77,7 @@ def test_generator_is_deterministic(generated, tmp_path):
 
 
 @pytest.mark.parametrize("name", OBJ_FILES)
+@pytest.mark.slow
 def test_loads_as_one_mesh(generated, name):
     out_dir, counts = generated
     path = out_dir / name

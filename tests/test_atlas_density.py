@@ -224,6 +224,7 @@ def test_pack_fills_holes_with_small_charts():
     assert occupied.max() == 1 and occupied.sum() == 4 * (144 - 36) + 4 * 36
 
 
+@pytest.mark.slow
 def test_chart_masks_hold_every_rasterised_texel(atlases):
     """The packer's marks of a chart (closed overlap, with a margin) hold every texel the
     rasteriser covers after the chart is moved and turned: the chart image of the packed
@@ -282,6 +283,7 @@ def test_bake_reports_coverage_and_density(tmp_path):
     assert density["p5"] <= density["p50"] <= density["p95"]
 
 
+@pytest.mark.slow
 def test_charts_that_fill_the_image_with_padding_alone_get_one_texel_each():
     """480 separate triangles at 64^2 with P = 1: their padding alone ((2P + 1)^2 = 9
     texels each, 4320 of the 66^2 strip) leaves no room for the first guess, so that guess

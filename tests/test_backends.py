@@ -272,6 +272,7 @@ def test_whole_bake_agrees_on_both_backends(backfaces, quantities, monkeypatch):
         assert np.all(gap <= 2 * eps), gap.max()
 
 
+@pytest.mark.slow
 def test_embree_mode_is_recorded_and_checked():
     """--embree-mode: the report says which traversal ran; fast traces the same rays (on a
     closed sphere both give the same bits: no crack for a ray to slip through)."""

@@ -221,6 +221,7 @@ def rocks(tmp_path_factory):
 
 
 @needs_native
+@pytest.mark.slow
 def test_compare_scores_some_instances_against_the_flattened_set(rocks, tmp_path):
     """A bake of two nodes (traced as Embree instances) against the flattened bake of the
     whole set: matched by node and vertex index; the NPZ places each vertex in the set."""
@@ -243,6 +244,7 @@ def test_compare_scores_some_instances_against_the_flattened_set(rocks, tmp_path
         compare(tmp_path / "flat.npz", tmp_path / "other.npz")
 
 
+@pytest.mark.slow
 def test_compare_places_a_node_of_a_set_loaded_flat(tmp_path):
     """A glTF file that places no mesh twice loads flat (its bake has no instance layout):
     a bake of one node of it is lined up by its place in the whole set."""

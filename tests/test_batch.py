@@ -49,6 +49,7 @@ def _by_mesh(summary) -> dict:
     return {Path(r["mesh"]).name: r for r in summary["assets"] if r["mesh"]}
 
 
+@pytest.mark.slow
 def test_a_corrupt_asset_is_reported_and_the_others_baked(tmp_path):
     _library(tmp_path / "in")
     out = tmp_path / "out"
@@ -100,6 +101,7 @@ def test_resume_skips_what_is_done_and_bakes_what_changed(tmp_path):
     assert report["input"]["sha256"] == batch.digest(meshes["box"])["sha256"]
 
 
+@pytest.mark.slow
 def test_manifests_name_outputs_and_settings_per_asset(tmp_path):
     meshes = _library(tmp_path / "in")
     (tmp_path / "lib.csv").write_text(
@@ -128,6 +130,7 @@ def test_manifests_name_outputs_and_settings_per_asset(tmp_path):
     assert config("t.npz")["rays"] == 32  # the command's setting where the row gives none
 
 
+@pytest.mark.slow
 def test_manifest_outputs_cannot_leave_the_out_dir(tmp_path):
     _library(tmp_path / "in")
     out, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
@@ -164,6 +167,7 @@ def test_output_path_refuses_what_leaves_the_folder(tmp_path):
             batch.output_path(tmp_path, bad)
 
 
+@pytest.mark.slow
 def test_bad_manifest_rows_fail_alone(tmp_path):
     _library(tmp_path / "in")
     (tmp_path / "rows.jsonl").write_text("\n".join([
@@ -224,6 +228,7 @@ def test_lightmaps_sharing_an_atlas_mesh_name_and_the_summary_name(tmp_path):
     assert "a.obj" in assets[1].error and "summary" in assets[2].error
 
 
+@pytest.mark.slow
 def test_outputs_inside_the_input_folder_are_not_inputs(tmp_path):
     _library(tmp_path / "in")
     (tmp_path / "in" / "broken.obj").unlink()
@@ -331,6 +336,7 @@ def test_executor_dask_without_dask_is_a_clear_error(tmp_path, monkeypatch):
     assert code == 1 and "needs Dask" in err
 
 
+@pytest.mark.slow
 def test_high_to_low_rows_resume_on_their_source(tmp_path):
     """A manifest row with ``from`` (the high-poly source, relative to the manifest) bakes
     high-to-low; its report hashes the source too, so a changed source re-bakes it."""

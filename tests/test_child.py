@@ -64,6 +64,7 @@ def test_child_imports_the_parents_aobake_despite_pythonpath(shadowing_dir):
 
 
 @pytest.mark.parametrize("prestarted", [False, True])
+@pytest.mark.slow
 def test_unwrap_from_a_directory_holding_another_aobake(shadowing_dir, monkeypatch, prestarted):
     """The issue's case: the unwrap's child (fresh or prestarted) runs from a directory with
     another aobake in it, and unwraps with this one."""

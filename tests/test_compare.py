@@ -307,6 +307,7 @@ def test_texel_offset_over_covered_texels_only(texel_bake, tmp_path):
     assert m["reference_noise_rms"] == pytest.approx(math.sqrt(np.mean(se**2)), rel=1e-12)
 
 
+@pytest.mark.slow
 def test_foreign_single_channel_image_uses_the_reference_mask(texel_bake, tmp_path):
     result, tmp = texel_bake
     covered = result.channels["coverage"] > 0
@@ -464,6 +465,7 @@ def test_usage_errors_exit_2(args):
     assert res.exit_code == 2
 
 
+@pytest.mark.slow
 def test_python_m_aobake_compare():
     res = subprocess.run([sys.executable, "-m", "aobake.compare", "--help"], capture_output=True,
                          text=True, check=False)

@@ -42,6 +42,7 @@ def test_library_refuses_a_view_against_a_lightmap(files, reference, candidate):
     assert str(files[reference]) in message
 
 
+@pytest.mark.slow
 def test_cli_refuses_a_view_against_a_lightmap(files):
     result = run_cli("compare", files["view"], files["lightmap"])
     assert result.exit_code == 1, result.output

@@ -60,6 +60,7 @@ def test_view_scores_equal_the_screen_score_of_the_views_own_g_buffer(views):
         screen["regions"]["edges"]["raw"]["pixels"] == m["n"]
 
 
+@pytest.mark.slow
 def test_another_tools_png_of_the_same_pixels_is_scored(views, tmp_path):
     truth, gtao, tmp = views
     # a shader's output: 16-bit grey, no metadata, every pixel written (alpha 1)
@@ -107,6 +108,7 @@ def test_cli_prints_the_regions_and_the_gain(views):
         assert f"\n    {region} " in res.stdout
 
 
+@pytest.mark.slow
 def test_views_of_different_cameras_are_refused(views, tmp_path):
     truth, _, tmp = views
     cam = truth.camera

@@ -105,6 +105,7 @@ def test_bilinear_checker_is_the_checker_at_one_half():
     np.testing.assert_array_equal(looked >= 0.5, alpha[row, col] >= 0.5)
 
 
+@pytest.mark.slow
 def test_a_checker_plate_occludes_its_opaque_squares_exactly(tmp_path):
     path = scene_file(tmp_path, checker())
     points, normals = floor_points()
@@ -121,6 +122,7 @@ def test_a_checker_plate_occludes_its_opaque_squares_exactly(tmp_path):
     assert "alpha_cutout" not in plain.report["parameters"]
 
 
+@pytest.mark.slow
 def test_uv_orientation_and_the_factor_alpha(tmp_path):
     top = np.zeros((8, 8), dtype=np.uint8)
     top[:4] = 255  # the image's top half: over the plate's +y half
@@ -149,6 +151,7 @@ def test_bit_identical_for_threads_and_executors(tmp_path):
             np.testing.assert_array_equal(getattr(other, name), getattr(one, name))
 
 
+@pytest.mark.slow
 def test_primary_rays_pass_cut_out_texels_and_bad_setups_are_said(tmp_path):
     path = scene_file(tmp_path, checker())
     view = aobake.bake_view(path, look={"look_from": (0.0, 0.0, 3.0),

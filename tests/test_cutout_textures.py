@@ -44,6 +44,7 @@ CASES = {
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
+@pytest.mark.slow
 def test_library_refuses_an_unreadable_mask_texture(tmp_path, case):
     image, files, words = CASES[case]
     path = _with_image(tmp_path, f"{case}.gltf", image, files)
@@ -58,6 +59,7 @@ def test_library_refuses_an_unreadable_mask_texture(tmp_path, case):
 
 
 @pytest.mark.parametrize("case", ["missing", "garbage"])
+@pytest.mark.slow
 def test_cli_refuses_an_unreadable_mask_texture(tmp_path, case):
     image, files, words = CASES[case]
     path = _with_image(tmp_path, f"{case}.gltf", image, files)
@@ -69,6 +71,7 @@ def test_cli_refuses_an_unreadable_mask_texture(tmp_path, case):
     assert not (tmp_path / "ao.ply").exists()
 
 
+@pytest.mark.slow
 def test_a_readable_mask_texture_still_bakes(tmp_path):
     path = scene_file(tmp_path, alpha=checker())
     assert np.isfinite(aobake.bake(path, alpha_cutout=True, rays=8).ao).all()

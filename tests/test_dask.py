@@ -168,6 +168,7 @@ def test_split_sizes_items_from_the_cost_model():
     assert max(b - a for a, b in dask_executor.split(100_000, 0, 1e-3, 2, 4)) == 4000
 
 
+@pytest.mark.slow
 def test_local_cluster_listens_on_loopback_only_without_dashboard(session):
     import psutil
 
@@ -227,6 +228,7 @@ def test_worker_killed_mid_item_loses_nothing(session):
     assert killed[0] not in client.run(os.getpid).values()
 
 
+@pytest.mark.slow
 def test_a_scheduler_is_reached_with_dasks_tls_settings(session, monkeypatch):
     """A remote scheduler (here the session's own TLS cluster, by its address) is reached
     with the credentials of Dask's configuration (``distributed.comm.tls.*``: what a user

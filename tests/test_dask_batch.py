@@ -36,6 +36,7 @@ def _same_npz(a: Path, b: Path):
             np.testing.assert_array_equal(x[key], y[key], err_msg=f"{a.name}: {key}")
 
 
+@pytest.mark.slow
 def test_library_on_dask_is_the_threads_library(tmp_path, dask_session):
     _library(tmp_path / "in")
     common = [tmp_path / "in", "--format", "npz", "--rays", "16", "-q", "ao", "-q",

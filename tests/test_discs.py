@@ -378,6 +378,7 @@ def test_bake_view_and_bake_points_run_discs_without_rays_or_stderr():
     assert other.report["parameters"] == result.report["parameters"]
 
 
+@pytest.mark.slow
 def test_bake_per_vertex_runs_discs():
     """``aobake.bake(mesh, method="discs")``: the method's values at the vertex target's
     points, no rays, no stderr, no error summary, and the same bits in chunks."""

@@ -237,6 +237,7 @@ def _keep(scene):
 
 # ---------------------------------------------------------------------------- the hierarchy
 
+@pytest.mark.slow
 def test_the_blend_between_levels_is_continuous():
     """A receiver moving along a line over a torus: the robust model's largest step
     between neighbouring samples halves when the samples do (continuous); the chapter's

@@ -33,6 +33,7 @@ def plane(tmp_path):
     return path, bake
 
 
+@pytest.mark.slow
 def test_view_interpolates_the_bake_at_every_pixel(plane):
     path, bake = plane
     cam = cameras.look_at([0.3, -0.2, 3.0], [0.1, 0.1, 0.0], [0.0, 1.0, 0.0], 60.0,
@@ -49,6 +50,7 @@ def test_view_interpolates_the_bake_at_every_pixel(plane):
     assert "rays_cast" not in view.report and view.report["error"] == {}
 
 
+@pytest.mark.slow
 def test_a_bake_of_another_mesh_is_refused(plane, tmp_path):
     path, _ = plane
     other = tmp_path / "other.npz"
@@ -57,6 +59,7 @@ def test_a_bake_of_another_mesh_is_refused(plane, tmp_path):
         aobake.bake_view(path, method="file", ao_from=str(other), size=(8, 6))
 
 
+@pytest.mark.slow
 def test_cli_ao_from_picks_the_file_method(plane, tmp_path):
     path, bake = plane
     out = tmp_path / "look.png"
@@ -68,6 +71,7 @@ def test_cli_ao_from_picks_the_file_method(plane, tmp_path):
     assert clash.exit_code == 2 and "--method file" in clash.output
 
 
+@pytest.mark.slow
 def test_vertices_have_no_triangle_to_interpolate_on(plane, tmp_path):
     path, bake = plane
     result = run_cli(path, "--ao-from", bake, "--out", tmp_path / "again.npz")

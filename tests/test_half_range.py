@@ -55,6 +55,7 @@ def far_mesh(tmp_path):
     return path
 
 
+@pytest.mark.slow
 def test_library_view_of_a_far_scene_as_half_has_no_inf(far_mesh, tmp_path):
     view = aobake.bake_view(far_mesh, size=(12, 12), rays=4)
     aobake.write(view, tmp_path / "v.exr", half=True)

@@ -252,6 +252,7 @@ def test_floor_under_a_coaxial_disc_within_the_discretisation_bound(gl, resoluti
     assert result.report["error"] == {} and "rays_cast" not in result.report
 
 
+@pytest.mark.slow
 def test_round_disc_on_axis(gl, resolution):
     """On the axis, a 256-gon's AO is the round disc's h^2 / (h^2 + R^2) to 1e-4 (the
     polygon's area deficit), and the hemicube is within its bound of the polygon's."""
@@ -272,6 +273,7 @@ def test_round_disc_on_axis(gl, resolution):
 
 
 @pytest.mark.parametrize("weighting", ["cosine", "uniform"])
+@pytest.mark.slow
 def test_floor_under_a_ceiling_with_max_distance(gl, resolution, weighting):
     """A ceiling at h, max distance D > h: only the ceiling's disc within D blocks, so AO =
     (h/D)^2 (cosine) or h/D (uniform): the far limit is a sphere, not a plane (a far plane
@@ -363,6 +365,7 @@ def test_back_faces_occlude_as_rays_do(gl, resolution):
     assert np.abs(facing - blocked).max() < 1e-3
 
 
+@pytest.mark.slow
 def test_a_tiny_near_plane_still_sees_the_scene(gl, resolution):
     """A point at the local frame's origin with a tiny triangle gets a ray offset, so a near
     plane, of ~1e-11: every depth 1 - near / w then rounds to the cleared 1.0 of the depth

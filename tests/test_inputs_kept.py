@@ -60,6 +60,7 @@ def test_a_view_may_not_write_its_report_over_the_bake_it_reads(baked, tmp_path)
     assert _snapshot(before) == before
 
 
+@pytest.mark.slow
 def test_the_library_keeps_every_input_too(baked, tmp_path):
     source = baked[".npz"]
     before = _snapshot([source])
@@ -90,6 +91,7 @@ def test_a_cage_and_a_source_are_inputs_as_well(tmp_path):
 
 
 @pytest.mark.parametrize("which", ["mesh", "output", "report"])
+@pytest.mark.slow
 def test_a_batch_summary_replaces_no_input_and_no_output(baked, tmp_path, which):
     out_dir = tmp_path / "out"
     summary = {"mesh": baked["mesh"], "output": out_dir / "scene.npz",
@@ -105,6 +107,7 @@ def test_a_batch_summary_replaces_no_input_and_no_output(baked, tmp_path, which)
     assert _snapshot(before) == before
 
 
+@pytest.mark.slow
 def test_a_manifest_nested_past_the_parser_is_a_clear_error(baked, tmp_path):
     deep = "[" * 100_000 + "]" * 100_000
     manifest = tmp_path / "assets.jsonl"
@@ -118,6 +121,7 @@ def test_a_manifest_nested_past_the_parser_is_a_clear_error(baked, tmp_path):
     assert (tmp_path / "out" / "a.npz").is_file()  # the good row still baked
 
 
+@pytest.mark.slow
 def test_a_resumed_batch_with_a_report_nested_by_hand_bakes_again(baked, tmp_path):
     out_dir = tmp_path / "out"
     args = ["batch", baked["mesh"], "--out-dir", out_dir, "--format", "npz", "--rays", 4]

@@ -120,6 +120,7 @@ def _same_within_error_bars(a, b, se_a, se_b):
 # --------------------------------------------------------------------------- loading
 
 
+@pytest.mark.slow
 def test_every_instance_baked_is_the_flattened_scene_bit_for_bit(rocks, monkeypatch):
     scene = load_scene(rocks)
     flat = _flat_load(rocks, monkeypatch)
@@ -137,6 +138,7 @@ def test_every_instance_baked_is_the_flattened_scene_bit_for_bit(rocks, monkeypa
     np.testing.assert_allclose(scene.instances.bounds, flat.bounds, rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_a_file_that_places_each_mesh_once_loads_flat(tmp_path):
     box = trimesh.creation.box()
     path = write_instanced(tmp_path / "once.gltf", [{"vertices": box.vertices, "faces": box.faces}],
@@ -146,6 +148,7 @@ def test_a_file_that_places_each_mesh_once_loads_flat(tmp_path):
     assert chosen.instances is not None and chosen.instances.everything
 
 
+@pytest.mark.slow
 def test_ext_mesh_gpu_instancing_places_each_copy(tmp_path):
     path = _set(tmp_path / "row.glb", extension=True)
     scene = load_scene(path, bake="row")
@@ -165,6 +168,7 @@ def test_ext_mesh_gpu_instancing_places_each_copy(tmp_path):
     assert len(inst) == 13 and scene.instances.record()["baked"] == 3
 
 
+@pytest.mark.slow
 def test_bake_chooses_nodes_by_name_and_mesh(rocks):
     scene = load_scene(rocks, bake=("rock1", "pair_*"))
     names = [scene.instances.names[i] for i in scene.instances.baked]
@@ -182,6 +186,7 @@ def test_bake_chooses_nodes_by_name_and_mesh(rocks):
         load_scene(rocks, bake="chair")
 
 
+@pytest.mark.slow
 def test_bake_is_refused_where_it_cannot_hold(tmp_path, rocks):
     obj = tmp_path / "box.obj"
     trimesh.creation.box().export(obj)
@@ -251,6 +256,7 @@ def test_instances_answer_as_the_flattened_triangles(rocks, oracle):
 
 
 @needs_native
+@pytest.mark.slow
 def test_a_bake_through_instances_equals_the_flattened_bake_within_its_error_bars(rocks):
     scene = load_scene(rocks)
     traced = _bake(scene, seed=1, rays=128)
@@ -266,6 +272,7 @@ def test_a_bake_through_instances_equals_the_flattened_bake_within_its_error_bar
 
 
 @needs_native
+@pytest.mark.slow
 def test_one_baked_instance_equals_its_place_in_the_whole_bake(rocks):
     whole = load_scene(rocks)
     inst = whole.instances
@@ -287,6 +294,7 @@ def test_one_baked_instance_equals_its_place_in_the_whole_bake(rocks):
                                 d.values[f"{name}_stderr"])
 
 
+@pytest.mark.slow
 def test_backends_without_instances_flatten_for_tracing(rocks, caplog):
     one = load_scene(rocks, bake="rock1")
     with caplog.at_level("WARNING", logger="aobake.occluders"):
@@ -300,6 +308,7 @@ def test_backends_without_instances_flatten_for_tracing(rocks, caplog):
 
 
 @needs_native
+@pytest.mark.slow
 def test_the_same_bits_for_every_split_and_thread_count(rocks):
     scene = load_scene(rocks, bake=("rock1", "rock2"))
     base = _bake(scene, rays=32, seed=3, bake=("rock1", "rock2"), threads=1)
@@ -338,6 +347,7 @@ def test_the_same_bits_on_dask(rocks):
 # --------------------------------------------------------------------------- outputs
 
 
+@pytest.mark.slow
 def test_the_npz_cuts_the_bake_per_instance_and_compare_scores_it(rocks, tmp_path):
     from aobake.compare import compare
 
@@ -368,6 +378,7 @@ def test_the_npz_cuts_the_bake_per_instance_and_compare_scores_it(rocks, tmp_pat
     assert npz.instance_slices(tmp_path / "plain.npz") == []
 
 
+@pytest.mark.slow
 def test_the_glb_keeps_instances_sharing_their_geometry(rocks, tmp_path):
     """One POSITION / NORMAL / index accessor per mesh, a node and a colour per instance;
     read back (and compared) as the flattened bake's vertices."""
@@ -397,6 +408,7 @@ def test_the_glb_keeps_instances_sharing_their_geometry(rocks, tmp_path):
     assert result["matched_by"] == "order" and result["n"] == len(traced.positions)
 
 
+@pytest.mark.slow
 def test_the_command_line_bakes_the_nodes_it_names(rocks, tmp_path):
     from conftest import run_cli
 

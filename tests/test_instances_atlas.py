@@ -201,6 +201,7 @@ def test_overlapping_own_uvs_get_one_new_atlas_of_the_mesh(tmp_path):
 # --------------------------------------------------------------------------- the values
 
 
+@pytest.mark.slow
 def test_the_atlas_is_the_flattened_scenes_lightmap_in_its_uvs_bit_for_bit(sets, tmp_path):
     scene = load_scene(sets["own"], normals_mode="angle")
     result = _texels(sets["own"], instances="flatten")
@@ -311,6 +312,7 @@ def test_denoised_and_tangent_space_maps_of_a_set(sets, tmp_path):
     aobake.write(result, tmp_path / "set.exr")
 
 
+@pytest.mark.slow
 def test_baking_some_instances_gives_their_regions_alone(sets):
     result = _texels(sets["own"], bake=("rock1", "rock3"))
     placed = result.report["texture"]["instances"]["placed"]
@@ -482,6 +484,7 @@ def test_the_command_line_writes_the_image_and_the_flattened_atlas_mesh(sets, tm
     assert meta["texture"]["instances"]["instance_regions"] == "mesh"
 
 
+@pytest.mark.slow
 def test_a_batch_manifest_bakes_a_set_to_an_atlas(sets, tmp_path):
     from conftest import run_cli
 

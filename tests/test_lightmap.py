@@ -191,6 +191,7 @@ def test_seams_agree_after_padding_and_gutter_shows_without(padding):
         assert np.max(z) > z_bound(len(z), None)
 
 
+@pytest.mark.slow
 def test_reproducible_textures(ceiling_obj):
     opts = dict(resolution=24, padding=2, texel_samples=3, rays=32, max_distance=2.0,
                 quantities=("ao", "obscurance", "bent-normal"), unwrap="never")
@@ -266,6 +267,7 @@ def test_glb_lightmap_reloads_with_occlusion_texture(tmp_path):
     assert len(loaded.to_geometry().faces) == len(torus.faces)
 
 
+@pytest.mark.slow
 def test_new_atlas_writes_mesh_beside_output(tmp_path, box_ply):
     out = tmp_path / "ao.png"
     res = run_cli(box_ply, "--out", out, "--resolution", 128, "--rays", 8, "--quiet")
@@ -286,6 +288,7 @@ def test_new_atlas_writes_mesh_beside_output(tmp_path, box_ply):
     (["--resolution", "abc"], "N or WxH", 2),
     (["--no-unwrap"], "no UVs and --no-unwrap", 1),
 ])
+@pytest.mark.slow
 def test_bad_texture_options(tmp_path, box_ply, args, message, code):
     out = tmp_path / "ao.exr"
     res = run_cli(box_ply, "--out", out, "--rays", 4, *args)
@@ -359,6 +362,7 @@ def test_glb_keeps_base_colour_and_uvs_with_new_atlas(tmp_path):
     assert atlas.min() >= 0 and atlas.max() <= 1 and len(np.unique(atlas, axis=0)) > 4
 
 
+@pytest.mark.slow
 def test_public_api_exports_the_lightmap_baker():
     import aobake
 
@@ -415,6 +419,7 @@ def test_glb_keeps_every_material_of_a_multi_material_obj(tmp_path):
     assert len(loaded.geometry) == 3
 
 
+@pytest.mark.slow
 def test_new_atlas_in_a_non_square_image(tmp_path, box_ply):
     out = tmp_path / "ao.exr"
     rep = tmp_path / "r.json"
@@ -429,6 +434,7 @@ def test_new_atlas_in_a_non_square_image(tmp_path, box_ply):
     assert any("top-left 32x32" in w for w in report["warnings"])
 
 
+@pytest.mark.slow
 def test_uvs_at_one_point_are_not_baked_into(tmp_path):
     """Own UVs that all sit at one point passed the check and gave an all-black map: now
     they count as unusable and a new atlas is made, with a warning that says why."""
@@ -442,6 +448,7 @@ def test_uvs_at_one_point_are_not_baked_into(tmp_path):
     assert any("cover 0 texel centres" in w for w in res.report["warnings"])
 
 
+@pytest.mark.slow
 def test_charts_of_a_few_texels_warn_with_the_density(tmp_path):
     """150 separate triangles (one chart each) in a 96^2 map: about 8 texels per chart."""
     rng = np.random.default_rng(0)

@@ -179,6 +179,7 @@ def test_uvs_off_the_maps_charts_are_a_warning(quad_and_map, tmp_path, caplog):
     assert "read texels the lightmap does not cover" in caplog.text
 
 
+@pytest.mark.slow
 def test_uv_set_1_of_a_gltf(tmp_path):
     """Square B of test_uvsets' scene: mirrored in set 0, in a place of its own in set 1; a
     map whose value is u tells which set was read."""

@@ -65,6 +65,7 @@ def test_obj_without_normals_uses_angle_weighting(tmp_path):
     np.testing.assert_allclose(scene.vertex_normals, np.tile([0, 0, 1.0], (3, 1)))
 
 
+@pytest.mark.slow
 def test_multi_object_glb_applies_node_transforms(tmp_path):
     a = trimesh.creation.box()
     b = trimesh.creation.box()
@@ -109,6 +110,7 @@ def test_bad_input_names_file_and_problem(tmp_path, name, content, message):
     assert str(path) in str(info.value) and message in str(info.value)
 
 
+@pytest.mark.slow
 def test_gltf_materials_are_kept_per_face(tmp_path):
     """Two nodes with different PBR materials: one material entry each, faces tagged."""
     from trimesh.visual import TextureVisuals
@@ -151,6 +153,7 @@ def test_obj_faces_keep_their_usemtl(tmp_path):
                   b"vertex 0 1 0\nendloop\nendfacet\nendsolid caf\xe9\n"),
     ("latin.off", b"OFF\n# caf\xe9\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"),
 ])
+@pytest.mark.slow
 def test_text_meshes_with_latin1_names_read(tmp_path, name, data):
     """ASCII STL/OFF that are not UTF-8 need trimesh's charset detection (a declared
     dependency: without it every such file failed with ModuleNotFoundError)."""

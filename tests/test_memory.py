@@ -78,6 +78,7 @@ def test_padded_float32_is_the_cast_with_one_float_more():
     assert padded_float32(filled[1:]) is not filled.base  # not the whole array: a copy
 
 
+@pytest.mark.slow
 def test_embree_reading_the_mesh_in_place_answers_as_on_its_copies():
     found = native.binding()
     if found is None:
@@ -132,6 +133,7 @@ def test_one_pass_normals_equal_the_two_pass_ones(mode):
     assert scene.face_normals.tobytes() == face_normals(local, faces).tobytes()
 
 
+@pytest.mark.slow
 def test_a_single_mesh_file_is_not_copied_on_load(tmp_path):
     mesh = trimesh.creation.icosphere(3)
     path = tmp_path / "sphere.ply"

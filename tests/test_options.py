@@ -98,6 +98,7 @@ def test_reports_of_the_previous_release_still_rebake():
         BakeConfig.from_dict(dict(PREVIOUS_RELEASE, rayz=3))
 
 
+@pytest.mark.slow
 def test_the_command_line_bakes_what_the_library_bakes(tmp_path, box_ply):
     """Every default the CLI passes is the config's: a bake with no options has the
     report config of BakeConfig()."""

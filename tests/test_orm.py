@@ -44,6 +44,7 @@ def _stored(pixels, bits):
 
 
 @pytest.mark.parametrize("bits", [8, 16])
+@pytest.mark.slow
 def test_orm_png_is_ao_in_r_and_the_source_in_g_b(two_sets, roughness_metal,  # noqa: F811
                                                    tmp_path, bits):
     source, mr = roughness_metal
@@ -70,6 +71,7 @@ def test_orm_png_is_ao_in_r_and_the_source_in_g_b(two_sets, roughness_metal,  # 
     assert meta["orm"]["G_B_from"] == str(source) and meta["map"] == "orm"
 
 
+@pytest.mark.slow
 def test_empty_orm_is_roughness_1_metalness_0(two_sets, tmp_path):  # noqa: F811
     out = tmp_path / "orm.png"
     assert run_cli(two_sets, "--out", out, "--uv-set", 1, "--orm", *BAKE).exit_code == 0
@@ -92,6 +94,7 @@ def test_orm_takes_the_inputs_own_metallic_roughness_texture(tmp_path):
     assert "metallicRoughnessTexture" in json.loads(attrs["aobake:metadata"])["orm"]["G_B_from"]
 
 
+@pytest.mark.slow
 def test_orm_glb_keeps_the_inputs_roughness_and_metallic_factors(tmp_path, caplog):
     """glTF multiplies the metallicRoughnessTexture's G and B by the material's factors: a
     GLB whose ORM image holds the input's own G and B renders as the input only with the
@@ -167,6 +170,7 @@ def _orm_glb(two_sets, roughness_metal, tmp_path):  # noqa: F811
     return out
 
 
+@pytest.mark.slow
 def test_orm_glb_wires_one_image_to_occlusion_and_metallic_roughness(  # noqa: F811
         two_sets, roughness_metal, tmp_path):
     out = _orm_glb(two_sets, roughness_metal, tmp_path)

@@ -372,6 +372,7 @@ def test_hole_search_stops_after_hole_rows(kernel):
     assert place == [(0, 0, 0), (265, 20, 0)]
 
 
+@pytest.mark.slow
 def test_pack_keeps_the_fewest_rows_the_same(kernel):
     """``_pack`` over ORDERS (few charts): the same choice, the same layout."""
     rng = np.random.default_rng(2)

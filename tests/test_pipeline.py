@@ -123,6 +123,7 @@ def _npz(path):
         return {k: data[k] for k in data.files}
 
 
+@pytest.mark.slow
 def test_write_gives_the_files_the_cli_writes(torus, tmp_path):
     mesh = tmp_path / "torus.ply"
     torus.export(mesh)

@@ -32,6 +32,7 @@ def _cut(path, keep: int):
 
 
 @pytest.mark.parametrize("keep", [1, 7, 100])
+@pytest.mark.slow
 def test_reading_a_binary_ply_cut_in_its_faces_is_an_input_error(baked, keep):
     cut = _cut(baked[1], keep)
     with pytest.raises(aobake.InputError, match=r"cut\.ply: .*truncated: element 'face'"):
@@ -61,6 +62,7 @@ def test_a_ply_of_quads_is_still_read_for_its_vertex_values(tmp_path):
     assert read(path, "ao", role="reference").value.tolist() == [1.0] * 4
 
 
+@pytest.mark.slow
 def test_library_view_from_a_truncated_ply_is_an_input_error(baked):
     mesh, out = baked
     cut = _cut(out, 7)

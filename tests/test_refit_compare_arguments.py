@@ -38,6 +38,7 @@ def test_refit_of_no_path_is_an_input_error(value):
 
 
 @pytest.mark.parametrize("value", NOT_PATHS + ["result"], ids=lambda v: str(type(v).__name__))
+@pytest.mark.slow
 def test_compare_of_no_path_is_an_input_error(files, value):
     if value == "result":
         value = files[1]

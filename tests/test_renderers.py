@@ -76,6 +76,7 @@ def _view(tmp_path, *extra, out="view.exr"):
 # ---- the glTF --------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("suffix", [".glb", ".gltf"])
+@pytest.mark.slow
 def test_the_exported_gltf_reads_back_the_same_camera(tmp_path, suffix):
     mesh, report = _view(tmp_path, "--rays", 4, "--export-camera", tmp_path / f"cam{suffix}")
     assert str(tmp_path / f"cam{suffix}") in report["outputs"] or (tmp_path / f"cam{suffix}"
@@ -100,6 +101,7 @@ def test_the_exported_gltf_reads_back_the_same_camera(tmp_path, suffix):
     np.testing.assert_allclose(views[1], views[0], rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_the_gltf_camera_node_is_the_inverse_of_world_to_view(tmp_path):
     mesh, report = _view(tmp_path, "--rays", 4, "--ground-plane", "--up-axis", "z",
                          "--export-camera", tmp_path / "cam.glb")
@@ -133,6 +135,7 @@ def test_the_gltf_camera_node_is_the_inverse_of_world_to_view(tmp_path):
                                  * report["scene"]["diagonal"], rel=1e-6)
 
 
+@pytest.mark.slow
 def test_the_library_exports_a_views_camera(tmp_path):
     mesh = _scene(tmp_path)
     cam = cameras.look_at([2.5, -3.5, 4.5], [0.3, 0, 0.4], [0, 0, 1], 35.0, SIZE)
@@ -172,6 +175,7 @@ def test_khronos_validator_finds_no_errors_in_the_export(tmp_path, suffix):
 
 # ---- the Mitsuba scene -----------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_the_mitsuba_scene_states_the_conventions(tmp_path):
     mesh, report = _view(tmp_path, "--rays", 8, "--export-mitsuba", tmp_path / "export.xml",
                          "--ground-plane", "--up-axis", "z")
@@ -215,6 +219,7 @@ def test_the_mitsuba_scene_states_the_conventions(tmp_path):
     np.testing.assert_array_equal(ply.faces, scene.faces)
 
 
+@pytest.mark.slow
 def test_a_finite_max_distance_is_written_with_a_warning(tmp_path, caplog):
     mesh = _scene(tmp_path)
     with caplog.at_level("WARNING"):
@@ -247,6 +252,7 @@ def test_bad_export_paths_are_refused_before_the_bake(tmp_path, flag, name, repo
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.ply"]  # nothing written
 
 
+@pytest.mark.slow
 def test_the_export_may_not_overwrite_the_input(tmp_path):
     _view(tmp_path, "--rays", 4, "--export-camera", tmp_path / "cam.glb")
     result = run_cli("view", tmp_path / "cam.glb", "--camera", "first", "--out",
@@ -265,6 +271,7 @@ def test_a_selection_the_scene_cannot_carry_is_a_usage_error(tmp_path):
         camera_export.plan(tmp_path / "c.glb", config={"alpha_cutout": True})
 
 
+@pytest.mark.slow
 def test_the_exports_and_the_view_appear_together_or_not_at_all(tmp_path, monkeypatch):
     mesh = _scene(tmp_path)
     args = ["view", mesh, "--out", tmp_path / "v.exr", "--size", "8x6", "--rays", 4,

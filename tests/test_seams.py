@@ -94,6 +94,7 @@ def lookup_noise(result, name, points):
 
 
 @pytest.mark.parametrize("name", VALUES)
+@pytest.mark.slow
 def test_lookups_agree_across_seams_after_erasure_and_not_without(torus, name):
     off, erased = bakes(torus, "off"), bakes(torus, "erase")
     points = random_seam_points(seam_mesh(off[0]))
@@ -585,6 +586,7 @@ FLOOR = dict(resolution=64, rays=64, texel_samples=4, padding=2, unwrap="never",
              quantities=("ao",))
 
 
+@pytest.mark.slow
 def test_seam_behind_a_zero_area_face_is_erased(monkeypatch):
     """The failing class of issue 21: before, the seam the zero-area face hides was never
     erased (its lookups were paired with the face's collapsed UVs, points the solve drops).
@@ -620,6 +622,7 @@ def test_seam_behind_a_zero_area_face_is_erased(monkeypatch):
     assert in_noise(before, _bake(str(path), "off", 0, **FLOOR), points) > 10 * worst[0]
 
 
+@pytest.mark.slow
 def test_bounded_solve_is_the_minimum_within_0_1(torus, monkeypatch):
     """The other class of issue 21: where baked values sit at 0 or 1 next to a steep change
     (buried or open texels: 27% of the ogre's), the unbounded minimum leaves [0, 1] and

@@ -248,6 +248,7 @@ def _corner_pixels(view, cam, radius):
     return pixels[inside], distance[inside]
 
 
+@pytest.mark.slow
 def test_inside_a_right_angle_corner_the_bounded_truth_is_the_closed_form():
     mesh, cam = _crease()
     radius, rays = 0.5, 256

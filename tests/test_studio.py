@@ -311,6 +311,7 @@ def test_a_tight_cage_flags_and_counts_its_misses(caplog):
     assert not [w for w in good.report["warnings"] if "cage" in w]
 
 
+@pytest.mark.slow
 def test_a_source_inside_out_is_hit_on_its_back():
     _, low = meshes()
     flipped = bumpy_sphere(flip=True)
@@ -378,6 +379,7 @@ def test_outputs(tmp_path):
     assert np.allclose(vertex["ao"], per_vertex.ao, atol=1e-7)
 
 
+@pytest.mark.slow
 def test_cli_from_bakes_high_to_low_and_protects_the_source(tmp_path):
     """`aobake LOW --from HIGH --out ao.ply`: the low mesh's vertices, projected onto the
     source; the report's config carries --from (so it re-bakes); no output may overwrite

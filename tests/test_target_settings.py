@@ -39,6 +39,7 @@ def test_the_command_refuses_a_setting_its_output_does_not_read(box_ply, tmp_pat
     assert "rays in" not in result.output and not list(tmp_path.glob("x.*"))
 
 
+@pytest.mark.slow
 def test_a_lightmap_setting_is_read_by_a_lightmap(box_ply, tmp_path):
     """The same flags where they apply: the refusal is about the target, not the flag."""
     out = tmp_path / "x.exr"
@@ -60,6 +61,7 @@ def test_the_library_refuses_a_keyword_only_another_target_reads(box_ply):
         aobake.bake_file(str(box_ply), "never.ply", {"rays": 4, "resolution": 64})
 
 
+@pytest.mark.slow
 def test_a_whole_config_is_a_record_and_is_not_refused(box_ply):
     """One BakeConfig for a pipeline's vertex and lightmap bakes: each reads its sections,
     and the vertex bake equals one made without the lightmap's settings, bit for bit."""
@@ -79,6 +81,7 @@ def test_write_refuses_an_image_option_for_a_vertex_result(box_ply, tmp_path):
     assert not (tmp_path / "x.ply").exists()
 
 
+@pytest.mark.slow
 def test_batch_refuses_its_settings_against_its_format_before_anything(box_ply, tmp_path):
     out_dir = tmp_path / "out"
     result = run_cli("batch", box_ply, "--out-dir", out_dir, "--format", "ply",
@@ -90,6 +93,7 @@ def test_batch_refuses_its_settings_against_its_format_before_anything(box_ply, 
     assert ok.exit_code == 0, ok.output
 
 
+@pytest.mark.slow
 def test_batch_holds_a_manifest_row_to_its_own_output(box_ply, tmp_path):
     """A row's own lightmap setting on a per-vertex output fails that row; the batch's
     settings reach every row whatever its output."""

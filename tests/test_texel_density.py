@@ -105,6 +105,7 @@ def test_texel_density_and_resolution_exclude_each_other(tmp_path):
     assert not (tmp_path / "ao.exr").exists()
 
 
+@pytest.mark.slow
 def test_too_large_an_image_is_refused_before_charting(tmp_path):
     """A density whose surface alone needs more than MAX_RESOLUTION per side: one clear
     error naming the density and the size, before xatlas runs."""

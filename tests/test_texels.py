@@ -273,6 +273,7 @@ def assert_valid_atlas(vertices, faces, un, res, pad):
     return s
 
 
+@pytest.mark.slow
 def test_unwrap_icosphere():
     mesh = trimesh.creation.icosphere(subdivisions=3)
     res, pad = 128, 2
@@ -578,6 +579,7 @@ def test_tangents_on_unwrapped_sphere_are_perpendicular_and_unit():
     assert set(np.unique(t[:, 3])) <= {-1.0, 1.0}
 
 
+@pytest.mark.slow
 def test_compiled_rasteriser_equals_numpy_rasteriser_bit_for_bit(kernel):
     """aobake._kernels.raster_rows does _raster_chunk's tests and _nearest_on_triangle's
     fallback operation for operation, and emits the samples in the order the numpy path

@@ -157,6 +157,7 @@ def test_bit_identical_for_threads_executors_chunks_and_streaming():
     assert (error <= k * many.thickness_stderr + offset_bias(many)).all()
 
 
+@pytest.mark.slow
 def test_thickness_is_written_and_known_to_the_cli(tmp_path):
     from conftest import run_cli
 

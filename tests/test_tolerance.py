@@ -74,6 +74,7 @@ def test_final_interval_covers_and_is_unbiased(sampler, ao):
     assert t["points_met"] >= 0.5 * POINTS
 
 
+@pytest.mark.slow
 def test_exact_values_meet_the_tolerance_without_the_cap():
     """A point exactly 0 or 1: every ray agrees, the rule of three alone bounds it."""
     for ao in (0.0, 1.0):
@@ -114,6 +115,7 @@ def test_tolerance_out_of_range_is_a_usage_error(box_ply, tmp_path, value):
         aobake.BakeConfig(tolerance=float(value))
 
 
+@pytest.mark.slow
 def test_cli_reports_the_tolerance(box_ply, tmp_path):
     import json
 
@@ -146,6 +148,7 @@ def test_lightmap_with_a_tolerance(tmp_path):
     assert res.channels["rays"][covered].min() > 2 * 16  # every sample: a pilot and a final
 
 
+@pytest.mark.slow
 def test_tolerance_bakes_are_reproducible_whatever_the_threads(sampler):
     mesh, points, _ = scene(0.5)
     a = aobake.bake_points(mesh, points[:40], up(40), rays=16, tolerance=0.05, sampler=sampler,
@@ -171,6 +174,7 @@ def test_a_tolerance_that_bounds_nothing_baked_is_refused():
         aobake.BakeConfig(tolerance=0.05, quantities=("bent_normal",))
 
 
+@pytest.mark.slow
 def test_the_summary_line_says_more_when_the_tolerance_cast_more(tmp_path, box_ply):
     from conftest import run_cli
 

@@ -4,6 +4,7 @@ cast after the pilot and per point (the ``rays`` channel) are reported beside it
 
 from __future__ import annotations
 
+import pytest
 import json
 
 import numpy as np
@@ -33,6 +34,7 @@ def test_the_report_states_the_rays_cast_beyond_the_pilot(monkeypatch):
     assert int(res.rays.sum()) == t["rays_total"]
 
 
+@pytest.mark.slow
 def test_cli_report_has_the_ranges(box_ply, tmp_path):
     report = tmp_path / "r.json"
     res = run_cli(box_ply, "--out", tmp_path / "x.npz", "--tolerance", "0.05", "--rays", 16,

@@ -104,6 +104,7 @@ def test_uv_set_1_bakes_into_texcoord_1_and_writes_it_back(two_sets, tmp_path):
     assert not np.array_equal(via_set0.channels["coverage"], via_gltf.channels["coverage"])
 
 
+@pytest.mark.slow
 def test_uv_set_of_a_gltf_with_an_external_buffer(two_sets, tmp_path):
     # the same file as .gltf JSON + .bin: the same bits as the GLB
     gltf, binary = read_glb(two_sets)

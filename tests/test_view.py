@@ -149,6 +149,7 @@ def test_pixel_intervals_cover_the_exact_ao():
     assert p_value >= 1e-4, f"coverage {covered / total:.4f} of {total}"
 
 
+@pytest.mark.slow
 def test_cli_view_writes_exr_with_gbuffer_and_camera_file(tmp_path, box_ply):
     out = tmp_path / "view.exr"
     result = run_cli("view", box_ply, "--out", out, "--rays", "8", "--size", "32x24",
@@ -175,6 +176,7 @@ def test_cli_view_writes_exr_with_gbuffer_and_camera_file(tmp_path, box_ply):
     (["--look-from", "0,0,5", "--look-at", "0,0,0", "--up", "0,0,1"], "parallel"),
     (["--look-from", "0,0,50", "--look-at", "0,0,100"], "sees nothing"),
 ])
+@pytest.mark.slow
 def test_bad_cameras_get_one_clear_error(tmp_path, box_ply, args, message):
     out = tmp_path / "v.exr"
     result = run_cli("view", box_ply, "--out", out, "--rays", "4", "--size", "8x8", *args)
@@ -189,6 +191,7 @@ def test_fov_out_of_range_is_a_usage_error(tmp_path, box_ply, fov):
     assert result.exit_code == 2
 
 
+@pytest.mark.slow
 def test_camera_inside_a_closed_mesh_warns(tmp_path, box_ply, caplog):
     cam = cameras.look_at([0.0, 0.0, 0.0], [1.0, 0.2, 0.1], [0.0, 0.0, 1.0], 60.0,
                           size=(16, 12))
@@ -214,6 +217,7 @@ def _with_camera(glb: bytes, camera: dict, node: dict) -> bytes:
     return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
 
 
+@pytest.mark.slow
 def test_cli_view_through_a_gltf_camera_node(tmp_path):
     """A camera node 3 units above a floor, looking down its -Z: every pixel reads depth 3."""
     import trimesh

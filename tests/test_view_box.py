@@ -180,6 +180,7 @@ def test_threads_and_chunks_change_no_bit(sampling):
         np.testing.assert_array_equal(channel, two.channels[name], err_msg=name)
 
 
+@pytest.mark.slow
 def test_command_line_report_camera_file_and_compare(tmp_path):
     mesh, cam, _ = step_scene(size=(8, 12), g=0.5)
     path = tmp_path / "steps.ply"

@@ -201,6 +201,7 @@ def test_a_method_that_casts_no_rays_averages_over_positions():
 
 
 @pytest.mark.parametrize("quantities", [("ao",), ("ao", "obscurance")])
+@pytest.mark.slow
 def test_any_thread_count_block_size_or_executor_gives_the_same_bits(monkeypatch, quantities):
     mesh, cam, _, distance = step_scene(size=(8, 24), g=0.5)
     options = dict(camera=cam, rays=32, max_distance=distance, pixel_filter="box", seed=3,
@@ -275,6 +276,7 @@ def test_a_pixel_with_more_rays_than_a_block():
                                   point_offsets(local, sizes, 1e-5))
 
 
+@pytest.mark.slow
 def test_the_command_line_and_the_camera_record(tmp_path):
     mesh, cam, _, distance = step_scene(size=(8, 12), g=0.5)
     path = tmp_path / "steps.ply"

@@ -100,6 +100,7 @@ def test_unplaced_charts_are_the_placed_ones_translated(meshes, cap):
 
 
 @built
+@pytest.mark.slow
 def test_built_xatlas_rejects_what_the_package_rejects():
     v, f = _bumpy(2, 3)
     bad = f.copy()
