@@ -48,6 +48,7 @@ int aobake_check_csr(const int64_t *indptr, const int32_t *indices, Py_ssize_t n
 
 /* The module's functions (the method table in _kernels.c), by file. */
 PyObject *fill_rays(PyObject *self, PyObject *args);        /* _rays.c */
+PyObject *pixel_rays(PyObject *self, PyObject *args);       /* _pixels.c */
 PyObject *row_counts(PyObject *self, PyObject *args);       /* _counts.c */
 PyObject *raster_rows(PyObject *self, PyObject *args);      /* _raster.c */
 PyObject *surface_interp(PyObject *self, PyObject *args);   /* _surface.c */

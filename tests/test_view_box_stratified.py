@@ -243,6 +243,44 @@ def test_the_compiled_ray_generator_and_numpy_give_the_same_bits(options):
     assert plain.report["parameters"]["kernels"]["ray_generation"] == "numpy"
 
 
+@pytest.mark.parametrize("m", [1, 16, 24, 1 << 12])
+def test_the_compiled_primary_rays_and_numpy_give_the_same_bits(m):
+    """``aobake._kernels.pixel_rays`` against the numpy it replaces (``joint.positions``'
+    sobol positions, ``_Context.directions``), bit for bit: random pixels, keys and a
+    slanted camera; m = 24 (not a power of two) walks the shuffle's cycles below m."""
+    from types import SimpleNamespace
+
+    from aobake import _native
+
+    compiled = _native.kernels()
+    if compiled is None:
+        pytest.skip("aobake._kernels not built")
+    rng = np.random.default_rng(m)
+    cam = cameras.look_at([0.3, -2.0, 1.1], [0.1, 0.2, -0.3], [0, 0, 1], 37.0, size=(97, 41))
+    groups, q0 = 3, m // 3
+    count = m - q0
+    pixels = rng.integers(0, cam.width * cam.height, size=11)
+    keys = replicate_keys(int(rng.integers(1 << 62)), pixels, groups)
+    right, up, forward = (np.asarray(v, dtype=np.float64) for v in (cam.right, cam.up,
+                                                                     cam.forward))
+    half_h = cam.tan_half_fov
+    fake = SimpleNamespace(cam=cam, half_h=half_h, half_w=half_h * cam.aspect, right=right,
+                           up_vector=up, forward=forward)
+    where = joint_samples.positions("sobol", keys, joint_samples.seeds(keys), q0, count,
+                                    m).reshape(-1, 2)
+    directions = view_box._Context.directions(fake, np.repeat(pixels, groups * count),
+                                              where[:, 0], where[:, 1])
+    n = len(where)
+    out = np.empty((n, 2)), np.empty((n, 3)), np.empty((n, 3), dtype=np.float32)
+    net = np.ascontiguousarray(np.stack(joint_samples.net_reversed(m), axis=1))
+    compiled.pixel_rays(pixels.astype(np.int64), keys, net, groups, q0, count, m, cam.width,
+                        cam.height, 2.0 / cam.width, 2.0 / cam.height, fake.half_w, half_h,
+                        np.ascontiguousarray(np.stack([right, up, forward])), *out)
+    np.testing.assert_array_equal(out[0], where)
+    np.testing.assert_array_equal(out[1], directions)
+    np.testing.assert_array_equal(out[2], directions.astype(np.float32))
+
+
 @pytest.mark.slow
 def test_a_pixel_with_more_rays_than_a_block():
     """2^19 rays per pixel: each pixel's rays in pieces folded in order, a direction net

@@ -54,7 +54,7 @@ CACHED_NET = 1 << 16
 
 
 @functools.lru_cache(maxsize=8)
-def _net_reversed(m: int) -> tuple:
+def net_reversed(m: int) -> tuple:
     """The first m points of the 2-D Sobol sequence, bits reversed (what the scramble
     starts from): one (m,) uint32 array per dimension, read only."""
     table = reverse_bits(sobol_ints(m))
@@ -68,7 +68,7 @@ def _coordinate_reversed(index: np.ndarray, m: int, d: int) -> np.ndarray:
     """uint32 of index's shape: dimension d of Sobol points ``index`` (each < m), bits
     reversed."""
     if m <= CACHED_NET:
-        return np.take(_net_reversed(m)[d], index)
+        return np.take(net_reversed(m)[d], index)
     return np.ascontiguousarray(_points_reversed(index, m)[..., d])
 
 

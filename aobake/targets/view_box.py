@@ -203,17 +203,27 @@ class _Context:
         self.samples = sample_set(joint.sampler, joint.per_group, 1)
         from aobake import _native
 
-        self.kernels = _native.kernels() if joint.sampler in ("sobol", "random") else None
+        compiled = _native.kernels()
+        self.kernels = compiled if joint.sampler in ("sobol", "random") else None
         self.weighting_code = WEIGHTING_CODES.get(config.weighting)
         if self.weighting_code is None:
             self.kernels = None
         self.compiled = False  # set where the kernel built rays
+        # the primary rays of sobol positions, compiled (``aobake._kernels.pixel_rays``,
+        # the numpy below bit for bit) where their net is one table for every pixel
+        self.pixel_kernel, self.net = None, None
+        if compiled is not None and joint.sampler == "sobol" \
+                and joint.per_replicate <= joint_samples.CACHED_NET:
+            self.pixel_kernel = compiled
+            self.net = np.ascontiguousarray(
+                np.stack(joint_samples.net_reversed(joint.per_replicate), axis=1))
         self.eye = np.asarray(cam.eye, dtype=np.float64)
         self.eye32 = built.to_local(self.eye[None, :]).astype(np.float32)
         self.half_h = cam.tan_half_fov
         self.half_w = self.half_h * cam.aspect
         self.right, self.up_vector, self.forward = (np.asarray(v, dtype=np.float64) for v in
                                                     (cam.right, cam.up, cam.forward))
+        self.basis = np.ascontiguousarray(np.stack([self.right, self.up_vector, self.forward]))
         # per face: the unit normal, the plane's distance along it from the eye
         # (n . (v0 - eye): a ray's hit is eye + (w / n.d) d) and the ray offset's scale
         normals = np.asarray(scene.face_normals, dtype=np.float64)
@@ -249,10 +259,38 @@ class _Context:
         d /= norm[:, None]
         return d
 
-    def first_hits(self, directions: np.ndarray):
-        """(t (N,) float32 local, prim (N,) int64, ground (N,) bool) of primary rays."""
-        origins = np.broadcast_to(self.eye32, directions.shape)
-        return self.built.nearest(origins, directions.astype(np.float32), _FAR)
+    def primary(self, pixels: np.ndarray, keys: np.ndarray, q0: int, count: int):
+        """Slots q0 .. q0 + count - 1 of every replicate of ``pixels`` (k,) int64, whose
+        replicate keys are ``keys`` (k, R) uint64: (where (k R count, 2) float64 each position
+        in its pixel, directions (k R count, 3) float64 the unit ray through it, float32
+        the same rounded), rows pixel-major, then replicate, then slot."""
+        joint = self.joint
+        if self.pixel_kernel is not None:
+            n = keys.size * count
+            where, directions = np.empty((n, 2)), np.empty((n, 3))
+            directions32 = np.empty((n, 3), dtype=np.float32)
+            cam = self.cam
+            self.pixel_kernel.pixel_rays(
+                np.ascontiguousarray(pixels, dtype=np.int64), np.ascontiguousarray(keys),
+                self.net, joint.groups, q0, count, joint.per_replicate, cam.width,
+                cam.height, 2.0 / cam.width, 2.0 / cam.height, self.half_w, self.half_h,
+                self.basis, where, directions, directions32)
+            self.compiled = True  # (the report's kernels: ray generation ran compiled)
+            return where, directions, directions32
+        where = joint_samples.positions(joint.sampler, keys, joint_samples.seeds(keys), q0, count,
+                                        joint.per_replicate, joint.position_grid)
+        where = where.reshape(-1, 2)  # (k R count, 2), pixel-major, then replicate, then q
+        owner = np.repeat(pixels, joint.groups * count)
+        directions = self.directions(owner, where[:, 0], where[:, 1])
+        return where, directions, directions.astype(np.float32)
+
+    def first_hits(self, directions: np.ndarray, directions32: np.ndarray | None = None):
+        """(t (N,) float32 local, prim (N,) int64, ground (N,) bool) of primary rays
+        ``directions`` (N, 3) float64 (``directions32``: the same as float32, if made)."""
+        if directions32 is None:
+            directions32 = directions.astype(np.float32)
+        origins = np.broadcast_to(self.eye32, directions32.shape)
+        return self.built.nearest(origins, directions32, _FAR)
 
     def hits(self, directions, t, prim, ground):
         """Where primary rays ``directions`` (h, 3) float64 hit (``first_hits``' t, prim,
@@ -372,13 +410,9 @@ def _item(ctx: _Context, pixels: np.ndarray, i0: int, count: int, gather: np.nda
     k = len(pixels)
     q0, per = i0 // r, count // r  # positions of the item, per replicate
     keys = replicate_keys(ctx.key, pixels, groups)
-    key_seeds = joint_samples.seeds(keys)
-    where = joint_samples.positions(joint.sampler, keys, key_seeds, q0, per,
-                                    joint.per_replicate, joint.position_grid)
-    where = where.reshape(-1, 2)  # (k R per, 2), pixel-major, then replicate, then q
+    where, directions, directions32 = ctx.primary(pixels, keys, q0, per)
     owner = np.repeat(pixels, groups * per)
-    directions = ctx.directions(owner, where[:, 0], where[:, 1])
-    t, prim, ground = ctx.first_hits(directions)
+    t, prim, ground = ctx.first_hits(directions, directions32)
     hit = np.isfinite(t)
     out = {"hits": hit.reshape(k, groups * per).sum(axis=1), "near": None}
     if gather.any():
