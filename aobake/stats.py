@@ -123,6 +123,40 @@ def error_bars(mean: np.ndarray, se: np.ndarray, n, dof, confidence: float):
     return stderr, np.clip(mean - h, 0.0, 1.0), np.clip(mean + h, 0.0, 1.0)
 
 
+def ratio_spread(y: np.ndarray, c: np.ndarray, mean: np.ndarray):
+    """The standard error of a ratio estimator over G replicates: (se (k,), dof (k,)).
+
+    y (k, G) float64 each replicate's sum of values, c (k, G) its count of values (rays
+    of a pixel's covered positions), mean (k,) the pooled ratio sum(y) / sum(c).  The
+    linearised (delta-method) variance of sum_g Y_g / sum_g C_g: sum_g (Y_g - v C_g)^2 /
+    (G (G - 1) Cbar^2), Cbar the mean count; G - 1 degrees of freedom where at least two
+    replicates counted any value, else 0 (nothing to measure).  A box-filtered pixel's
+    error (``aobake.targets.view``, ``aobake.targets.view_box``): the replicates are
+    independent, the count of each (the part of the pixel it saw) random."""
+    groups = y.shape[1]
+    z = y - mean[:, None] * c
+    c_bar = c.sum(axis=1) / groups
+    c_bar = np.where(c_bar > 0, c_bar, 1.0)  # (a pixel that counted nothing is blank)
+    se = np.sqrt(np.square(z).sum(axis=1) / (groups * max(groups - 1, 1) * np.square(c_bar)))
+    dof = np.where(np.count_nonzero(c, axis=1) >= 2, groups - 1, 0)
+    return se, dof
+
+
+def pooled_error_bars(mean: np.ndarray, se: np.ndarray, dof, units: np.ndarray,
+                      rays: np.ndarray, exact_value: bool, confidence: float):
+    """(stderr, low, high) (k,) float64 of pooled means (a box-filtered pixel's) with a
+    measured ``se`` on ``dof`` (k,) degrees of freedom: where dof < 1 the worst case 0.5 /
+    sqrt(units); the interval's rule of three over ``units`` (k,) (the pixel's covered
+    positions); a zero spread's stderr the resolution 1 / ``rays`` (k,) of the values
+    pooled, as a point's is; ``exact_value`` (every ray gives the same answer): 0 and
+    [mean, mean]."""
+    if exact_value:
+        return exact(mean)
+    se = np.where(dof >= 1, se, 0.5 / np.sqrt(units))  # nothing to measure: worst case
+    error = error_bars(mean, se, units, dof, confidence)
+    return (np.where(se > 0, se, 1.0 / np.maximum(rays, 1)),) + error[1:]
+
+
 def normal_equivalent(se: np.ndarray, dof, confidence: float) -> np.ndarray:
     """se (k,) measured on ``dof`` (k,) degrees of freedom (>= 1) -> (k,) se t_dof(C) / z(C).
 

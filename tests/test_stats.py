@@ -40,3 +40,34 @@ def test_error_bars_without_spread_is_the_whole_range():
 def test_exact_values_have_zero_width():
     stderr, low, high = stats.exact(np.array([1.0, 0.3]))
     assert np.all(stderr == 0) and np.array_equal(low, high)
+
+
+def test_the_ratio_spread_is_the_replicate_means_spread_where_counts_are_equal():
+    """With every replicate counting n values, the ratio estimator is the mean of the
+    replicate means and its linearised stderr their sample spread over sqrt(G), exactly;
+    a pixel where one replicate counted anything has nothing to measure (dof 0)."""
+    rng = np.random.default_rng(5)
+    groups, n = 4, 16
+    y = rng.binomial(n, 0.3, size=(50, groups)).astype(np.float64)
+    c = np.full((50, groups), float(n))
+    mean = y.sum(axis=1) / c.sum(axis=1)
+    se, dof = stats.ratio_spread(y, c, mean)
+    np.testing.assert_allclose(se, np.std(y / n, axis=1, ddof=1) / np.sqrt(groups),
+                               rtol=1e-12)
+    assert (dof == groups - 1).all()
+    c[0, 1:] = 0.0
+    y[0, 1:] = 0.0
+    assert stats.ratio_spread(y, c, y.sum(axis=1) / np.maximum(c.sum(axis=1), 1))[1][0] == 0
+
+
+def test_pooled_error_bars_without_a_spread_are_the_worst_case():
+    mean = np.array([0.3, 0.3])
+    se = np.array([0.01, 0.0])
+    dof = np.array([3, 0])
+    err, low, high = stats.pooled_error_bars(mean, se, dof, np.array([16.0, 16.0]),
+                                             np.array([64, 64]), False, 0.95)
+    assert err[0] == 0.01 and err[1] == 0.5 / 4.0  # 0.5 / sqrt(16 positions)
+    assert (low[1], high[1]) == (0.0, 1.0)
+    exact = stats.pooled_error_bars(mean, se, dof, np.array([16.0, 16.0]),
+                                    np.array([64, 64]), True, 0.95)
+    assert (exact[0] == 0).all() and (exact[1] == mean).all() and (exact[2] == mean).all()

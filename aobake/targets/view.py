@@ -671,19 +671,9 @@ def pool(config, footprint: Footprint, state: dict, estimates, n: int,
             key = a * groups + group[traced]
             y = np.bincount(key, weights=v, minlength=k * groups).reshape(k, groups)
             c = np.bincount(key, minlength=k * groups).reshape(k, groups)
-            z = y - mean[:, None] * c
-            c_bar = c.sum(axis=1) / groups
-            c_bar = np.where(c_bar > 0, c_bar, 1.0)  # (a blind pixel's value is not this)
-            var = np.square(z).sum(axis=1) / (groups * max(groups - 1, 1) * np.square(c_bar))
-            se = np.sqrt(var)
-            dof = np.where(np.count_nonzero(c, axis=1) >= 2, groups - 1, 0)
-        se = np.where(dof >= 1, se, 0.5 / np.sqrt(units))  # nothing to measure: worst case
-        if exact:
-            error = stats.exact(mean)
-        else:
-            error = stats.error_bars(mean, se, units, dof, config.confidence)
-            # a zero spread's stderr: the resolution of the pixel's rays, as a point's is
-            error = (np.where(se > 0, se, 1.0 / np.maximum(per_pixel, 1)),) + error[1:]
+            se, dof = stats.ratio_spread(y, c, mean)
+        error = stats.pooled_error_bars(mean, se, dof, units, per_pixel, exact,
+                                        config.confidence)
         for name, array in zip(names[1:], error):
             fields[name] = np.where(blind, fields[name], array)
     return fields, per_pixel

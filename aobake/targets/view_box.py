@@ -567,22 +567,21 @@ def pool(config, joint: Joint, sums: dict, covered: np.ndarray, diagonal: float)
     """The covered pixels' fields (name -> (k,) float64, pixel order) and rays (k,) int64
     from ``trace``'s sums; ``covered`` (k,) int64 the pixels some position hits.
 
-    As the positions estimator's ``pool``: the ratio estimator's stderr from the
-    replicates (i.i.d.: the rays' spread), and the interval's rule of three over the
-    pixel's covered *positions*, not its rays.  Why positions: a replicate's positions are
-    a stratified set, and an edge that crosses the pixel along one of its strata (an
-    axis-aligned step) leaves each replicate with one of two counts on either side, so
-    the replicates may all agree and their spread miss the positions' error (up to the
-    step's height over the positions per replicate); the floor h0 over positions covers
-    that, as it covers a sliver none of the positions landed on.  (Over rays it did not:
-    a step at 35% of the pixel's width, the default 256 rays, 84% coverage; over
+    As the positions estimator's ``pool``: the ratio estimator's stderr from the replicates
+    (``stats.ratio_spread``; i.i.d.: the rays' spread), and the interval's rule of three
+    over the pixel's covered *positions*, not its rays. Why positions: a replicate's
+    positions are a stratified set, and an edge that crosses the pixel along one of its
+    strata (an axis-aligned step) leaves each replicate with one of two counts on either
+    side, so the replicates may all agree and their spread miss the positions' error (up to
+    the step's height over the positions per replicate); the floor h0 over positions covers
+    that, as it covers a sliver none of the positions landed on. (Over rays it did not: a
+    step at 35% of the pixel's width, the default 256 rays, 84% coverage; over
     positions, tests/test_view_box_stratified.py.)"""
     c = sums["c"][covered]
     counted = c.sum(axis=1)  # the rays of the covered positions that cast
     blind = counted == 0  # covered pixels none of whose positions cast rays
     rays_seen = np.maximum(counted, 1)
     places = np.maximum(counted / joint.rays_per_position, 1.0)  # their positions
-    groups = joint.groups
     exact = config.resolve_max_distance(diagonal) == 0
     per_pixel = counted.astype(np.int64)
     fields = {}
@@ -596,19 +595,9 @@ def pool(config, joint: Joint, sums: dict, covered: np.ndarray, diagonal: float)
             se = np.sqrt(sums["m2"][quantity][covered].sum(axis=1) / np.maximum(dof, 1)
                          / rays_seen)
         else:
-            z = y - mean[:, None] * c
-            c_bar = counted / groups
-            c_bar = np.where(c_bar > 0, c_bar, 1.0)
-            se = np.sqrt(np.square(z).sum(axis=1)
-                         / (groups * max(groups - 1, 1) * np.square(c_bar)))
-            dof = np.where(np.count_nonzero(c, axis=1) >= 2, groups - 1, 0)
-        se = np.where(dof >= 1, se, 0.5 / np.sqrt(places))  # nothing to measure: worst case
-        if exact:
-            error = stats.exact(mean)
-        else:
-            error = stats.error_bars(mean, se, places, dof, config.confidence)
-            # a zero spread's stderr: the resolution of the pixel's rays, as a point's
-            error = (np.where(se > 0, se, 1.0 / np.maximum(per_pixel, 1)),) + error[1:]
+            se, dof = stats.ratio_spread(y, c, mean)
+        error = stats.pooled_error_bars(mean, se, dof, places, per_pixel, exact,
+                                        config.confidence)
         columns = (mean,) + tuple(error)
         nothing = (0.5, 0.5, 0.0, 1.0)  # no information: a pixel whose positions cast none
         for name, array, blank in zip(names, columns, nothing):
