@@ -189,3 +189,16 @@ def test_kept_distances_hold_no_inf(kept, tmp_path):
     res = run_cli("refit", tmp_path / "old.npz", "-o", tmp_path / "again.npz", "--tau", "3")
     assert res.exit_code == 0, res.output
     assert np.isfinite(arrays_of(tmp_path / "again.npz")["ray_distances"]).all()
+
+
+def test_refit_over_its_own_bake_is_refused_calling_it_the_bake(kept, tmp_path):
+    path = tmp_path / "kept.npz"
+    path.write_bytes(kept[1].read_bytes())
+    before = path.read_bytes()
+    res = run_cli("refit", path, "-o", path, "--tau", "2")
+    assert res.exit_code == 1 and isinstance(res.exception, SystemExit), res.output
+    assert res.output == (f"aobake: error: {path}: refusing to overwrite the input bake: "
+                          "every output needs its own file\n"), res.output
+    assert path.read_bytes() == before and sorted(os.listdir(tmp_path)) == ["kept.npz"]
+    with pytest.raises(aobake.OutputError, match="refusing to overwrite the input bake"):
+        aobake.write(refit(path, tau=2.0), path, mesh=path)

@@ -113,7 +113,8 @@ def view_command() -> click.Command:
         "view", params=params, callback=_view, shown=("output", "camera", "common", "rays"),
         context_settings={"help_option_names": ["-h", "--help"]},
         help="Render a camera view of MESH: one primary ray per pixel centre (Embree; "
-             "--pixel-filter box: --pixel-samples rays spread over each pixel), the "
+             "--pixel-filter box: positions spread over each pixel's area, the mean AO "
+             "over the pixel as a box-filtered renderer computes it), the "
              "G-buffer (depth, distance, hardware depths, view-space position and normals, "
              "ids, coverage) and the method's values (ao, its stderr and interval, rays) "
              "at each first hit, about the geometric normal facing the eye. Default camera: "

@@ -44,11 +44,12 @@ class Outputs:
 def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=None,
          quantities=None, inputs=(), orm: bool = False, keep_distances: bool = False,
          denoise: bool = False, half: bool = False, bit_depth: int = 8,
-         r_only: bool = False) -> Outputs:
+         r_only: bool = False, mesh_name: str = "the input mesh") -> Outputs:
     """Resolve and check a bake's output paths before baking (fail before any work).
 
     target : 'vertices' | 'texels' | 'view' | None (from the extension; texels with
-    ``orm``); mesh : the input path, which no output may overwrite; inputs : the other
+    ``orm``); mesh : the input path, which no output may overwrite (``mesh_name``: what
+    a refusal calls it, e.g. "the input bake" for ``aobake refit``); inputs : the other
     files the bake reads (a dict flag -> path, or paths), none of which an output may
     overwrite either; quantities : what will be baked (an image needs ao or obscurance);
     keep_distances : the bake keeps its rays' distances (only .npz holds them); denoise :
@@ -114,7 +115,7 @@ def plan(out, target: str | None = None, *, mesh=None, mesh_out=None, report=Non
              ("the camera file (<out>.camera.json)", camera)]
     seen = {}
     if mesh is not None:
-        seen[mesh.resolve()] = "the input mesh"
+        seen[mesh.resolve()] = mesh_name
     named = inputs.items() if isinstance(inputs, Mapping) else (("an input", p) for p in inputs)
     for flag, other in named:
         if isinstance(other, (str, os.PathLike)):
@@ -180,7 +181,9 @@ def write(result, out, *, mesh_out=None, report=None, half: bool = False, bit_de
                  # refit, and may be written to any format: ``aobake refit``'s help)
                  keep_distances=bool(getattr(result, "kept", None))
                  and "refit" not in result.report,
-                 denoise=bool(config.get("denoise")))
+                 denoise=bool(config.get("denoise")),
+                 mesh_name="the input bake" if "refit" in (result.report or {})
+                 else "the input mesh")
     options = WriteOptions(half=half, bit_depth=int(bit_depth), r_only=r_only, orm=orm,
                            orm_from=None if orm_from is None else str(orm_from))
     meta = metadata(result)
