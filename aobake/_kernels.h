@@ -38,6 +38,29 @@ static inline uint64_t mix(uint64_t x)
     return x ^ (x >> 31);
 }
 
+/* The 32 bits of x in reverse order (aobake.samplers.sobol.reverse_bits). */
+static inline uint32_t reverse32(uint32_t x)
+{
+    x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);
+    x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);
+    x = ((x >> 4) & 0x0F0F0F0Fu) | ((x & 0x0F0F0F0Fu) << 4);
+    x = ((x >> 8) & 0x00FF00FFu) | ((x & 0x00FF00FFu) << 8);
+    return (x >> 16) | (x << 16);
+}
+
+/* The scramble of Owen-scrambled Sobol points on bit-reversed values, still reversed
+ * (Burley 2020): + seed, then Laine and Karras' permutation (aobake.samplers.joint._permute,
+ * aobake.samplers.sobol.owen_scramble_reversed). */
+static inline uint32_t lk_permute(uint32_t x, uint32_t seed)
+{
+    x += seed;
+    x ^= x * 0x6C50B47Cu;
+    x ^= x * 0xB82F1E52u;
+    x ^= x * 0xC7AFE638u;
+    x ^= x * 0x8D22F6E6u;
+    return x;
+}
+
 /* At most this many threads in a kernel that splits its rows among threads (the seam
  * system's assembly and the conjugate gradients). */
 #define MAX_THREADS 16

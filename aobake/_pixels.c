@@ -22,27 +22,6 @@ static const uint64_t SALTS[5] = {0x632BE59BD9B4E019ULL, 0xC657CB37B369C032ULL,
                                   0x2983B0D38D1EA04BULL, 0x8CAF966F66D38064ULL,
                                   0xEFDB7C0B4088607DULL};
 
-static inline uint32_t reverse_u32(uint32_t x)
-{
-    x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);
-    x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);
-    x = ((x >> 4) & 0x0F0F0F0Fu) | ((x & 0x0F0F0F0Fu) << 4);
-    x = ((x >> 8) & 0x00FF00FFu) | ((x & 0x00FF00FFu) << 8);
-    return (x >> 16) | (x << 16);
-}
-
-/* aobake.samplers.joint._permute: + seed, then Laine and Karras' permutation (on reversed
- * bits, still reversed). */
-static inline uint32_t permute(uint32_t x, uint32_t seed)
-{
-    x += seed;
-    x ^= x * 0x6C50B47Cu;
-    x ^= x * 0xB82F1E52u;
-    x ^= x * 0xC7AFE638u;
-    x ^= x * 0x8D22F6E6u;
-    return x;
-}
-
 /* pixel_rays(pixels, keys, net, R, q0, count, m, width, height, sx, sy, half_w, half_h,
  *            basis, out_where, out_directions, out_directions32)
  *
@@ -112,14 +91,14 @@ PyObject *pixel_rays(PyObject *self, PyObject *args)
                     seed[d] = (uint32_t)(mix(key + SALTS[d]) >> 32);
                 for (Py_ssize_t i = 0; i < count; ++i) {
                     /* joint.shuffle: the Owen scramble of the slot, walked below m */
-                    uint32_t slot = reverse_u32(permute(reverse_u32((uint32_t)(q0 + i)),
-                                                        seed[4])) & mask;
+                    uint32_t slot = reverse32(lk_permute(reverse32((uint32_t)(q0 + i)),
+                                                      seed[4])) & mask;
                     while (slot >= (uint32_t)m)
-                        slot = reverse_u32(permute(reverse_u32(slot), seed[4])) & mask;
+                        slot = reverse32(lk_permute(reverse32(slot), seed[4])) & mask;
                     /* joint._scramble of point `slot` of the net: its cell's centre */
-                    const double ux = (double)reverse_u32(permute(net[2 * slot], seed[0]))
+                    const double ux = (double)reverse32(lk_permute(net[2 * slot], seed[0]))
                                       * 0x1p-32 + 0x1p-33;
-                    const double uy = (double)reverse_u32(permute(net[2 * slot + 1], seed[1]))
+                    const double uy = (double)reverse32(lk_permute(net[2 * slot + 1], seed[1]))
                                       * 0x1p-32 + 0x1p-33;
                     /* view_box._Context.directions */
                     const double vx = (((double)column + ux) * sx - 1.0) * half_w;

@@ -26,26 +26,12 @@
 
 static inline double unit53(uint64_t h) { return (double)(h >> 11) * 0x1p-53; }
 
-static inline uint32_t reverse32(uint32_t x)
-{
-    x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);
-    x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);
-    x = ((x >> 4) & 0x0F0F0F0Fu) | ((x & 0x0F0F0F0Fu) << 4);
-    x = ((x >> 8) & 0x00FF00FFu) | ((x & 0x00FF00FFu) << 8);
-    return (x >> 16) | (x << 16);
-}
-
 /* aobake.samplers.sobol.owen_scramble_reversed (Burley 2020, Laine-Karras permutation) of a
  * bit-reversed Sobol point (the table is stored reversed: one reversal per sample saved). */
 #define BLOCK 64
 static inline uint32_t owen_reversed(uint32_t x, uint32_t seed)
 {
-    x += seed;
-    x ^= x * 0x6C50B47Cu;
-    x ^= x * 0xB82F1E52u;
-    x ^= x * 0xC7AFE638u;
-    x ^= x * 0x8D22F6E6u;
-    return reverse32(x);
+    return reverse32(lk_permute(x, seed));
 }
 
 /* aobake.warp.cos_sin_2pi: + and * only, in the same order. */
