@@ -129,3 +129,44 @@ def polygon_form_factors(points, normals, corners) -> np.ndarray:
     angle = np.arctan2(norm, np.einsum("nkc,nkc->nk", a, b))
     total = np.einsum("nk,nkc,nc->n", angle / norm, cross, np.asarray(normals, float))
     return np.abs(total) / (2 * np.pi)
+
+
+#: the box-filter scenes' ceiling height and eye height (``step_scene``)
+STEP_CEILING, STEP_EYE = 0.5, 0.4
+
+
+def step_scene(a=0.5, f=0.35, g=1.0, size=(8, 128), column=3):
+    """A view whose every pixel's area mean is known in closed form (the box filter's
+    oracle, tests/test_view_box*.py): (mesh, camera, truths, D, drop).
+
+    Seen straight down from z = ``STEP_EYE``, a floor strip (z = 0) under an infinite
+    ceiling at h = ``STEP_CEILING``, max distance D = h / sqrt(a): its cosine-weighted AO
+    is exactly (h / D)^2 = ``a``.  The strip's edge crosses column ``column`` at a
+    fraction f of its width; strips of AO exactly 1 at z = -drop (farther than D from
+    everything) fill the bottom fraction g of every row.  truths: 'left' / 'mixed' /
+    'right' (the columns before, at and after ``column``) -> (coverage, covered mean)."""
+    from aobake import camera as cameras
+
+    distance = STEP_CEILING / math.sqrt(a)
+    drop = max(1.0, 1.5 * distance)  # the lower strips see nothing within D
+    cam = cameras.look_at([0, 0, STEP_EYE], [0, 0, 0], [0, 1, 0], 20.0, size=size)
+
+    def world(x, y, height):
+        """Where the ray through pixel coordinates (x, y) meets z = STEP_EYE - height."""
+        d = cam.directions_through(np.array([[x, y]], float))[0]
+        return cam.eye + height / -d[2] * d
+
+    edge = world(column + f, 0.5, STEP_EYE)[0]
+    parts = [quad([0, 0, STEP_CEILING], 6, 6, flip=True),
+             quad([(edge - 6) / 2, 0, 0], (edge + 6) / 2, 6)]
+    if g >= 1:
+        parts.append(quad([0, 0, -drop], 8, 8))
+    else:
+        for row in range(size[1]):  # the bottom fraction g of each row of pixels
+            top = world(0.5, row + 1 - g, STEP_EYE + drop)[1]
+            bottom = world(0.5, row + 1, STEP_EYE + drop)[1]
+            parts.append(quad([0, (top + bottom) / 2, -drop], 8, (top - bottom) / 2))
+    cover = f + (1 - f) * g
+    truths = {"left": (1.0, a), "mixed": (cover, (a * f + (1 - f) * g) / cover),
+              "right": (g, 1.0)}
+    return combine(*parts), cam, truths, distance, drop

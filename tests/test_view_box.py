@@ -31,47 +31,26 @@ import numpy as np
 import pytest
 
 import aobake
-from aobake import camera as cameras
 from aobake import occluders
 from aobake.compare import compare
 from aobake.scene import load_scene
 from aobake.settings import BakeConfig
 from aobake.targets.view import Footprint, ViewTarget, pool
 
-from analytic import combine, quad
+import analytic
 from conftest import run_cli
 
-CEILING, DROP, EYE = 0.5, 1.0, 0.4
-#: AO = (CEILING / D)^2 = 0.5 on the floor strip under the ceiling
+CEILING, EYE = analytic.STEP_CEILING, analytic.STEP_EYE
+#: AO = (CEILING / D)^2 = 0.5 on the floor strip under the ceiling; the lower strips' drop
 D = CEILING / math.sqrt(0.5)
+DROP = max(1.0, 1.5 * D)
 SIZE = (8, 128)
 COLUMN = 3
 
 
 def step_scene(f=0.35, g=1.0, size=SIZE, column=COLUMN):
-    """(mesh, camera, truths): truths maps 'left' / 'mixed' / 'right' (the columns before,
-    at and after ``column``) to (coverage, covered mean)."""
-    cam = cameras.look_at([0, 0, EYE], [0, 0, 0], [0, 1, 0], 20.0, size=size)
-
-    def world(x, y, height):
-        """Where the ray through pixel coordinates (x, y) meets z = EYE - height."""
-        d = cam.directions_through(np.array([[x, y]], float))[0]
-        return cam.eye + height / -d[2] * d
-
-    edge = world(column + f, 0.5, EYE)[0]
-    parts = [quad([0, 0, CEILING], 6, 6, flip=True),
-             quad([(edge - 6) / 2, 0, 0], (edge + 6) / 2, 6)]
-    if g >= 1:
-        parts.append(quad([0, 0, -DROP], 6, 6))
-    else:
-        for row in range(size[1]):  # the bottom fraction g of each row of pixels
-            top = world(0.5, row + 1 - g, EYE + DROP)[1]
-            bottom = world(0.5, row + 1, EYE + DROP)[1]
-            parts.append(quad([0, (top + bottom) / 2, -DROP], 6, (top - bottom) / 2))
-    cover = f + (1 - f) * g
-    truths = {"left": (1.0, 0.5), "mixed": (cover, (0.5 * f + (1 - f) * g) / cover),
-              "right": (g, 1.0)}
-    return combine(*parts), cam, truths
+    """(mesh, camera, truths) of ``analytic.step_scene`` with the strip's AO 0.5."""
+    return analytic.step_scene(0.5, f, g, size, column)[:3]
 
 
 COLUMNS = {"left": slice(0, COLUMN), "mixed": slice(COLUMN, COLUMN + 1),

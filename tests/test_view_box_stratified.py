@@ -35,10 +35,11 @@ from aobake.settings import BakeConfig
 from aobake.targets import view_box
 from aobake.targets.view import ViewTarget
 
+import analytic
 from analytic import combine, quad
 from conftest import run_cli
 
-CEILING, EYE = 0.5, 0.4
+CEILING, EYE = analytic.STEP_CEILING, analytic.STEP_EYE
 SIZE = (8, 128)
 COLUMN = 3
 COLUMNS = {"left": slice(0, COLUMN), "mixed": slice(COLUMN, COLUMN + 1),
@@ -46,32 +47,8 @@ COLUMNS = {"left": slice(0, COLUMN), "mixed": slice(COLUMN, COLUMN + 1),
 
 
 def step_scene(a=0.5, f=0.35, g=1.0, size=SIZE, column=COLUMN):
-    """(mesh, camera, truths, D): the floor strip's AO is ``a``; its edge crosses column
-    ``column`` at a fraction f of its width; the lower strips (AO 1, farther than D from
-    everything) fill the bottom fraction g of every row.  truths: 'left' / 'mixed' /
-    'right' -> (coverage, covered mean)."""
-    distance = CEILING / math.sqrt(a)
-    drop = max(1.0, 1.5 * distance)  # the lower strips see nothing within D
-    cam = cameras.look_at([0, 0, EYE], [0, 0, 0], [0, 1, 0], 20.0, size=size)
-
-    def world(x, y, height):
-        d = cam.directions_through(np.array([[x, y]], float))[0]
-        return cam.eye + height / -d[2] * d
-
-    edge = world(column + f, 0.5, EYE)[0]
-    parts = [quad([0, 0, CEILING], 6, 6, flip=True),
-             quad([(edge - 6) / 2, 0, 0], (edge + 6) / 2, 6)]
-    if g >= 1:
-        parts.append(quad([0, 0, -drop], 8, 8))
-    else:
-        for row in range(size[1]):  # the bottom fraction g of each row of pixels
-            top = world(0.5, row + 1 - g, EYE + drop)[1]
-            bottom = world(0.5, row + 1, EYE + drop)[1]
-            parts.append(quad([0, (top + bottom) / 2, -drop], 8, (top - bottom) / 2))
-    cover = f + (1 - f) * g
-    truths = {"left": (1.0, a), "mixed": (cover, (a * f + (1 - f) * g) / cover),
-              "right": (g, 1.0)}
-    return combine(*parts), cam, truths, distance
+    """(mesh, camera, truths, D) of ``analytic.step_scene``."""
+    return analytic.step_scene(a, f, g, size, column)[:4]
 
 
 # ---- the samples --------------------------------------------------------------------------
