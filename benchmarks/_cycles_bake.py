@@ -79,17 +79,9 @@ def _setup(mesh: str, size: int, distance: float, threads: int, shading: str,
            terminator: float):
     import bpy
 
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    start = time.perf_counter()
-    bpy.ops.wm.obj_import(filepath=mesh, forward_axis="Y", up_axis="Z")
-    import_s = time.perf_counter() - start
-    objects = [o for o in bpy.context.scene.objects if o.type == "MESH"]
-    if len(objects) != 1:
-        raise SystemExit(f"{mesh}: expected one mesh object after import, got {len(objects)}")
-    obj = objects[0]
-    for other in bpy.context.scene.objects:
-        other.select_set(other is obj)
-    bpy.context.view_layer.objects.active = obj
+    from _blender_scene import import_one_mesh
+
+    obj, import_s = import_one_mesh(mesh)
     me = obj.data
     custom = bool(getattr(me, "has_custom_normals", False))
     # Cycles lifts a shadow ray's origin off a smooth-shaded triangle towards the curved
