@@ -128,3 +128,35 @@ def wait_for_quiet(limit_s: float, threshold: float = LOAD_THRESHOLD, log=None,
                     f"cores: {sample['others_cores']:.2f} now)")
                 told = True
             time.sleep(2.0)
+
+
+def watched(args, run, log, label: str):
+    """Run one row (``run()``: a fresh process to its end) under the load watch.
+
+    ``args``: the benchmark's ``retries``, ``wait`` and ``threshold``; ``run()`` returns a
+    dict with the row's ``seconds`` (or ``bake_s``).  Returns (result, load): load has the
+    other work before / during / after in cores (``Load``, ``quiet_sample``),
+    ``comparable`` (neither before nor during above --threshold: the row's own measurement
+    of other work is the direct one, the sample before catches a load that its own work
+    squeezed out; after is recorded only) and ``attempts`` (every try's seconds and load;
+    a try under load is run again, up to --retries times, after waiting up to --wait s for
+    a quiet machine).  bench_peers.py and bench_renderers_lightmap.py time their rows so."""
+    attempts = []
+    for attempt in range(args.retries + 1):
+        before = wait_for_quiet(args.wait, args.threshold, log)
+        with Load() as during:
+            res = run()
+        after = quiet_sample()
+        load = {"before": before, "during": during.record(), "after": after}
+        others = [load[k]["others_cores"] for k in ("before", "during", "after")]
+        # before and during decide; after is kept as a sign of load that began late in it
+        load["comparable"] = max(others[:2]) <= args.threshold
+        attempts.append({"seconds": res["seconds"] if "seconds" in res else res["bake_s"],
+                         **{k: load[k] for k in ("before", "during", "after")}})
+        if load["comparable"]:
+            break
+        log(f"  {label}: not comparable (load): other work "
+            + " / ".join(f"{o:.2f}" for o in others) + " cores before / during / after"
+            + ("; again" if attempt < args.retries else "; kept, marked"))
+    load["attempts"] = attempts
+    return res, load

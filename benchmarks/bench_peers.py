@@ -354,36 +354,6 @@ def map_vertices(scene, co: np.ndarray) -> np.ndarray:
 
 # --------------------------------------------------------------------------- driver
 
-def watched(args, run, log, label: str):
-    """Run one row (``run()``: a fresh process to its end) under the load watch.
-
-    Returns (result, load): load has the other work before / during / after in cores
-    (benchmarks/_machine.py), ``comparable`` (neither before nor during above --threshold:
-    the row's own measurement of other work is the direct one, the sample before catches
-    a load that its own work squeezed out; after is recorded only) and ``attempts``
-    (every try's seconds and load; a try under load is run again, up to --retries times,
-    after waiting up to --wait s for a quiet machine)."""
-    attempts = []
-    for attempt in range(args.retries + 1):
-        before = _machine.wait_for_quiet(args.wait, args.threshold, log)
-        with _machine.Load() as during:
-            res = run()
-        after = _machine.quiet_sample()
-        load = {"before": before, "during": during.record(), "after": after}
-        others = [load[k]["others_cores"] for k in ("before", "during", "after")]
-        # before and during decide; after is kept as a sign of load that began late in it
-        load["comparable"] = max(others[:2]) <= args.threshold
-        attempts.append({"seconds": res["seconds"], **{k: load[k] for k in
-                                                       ("before", "during", "after")}})
-        if load["comparable"]:
-            break
-        log(f"  {label}: not comparable (load): other work "
-            + " / ".join(f"{o:.2f}" for o in others) + " cores before / during / after"
-            + ("; again" if attempt < args.retries else "; kept, marked"))
-    load["attempts"] = attempts
-    return res, load
-
-
 def measure_mesh(args, cfg, path: Path, work: Path, available: dict, log) -> dict:
     scene = load_scene(path)
     V = scene.vertices
@@ -435,7 +405,7 @@ def measure_mesh(args, cfg, path: Path, work: Path, available: dict, log) -> dic
 
     def cli_rows(method, extra=()):
         for n in cfg["rays"]:
-            res, load = watched(args, lambda: run_cli(args, path, n, work, extra=extra), log,
+            res, load = _machine.watched(args, lambda: run_cli(args, path, n, work, extra=extra), log,
                                 f"{method} {n}")
             if done(add(method, "cosine", n, res, load,
                         note=f"bake inside {res['inner_s']:.2f} s")):
@@ -449,12 +419,12 @@ def measure_mesh(args, cfg, path: Path, work: Path, available: dict, log) -> dic
         for n in cfg["rays"]:
             err = None
             if "library" in available:
-                res, load = watched(args, lambda: run_runner(args, "library", path, n, work),
+                res, load = _machine.watched(args, lambda: run_runner(args, "library", path, n, work),
                                     log, f"library {n}")
                 err = add("aobake.bake()", "cosine", n, res, load,
                           note=f"process {res['process_s']:.2f} s")
             if "bare" in available:
-                res, load = watched(args, lambda: run_runner(args, "bare", path, n, work), log,
+                res, load = _machine.watched(args, lambda: run_runner(args, "bare", path, n, work), log,
                                     f"bare {n}")
                 build_s, trace_s = res["info"]["build_s"], res["info"]["trace_s"]
                 e1 = add("bare embreex, trace", "cosine", n, res, load, seconds=trace_s,
@@ -466,7 +436,7 @@ def measure_mesh(args, cfg, path: Path, work: Path, available: dict, log) -> dic
                 break
     if "tolerance" in available:
         for e in cfg["tolerances"]:
-            res, load = watched(args, lambda: run_cli(args, path, args.pilot, work, tolerance=e),
+            res, load = _machine.watched(args, lambda: run_cli(args, path, args.pilot, work, tolerance=e),
                                 log, f"tolerance {e:g}")
             t = res["report"].get("tolerance", {})
             add("aobake CLI --tolerance", "cosine", f"E={e:g}", res, load,
@@ -476,7 +446,7 @@ def measure_mesh(args, cfg, path: Path, work: Path, available: dict, log) -> dic
 
     def peer_libigl():
         for n in cfg["rays"]:
-            res, load = watched(args, lambda: run_runner(args, "libigl", path, n, work), log,
+            res, load = _machine.watched(args, lambda: run_runner(args, "libigl", path, n, work), log,
                                 f"libigl {n}")
             if done(add("libigl (embree)", "uniform", n, res, load,
                         note=f"process {res['process_s']:.2f} s")):
@@ -484,7 +454,7 @@ def measure_mesh(args, cfg, path: Path, work: Path, available: dict, log) -> dic
 
     def peer_open3d():
         for n in cfg["rays"]:
-            res, load = watched(args, lambda: run_runner(args, "open3d", path, n, work), log,
+            res, load = _machine.watched(args, lambda: run_runner(args, "open3d", path, n, work), log,
                                 f"open3d {n}")
             if done(add("Open3D RaycastingScene", "cosine", n, res, load,
                         note=f"numpy ray generation {res['info']['gen_s']:.2f} s of it")):
@@ -493,7 +463,7 @@ def measure_mesh(args, cfg, path: Path, work: Path, available: dict, log) -> dic
     def peer_blender():
         probes = []
         for n in cfg["blender_rays"]:
-            res, load = watched(args, lambda: run_blender(args, path, n, work, scene), log,
+            res, load = _machine.watched(args, lambda: run_blender(args, path, n, work, scene), log,
                                 f"blender {n}")
             errs = {w: errors(res["ao"], refs[w]["ao"], mask)[0] for w in refs}
             probes.append((n, res, load, errs))

@@ -287,30 +287,6 @@ def time_to(rows: list, target: float, key: str = "seconds"):
 
 # ---- the runs --------------------------------------------------------------------------------
 
-def watched(args, run, label: str):
-    """Run one row (a process to its end) under the load watch (as benchmarks/bench_peers.py):
-    (result, load) with the other work before / during / after (cores), ``comparable``
-    (neither before nor during above --threshold) and every attempt's seconds and load."""
-    attempts = []
-    for attempt in range(args.retries + 1):
-        before = _machine.wait_for_quiet(args.wait, args.threshold, log)
-        with _machine.Load() as during:
-            res = run()
-        after = _machine.quiet_sample()
-        load = {"before": before, "during": during.record(), "after": after}
-        others = [load[k]["others_cores"] for k in ("before", "during", "after")]
-        load["comparable"] = max(others[:2]) <= args.threshold
-        attempts.append({"seconds": res["seconds"] if "seconds" in res else res["bake_s"],
-                         **{k: load[k] for k in ("before", "during", "after")}})
-        if load["comparable"]:
-            break
-        log(f"  {label}: not comparable (load): other work "
-            + " / ".join(f"{o:.2f}" for o in others) + " cores before / during / after"
-            + ("; again" if attempt < args.retries else "; kept, marked"))
-    load["attempts"] = attempts
-    return res, load
-
-
 def make_row(tool: str, budget: int, res: dict, load: dict) -> dict:
     others = [load[k]["others_cores"] for k in ("before", "during", "after")]
     if tool == "aobake":
@@ -348,7 +324,7 @@ def series(args, tool: str, budgets, bake, ref, score_mask, images: dict) -> lis
     each row's image is kept in ``images`` for the final scoring."""
     rows = []
     for budget in budgets:
-        res, load = watched(args, lambda: bake(budget), f"{tool} {budget}")
+        res, load = _machine.watched(args, lambda: bake(budget), log, f"{tool} {budget}")
         row = make_row(tool, budget, res, load)
         images[(tool, budget)] = res
         rows.append(row)
