@@ -13,7 +13,7 @@
  *   _pack.c     chart_marks, pack_charts      aobake.targets.texels.packing: the atlas packer
  *   _unionfind.c parity_union_find            aobake.repair: components and their 2-colouring
  *   _normals.c  triangle_normals, vertex_normal_sums  aobake.scene: face and vertex normals
- *   _pixels.c   pixel_rays                    aobake.targets.view_box: a box view's primary rays
+ *   _pixels.c   pixel_rays, box_rays          aobake.targets.view_box: a box view's rays
  *
  * This file holds the module's method table; _kernels.h what the files share (buffer
  * checks, the splitmix64 hash of aobake.rng, the functions' declarations).
@@ -32,6 +32,10 @@ static PyMethodDef methods[] = {
      "pixel_rays(pixels, keys, net, R, q0, count, m, width, height, sx, sy, half_w, half_h, "
      "basis, out_where, out_directions, out_directions32): a box view's sobol positions and "
      "the camera rays through them."},
+    {"box_rays", box_rays, METH_VARARGS,
+     "box_rays(directions, t, prim, faces, eye, center, scale, up, height, ground_size, "
+     "fraction, ulps, keys, slots, table, sampler, weighting, r, m, out_origins, "
+     "out_directions): a box view's AO rays from its positions' primary hits."},
     {"raster_rows", raster_rows, METH_VARARGS,
      "raster_rows(ax, ay, dx, dy, owner, corner, vmax, verts, c0, c1, row_start, row_tris, width, "
      "n_sub, seed_key, q, g, row_lo, row_hi, write, rows, out_texel, out_face, out_bary, "

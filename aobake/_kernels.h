@@ -69,9 +69,15 @@ static inline uint32_t lk_permute(uint32_t x, uint32_t seed)
 int aobake_check_csr(const int64_t *indptr, const int32_t *indices, Py_ssize_t n,
                      Py_ssize_t nnz, int nonempty);
 
+/* _rays.c: the rays of k points (fill_rays' loop; see there). */
+void aobake_ray_loop(const float *o, const double *n, const uint64_t *keys, const uint32_t *tb,
+                     int sampler, int weighting, Py_ssize_t nx, Py_ssize_t ny, Py_ssize_t k,
+                     Py_ssize_t R, Py_ssize_t js, Py_ssize_t mp, float *oo, float *od);
+
 /* The module's functions (the method table in _kernels.c), by file. */
 PyObject *fill_rays(PyObject *self, PyObject *args);        /* _rays.c */
 PyObject *pixel_rays(PyObject *self, PyObject *args);       /* _pixels.c */
+PyObject *box_rays(PyObject *self, PyObject *args);         /* _pixels.c */
 PyObject *row_counts(PyObject *self, PyObject *args);       /* _counts.c */
 PyObject *raster_rows(PyObject *self, PyObject *args);      /* _raster.c */
 PyObject *surface_interp(PyObject *self, PyObject *args);   /* _surface.c */

@@ -27,7 +27,8 @@ KERNELS = {"ray_generation": "fill_rays", "escape_counts": "row_counts",
 FUNCTIONS = set(KERNELS.values()) | {"radix_argsort", "surface_interp", "chart_marks",
                                       "seam_pattern", "seam_values", "surface_shading",
                                       "parity_union_find", "triangle_normals",
-                                      "vertex_normal_sums", "pixel_rays"}
+                                      "vertex_normal_sums", "pixel_rays",
+                                      "box_rays"}
 
 if _compiled is not None and not FUNCTIONS <= set(dir(_compiled)):
     # An editable install not rebuilt since the kernels changed: numpy for everything

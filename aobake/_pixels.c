@@ -137,3 +137,154 @@ done:
     PyBuffer_Release(&od32);
     return result;
 }
+
+/* box_rays(directions, t, prim, faces, eye, center, scale, up, height, ground_size,
+ *          fraction, ulps, keys, slots, table, sampler, weighting, r, m,
+ *          out_origins, out_directions)
+ *
+ * The AO rays of h positions whose primary rays hit: each hit point and its geometric
+ * normal facing the eye (view_box._Context.hits), its ray origin lifted off the surface
+ * (view_box._offsets, as aobake.offsets.point_offsets), and its r rays (fill_rays' loop):
+ * the numpy of view_box._ao_rays, bit for bit, in position order.
+ *
+ * directions (h, 3) float64   the primary rays' unit directions (scene frame)
+ * t          (h,)   float32   Embree's distances (local units)
+ * prim       (h,)   int64     the face hit, -1 for the ground plane
+ * faces      (F, 5) float64   per face: unit normal, n . (v0 - eye), the offset's scale
+ * eye, center (3,)  float64;  scale: local units per scene unit
+ * up         the ground plane's axis (-1: no plane), height its height, ground_size its
+ *            offset scale (local units)
+ * fraction   --ray-offset; ulps: aobake.constants.OFFSET_ULPS
+ * keys       (h,)   uint64    each position's replicate's direction key
+ * slots      (h,)   int64     each position's slot q in its replicate: rays q r .. q r + r - 1
+ * table      (T, 2) uint32    sobol: the replicate's bit-reversed net (T >= m); random: empty
+ * sampler    0 random (one ray per position, on the key hashed with its slot), 2 sobol
+ * out_origins, out_directions (h r, 3) float32  written
+ */
+PyObject *box_rays(PyObject *self, PyObject *args)
+{
+    Py_buffer dirb = {0}, tb = {0}, primb = {0}, facesb = {0}, eyeb = {0}, centerb = {0},
+              keyb = {0}, slotb = {0}, tab = {0}, oo = {0}, od = {0};
+    double scale, height, ground_size, fraction, ulps;
+    int up, sampler, weighting;
+    Py_ssize_t r, m;
+    PyObject *result = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*diddddy*y*y*iinnw*w*", &dirb, &tb, &primb,
+                          &facesb, &eyeb, &centerb, &scale, &up, &height, &ground_size,
+                          &fraction, &ulps, &keyb, &slotb, &tab, &sampler, &weighting, &r,
+                          &m, &oo, &od))
+        return NULL;
+    const Py_ssize_t h = tb.len / 4, n_faces = facesb.len / 40, rows = tab.len / 8;
+    if (r < 1 || m < 1 || up < -1 || up > 2 || (sampler != 0 && sampler != 2) ||
+        weighting < 0 || weighting > 1 || (sampler == 0 && r != 1)) {
+        PyErr_SetString(PyExc_ValueError, "bad sampler, weighting or sizes");
+        goto done;
+    }
+    if (check(&dirb, "directions", 8, 3 * h) || check(&tb, "t", 4, h) ||
+        check(&primb, "prim", 8, h) || check(&facesb, "faces", 8, 5 * n_faces) ||
+        check(&eyeb, "eye", 8, 3) || check(&centerb, "center", 8, 3) ||
+        check(&keyb, "keys", 8, h) || check(&slotb, "slots", 8, h) ||
+        check(&tab, "table", 4, 2 * rows) || check(&oo, "out_origins", 4, 3 * h * r) ||
+        check(&od, "out_directions", 4, 3 * h * r))
+        goto done;
+
+    {
+        const double *dir = (const double *)dirb.buf, *faces = (const double *)facesb.buf;
+        const double *eye = (const double *)eyeb.buf, *center = (const double *)centerb.buf;
+        const float *t = (const float *)tb.buf;
+        const int64_t *prim = (const int64_t *)primb.buf, *slots = (const int64_t *)slotb.buf;
+        const uint64_t *keys = (const uint64_t *)keyb.buf;
+        const uint32_t *table = (const uint32_t *)tab.buf;
+        float *out_o = (float *)oo.buf, *out_d = (float *)od.buf;
+        int bad = 0;
+
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t p = 0; p < h; ++p) {
+            const double *d = dir + 3 * p;
+            const int64_t face = prim[p];
+            const double embree = (double)t[p] / scale;
+            double ng[3], dn, along, size;
+            if (face >= 0) {
+                if (face >= n_faces) {
+                    bad = 1;
+                    break;
+                }
+                const double *f = faces + 5 * face;
+                ng[0] = f[0];
+                ng[1] = f[1];
+                ng[2] = f[2];
+                dn = (d[0] * ng[0] + d[1] * ng[1]) + d[2] * ng[2];
+                along = fabs(dn) > 1e-9 ? f[3] / dn : embree;  /* view_box._GRAZING */
+                if (!(isfinite(along) && along > 0.0))
+                    along = embree;
+                size = f[4];
+            } else {
+                if (up < 0) {
+                    bad = 2;
+                    break;
+                }
+                ng[0] = ng[1] = ng[2] = 0.0;
+                ng[up] = 1.0;
+                dn = d[up];
+                along = (height - eye[up]) / d[up];
+                size = ground_size;
+            }
+            double local[3];
+            for (int a = 0; a < 3; ++a) {
+                const double point = (face < 0 && a == up) ? height : eye[a] + along * d[a];
+                local[a] = (point - center[a]) * scale;
+            }
+            const double flip = dn > 0.0 ? -1.0 : 1.0;  /* the side the eye sees */
+            for (int a = 0; a < 3; ++a)
+                ng[a] = ng[a] * flip;
+            /* view_box._offsets: the larger of OFFSET_ULPS float32 ulps of the point's
+             * magnitude and --ray-offset times its size */
+            double biggest = fabs(local[0]) >= fabs(local[1]) ? fabs(local[0]) : fabs(local[1]);
+            biggest = biggest >= fabs(local[2]) ? biggest : fabs(local[2]);
+            const float magnitude = (float)(biggest + size);
+            const double floor_ = ulps * (double)(nextafterf(magnitude, INFINITY) - magnitude);
+            const double lift = fraction * size;
+            const double offset = floor_ >= lift ? floor_ : lift;
+            float origin[3];
+            for (int a = 0; a < 3; ++a)
+                origin[a] = (float)(local[a] + offset * ng[a]);
+            const int64_t slot = slots[p];
+            if (slot < 0 || (sampler == 2 && (slot + 1) * r > rows)) {
+                bad = 3;
+                break;
+            }
+            if (sampler == 2) {
+                aobake_ray_loop(origin, ng, keys + p, table + 2 * slot * r, 2, weighting, 0, 0,
+                                1, 1, slot * r, r, out_o + 3 * p * r, out_d + 3 * p * r);
+            } else {  /* joint.hashes_at: the position's own key, its sample 0 */
+                const uint64_t key = mix(keys[p] + (uint64_t)(slot + 1) * 0xD1B54A32D192ED03ULL);
+                aobake_ray_loop(origin, ng, &key, table, 0, weighting, 0, 0, 1, 1, 0, 1,
+                                out_o + 3 * p, out_d + 3 * p);
+            }
+        }
+        Py_END_ALLOW_THREADS
+        if (bad) {
+            PyErr_SetString(PyExc_ValueError, bad == 1 ? "a face index beyond the faces" :
+                            bad == 2 ? "a ground-plane hit without a ground plane" :
+                            "a slot beyond the table");
+            goto done;
+        }
+    }
+    Py_INCREF(Py_None);
+    result = Py_None;
+
+done:
+    PyBuffer_Release(&dirb);
+    PyBuffer_Release(&tb);
+    PyBuffer_Release(&primb);
+    PyBuffer_Release(&facesb);
+    PyBuffer_Release(&eyeb);
+    PyBuffer_Release(&centerb);
+    PyBuffer_Release(&keyb);
+    PyBuffer_Release(&slotb);
+    PyBuffer_Release(&tab);
+    PyBuffer_Release(&oo);
+    PyBuffer_Release(&od);
+    return result;
+}

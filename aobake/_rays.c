@@ -60,7 +60,7 @@ static inline void cos_sin_2pi(double u, double *co, double *si)
     *si = neg_s ? -ps : ps;
 }
 
-/* The ray loop of fill_rays.  Compiled twice where the compiler can (GCC/clang on x86-64
+/* The ray loop of fill_rays (and of _pixels.c's box_rays).  Compiled twice where the compiler can (GCC/clang on x86-64
  * Linux): for AVX2 and for the baseline, picked at load time by the CPU.  The AVX2 build
  * vectorises the Owen hash and the square roots (measured 15.5 -> 8.8 ns per ray); both
  * do the same IEEE operations (no contraction: -ffp-contract=off), so the rays are
@@ -68,7 +68,7 @@ static inline void cos_sin_2pi(double u, double *co, double *si)
 #if defined(__x86_64__) && defined(__linux__) && (defined(__GNUC__) || defined(__clang__))
 __attribute__((target_clones("avx2", "default")))
 #endif
-static void ray_loop(const float *o, const double *n, const uint64_t *keys, const uint32_t *tb,
+void aobake_ray_loop(const float *o, const double *n, const uint64_t *keys, const uint32_t *tb,
                      int sampler, int weighting, Py_ssize_t nx, Py_ssize_t ny, Py_ssize_t k,
                      Py_ssize_t R, Py_ssize_t js, Py_ssize_t mp, float *oo, float *od)
 {
@@ -193,7 +193,7 @@ PyObject *fill_rays(PyObject *self, PyObject *args)
         float *oo = (float *)out_o.buf, *od = (float *)out_d.buf;
 
         Py_BEGIN_ALLOW_THREADS
-        ray_loop(o, n, keys, tb, sampler, weighting, nx, ny, k, R, js, mp, oo, od);
+        aobake_ray_loop(o, n, keys, tb, sampler, weighting, nx, ny, k, R, js, mp, oo, od);
         Py_END_ALLOW_THREADS
     }
     Py_INCREF(Py_None);

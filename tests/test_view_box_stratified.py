@@ -258,6 +258,40 @@ def test_the_compiled_primary_rays_and_numpy_give_the_same_bits(m):
     np.testing.assert_array_equal(out[2], directions.astype(np.float32))
 
 
+@pytest.mark.parametrize("options", [dict(), dict(sampler="random"),
+                                     dict(weighting="uniform", ray_offset=1e-3)])
+def test_the_compiled_ao_rays_and_numpy_give_the_same_bits(monkeypatch, options):
+    """``aobake._kernels.box_rays`` (hits, offsets and rays of a block's positions in one
+    pass) against ``_Context.hits`` and ``_ao_rays``, call by call, on a view that sees
+    the ground plane and grazing faces as well as the floor: the same rays, bit for bit."""
+    from aobake import _native
+
+    if _native.kernels() is None:
+        pytest.skip("aobake._kernels not built")
+    seen = {"calls": 0, "plane": 0}
+    compiled = view_box._Context.ao_rays
+
+    def both(ctx, directions, t, prim, keys, slots):
+        origins, rays = compiled(ctx, directions, t, prim, keys, slots)
+        local, ng, sizes = ctx.hits(directions, t, prim, prim < 0)
+        o, d, order = view_box._ao_rays(ctx, local, ng, sizes, keys, slots,
+                                        ctx.joint.rays_per_position)
+        r = ctx.joint.rays_per_position
+        rows = (order[:, None] * r + np.arange(r)[None, :]).reshape(-1)
+        np.testing.assert_array_equal(origins[rows], o)
+        np.testing.assert_array_equal(rays[rows], d)
+        seen["calls"] += 1
+        seen["plane"] += int((prim < 0).sum())
+        return origins, rays
+
+    monkeypatch.setattr(view_box._Context, "ao_rays", both)
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    cam = cameras.look_at([2.5, -2.0, 1.2], [0, 0, -0.4], [0, 0, 1], 50.0, size=(24, 16))
+    aobake.bake_view(sphere, camera=cam, rays=32, pixel_filter="box", ground_plane=True,
+                     up_axis="z", seed=5, **options)
+    assert seen["calls"] and seen["plane"]
+
+
 @pytest.mark.slow
 def test_a_pixel_with_more_rays_than_a_block():
     """2^19 rays per pixel: each pixel's rays in pieces folded in order, a direction net

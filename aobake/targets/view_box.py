@@ -212,6 +212,13 @@ class _Context:
         # the primary rays of sobol positions, compiled (``aobake._kernels.pixel_rays``,
         # the numpy below bit for bit) where their net is one table for every pixel
         self.pixel_kernel, self.net = None, None
+        # the AO rays from the primary hits, compiled (``aobake._kernels.box_rays``: ``hits``
+        # and ``_ao_rays`` below, bit for bit) where the ray generator has the case and,
+        # for sobol, the replicate's whole net is one table
+        self.box_kernel = None
+        if self.kernels is not None and (joint.sampler == "random"
+                                         or len(self.samples.table) >= joint.per_group):
+            self.box_kernel = compiled
         if compiled is not None and joint.sampler == "sobol" \
                 and joint.per_replicate <= joint_samples.CACHED_NET:
             self.pixel_kernel = compiled
@@ -291,6 +298,33 @@ class _Context:
             directions32 = directions.astype(np.float32)
         origins = np.broadcast_to(self.eye32, directions32.shape)
         return self.built.nearest(origins, directions32, _FAR)
+
+    def ao_rays(self, directions, t, prim, keys, slots):
+        """``hits`` and ``_ao_rays`` of h positions in one compiled pass
+        (``aobake._kernels.box_rays``): (origins (h r, 3) float32, directions (h r, 3)
+        float32), the rays of position j rows j r .. j r + r - 1.  directions (h, 3)
+        float64, t (h,) float32, prim (h,) int64: the positions' primary hits; keys (h,)
+        uint64 their replicates' direction keys; slots (h,) int64 their slots."""
+        built, joint = self.built, self.joint
+        r = joint.rays_per_position
+        h = len(t)
+        out_o = np.empty((h * r, 3), dtype=np.float32)
+        out_d = np.empty((h * r, 3), dtype=np.float32)
+        plane = built.ground is not None
+        sobol = joint.sampler == "sobol"
+        self.box_kernel.box_rays(
+            np.ascontiguousarray(directions, dtype=np.float64),
+            np.ascontiguousarray(t, dtype=np.float32),
+            np.ascontiguousarray(prim, dtype=np.int64), self.faces, self.eye,
+            np.ascontiguousarray(built.center, dtype=np.float64), float(built.scale),
+            self.up if plane else -1, float(built.ground["height"]) if plane else 0.0,
+            float(self.ground_size), float(self.config.ray_offset), float(OFFSET_ULPS),
+            np.ascontiguousarray(keys, dtype=np.uint64),
+            np.ascontiguousarray(slots, dtype=np.int64),
+            self.samples.table if sobol else np.zeros((0, 2), dtype=np.uint32),
+            2 if sobol else 0, self.weighting_code, r, joint.per_group, out_o, out_d)
+        self.compiled = True
+        return out_o, out_d
 
     def hits(self, directions, t, prim, ground):
         """Where primary rays ``directions`` (h, 3) float64 hit (``first_hits``' t, prim,
@@ -437,13 +471,18 @@ def _item(ctx: _Context, pixels: np.ndarray, i0: int, count: int, gather: np.nda
     n_rays = k * groups * count
     values = {q.name: np.zeros(n_rays) for q in ctx.quantities}
     if len(cast):
-        local, ng, sizes = ctx.hits(directions[cast], t[cast], prim[cast], ground[cast])
         # the covered positions' rays: replicate (pixel, g) = cast div per, position q0 +
         # cast mod per (the uncovered ones' samples are not drawn)
         replicate = cast // per
         directions_keys = replicate_keys(ctx.direction_key, pixels, groups).reshape(-1)
-        origins, rays, order = _ao_rays(ctx, local, ng, sizes, directions_keys[replicate],
-                                        q0 + cast % per, r)
+        if ctx.box_kernel is not None:  # hits, offsets and rays in one compiled pass
+            origins, rays = ctx.ao_rays(directions[cast], t[cast], prim[cast],
+                                        directions_keys[replicate], q0 + cast % per)
+            order = np.arange(len(cast))
+        else:
+            local, ng, sizes = ctx.hits(directions[cast], t[cast], prim[cast], ground[cast])
+            origins, rays, order = _ao_rays(ctx, local, ng, sizes, directions_keys[replicate],
+                                            q0 + cast % per, r)
         occluded, distance = built.trace(ctx.query, origins, rays, ctx.tmax)
         cast_in_order = cast[order]
         ray_index = ((q0 + cast_in_order % per) * r)[:, None] + np.arange(r)[None, :]
