@@ -289,8 +289,8 @@ class _Context:
                 self.basis, where, directions, directions32)
             self.compiled = True  # (the report's kernels: ray generation ran compiled)
             return where, directions, directions32
-        where = joint_samples.positions(joint.sampler, keys, joint_samples.seeds(keys), q0, count,
-                                        joint.per_replicate, joint.position_grid)
+        where = joint_samples.positions(joint.sampler, keys, joint_samples.seeds(keys), q0,
+                                        count, joint.per_replicate, joint.position_grid)
         where = where.reshape(-1, 2)  # (k R count, 2), pixel-major, then replicate, then q
         owner = np.repeat(pixels, joint.groups * count)
         directions = self.directions(owner, where[:, 0], where[:, 1])
