@@ -29,11 +29,16 @@ from aobake.executors import EXECUTORS, Job
 from aobake.executors.base import release
 from aobake.methods import METHODS
 from aobake.records import BakeResult, TexelResult, ViewResult
-from aobake.scene import load_scene
+from aobake.scene import Scene, load_scene, release_freed_memory
 from aobake.targets import TARGETS
 from aobake.trace import DEFAULT_CHUNK_RAYS, default_threads
 
 log = logging.getLogger(__name__)
+
+
+#: targets whose bake does not hold the scene's face normals and areas while it traces
+#: (their points are the scene's vertices, or given ones: ``Scene.lean``)
+LEAN_TARGETS = ("vertices", "points")
 
 
 def _timed(function, *args):
@@ -116,6 +121,14 @@ def run(
     if extend is not None:  # occluders beside the scene's faces (a high-to-low low mesh)
         scene = extend(scene, config, timings)
     occluder_stage.check(scene)  # its errors first, not after the target's work
+    if target.name in LEAN_TARGETS and not isinstance(mesh, Scene):
+        # A per-vertex bake reads the face normals and areas only to make the vertex
+        # normals (done at the load), the points' sizes and the report's area: the scene this
+        # bake loaded lets them go (32 bytes a triangle while it traces), and whatever reads
+        # them later gets them remade, the same bits (Scene.lean).  A Scene the caller
+        # passed keeps them: it still holds them itself.
+        scene = scene.lean()
+        release_freed_memory()  # their pages, from the allocator's heap
     rays_per_point = target.rays_per_point(config)
     compiled = _native.kernels() is not None  # decided once, on this thread
     # The occluders come first: a target may cast primary rays through them (the camera).
@@ -146,6 +159,10 @@ def run(
         pool.shutdown(wait=False, cancel_futures=True)
     if hasattr(the_method, "check_points"):
         the_method.check_points(len(plan.points))
+    # the sampling's temporaries (a per-vertex bake's row hashes and sort, the areas summed
+    # per vertex: ~25 MiB at 1M vertices) stay resident in the allocator's heap under the
+    # whole trace unless handed back
+    release_freed_memory()
     phase("tracing")
     clock = time.perf_counter()
     job = Job(scene, config, method, rays_per_point, compiled,

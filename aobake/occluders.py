@@ -201,8 +201,10 @@ def build(scene, config) -> Occluders:
     local = _local(scene.vertices, center, scale, unused,
                    float32=config.backend == "embree" and cut is None)
     del unused
-    # (the scene's own rows, read per hit; a subset's as float32: the bits the backend reads)
-    normals = scene.face_normals if subset is None else \
+    # (the scene's own rows, read per hit, and only where a front-face query asks for them:
+    # a lean scene (Scene.lean) remakes them then; a subset's as float32: the bits the
+    # backend reads)
+    normals = (lambda: scene.face_normals) if subset is None else \
         scene.face_normals[subset].astype(np.float32)
     cutout = None
     if cut is not None:  # the alpha-tested faces in a member of their own

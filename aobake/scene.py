@@ -98,6 +98,66 @@ class ExtraOccluder:
     skip: float = 0.0
 
 
+#: faces whose normals and areas are remade at a time from a scene's ``frame``
+#: (:func:`face_rows`: bounds the corner temporary to ~150 bytes a face of one block)
+FACE_BLOCK = 1 << 16
+
+
+def face_rows(vertices: np.ndarray, faces: np.ndarray, center: np.ndarray, scale: float,
+              normals: bool = True):
+    """(unit normals (f, 3) float64 | None, areas (f,) float64) of ``faces`` over
+    ``vertices`` (v, 3) float64, computed as :func:`make_scene` computes them: from the
+    coordinates rebased on ``center`` and scaled by the power of two ``scale`` (the scene's
+    ``frame``), the area ``0.5 |cross| / scale^2``: the same bits, a block of faces at a
+    time (each row's value depends on its own three corners alone, and the local
+    coordinates are ``(vertices - center) * scale`` whether made per vertex or per corner),
+    so that no (v, 3) copy of the mesh is made."""
+    n = len(faces)
+    unit = np.empty((n, 3)) if normals else None
+    areas = np.empty(n)
+    corners = None
+    for start in range(0, n, FACE_BLOCK):
+        block = slice(start, min(n, start + FACE_BLOCK))
+        k = block.stop - block.start
+        tri = ((vertices[faces[block]] - center) * scale).reshape(-1, 3)
+        if corners is None or len(corners) != k:
+            corners = np.arange(3 * k, dtype=np.int64).reshape(k, 3)
+        compiled = _triangle_normals(tri, corners)
+        if compiled is not None:
+            rows, length = compiled[0], compiled[1]
+        else:  # make_scene's numpy lines
+            tri = tri.reshape(k, 3, 3)
+            cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            rows, length = _normalize(cross), np.linalg.norm(cross, axis=1)
+        if normals:
+            unit[block] = rows
+        areas[block] = 0.5 * length / (scale * scale)
+    return unit, areas
+
+
+class _FaceNormals:
+    """``Scene.face_normals``: the array given, or where it was let go (``Scene.lean``)
+    remade from the scene's ``frame`` on first use (:func:`face_rows`, the same bits) and
+    kept from then on.  A data descriptor of a dataclass field: ``__init__`` sets it, a
+    frozen scene's own assignment is refused as for every field."""
+
+    def __set_name__(self, owner, name):
+        self._key = "_" + name
+
+    def __get__(self, scene, owner=None):
+        if scene is None:  # no default: the field is required
+            raise AttributeError("face_normals")
+        value = scene.__dict__.get(self._key)
+        if value is None and scene.__dict__.get("frame") is not None:
+            center, scale = scene.frame
+            value = face_rows(scene.vertices, scene.faces, center, scale)[0]
+            scene.__dict__[self._key] = value
+        return value
+
+    def __set__(self, scene, value):
+        scene.__dict__[self._key] = value
+
+
 @dataclass(frozen=True)
 class Scene:
     """One triangle scene in float64, as baked.
@@ -115,7 +175,7 @@ class Scene:
     vertices: np.ndarray
     faces: np.ndarray
     vertex_normals: np.ndarray
-    face_normals: np.ndarray
+    face_normals: np.ndarray = _FaceNormals()
     uv: np.ndarray | None = None
     faces_uv: np.ndarray | None = None
     source: str = "<memory>"
@@ -161,6 +221,11 @@ class Scene:
     #: faces above are the baked instances' (all of them unless ``--bake`` chose some), placed
     #: in scene units, in instance order; None for a scene loaded flat
     instances: object = field(default=None, repr=False)
+    #: (center (3,) float64, scale float: a power of two) the frame :func:`make_scene`
+    #: computed the face normals and areas in, ``(vertices - center) * scale``; with it
+    #: they can be let go while a bake does not read them and remade, the same bits
+    #: (:meth:`lean`, :func:`face_rows`); None for a Scene built directly
+    frame: tuple | None = field(default=None, repr=False)
 
     def __post_init__(self):
         """Shapes and index ranges checked, also for a Scene built directly (``make_scene``
@@ -176,8 +241,13 @@ class Scene:
         if f.min() < 0 or f.max() >= len(v):
             raise InputError(f"{self.source}: face index out of range (have {len(v)} "
                              "vertices)")
+        given = self.__dict__.get("_face_normals")
+        if given is None and self.frame is None:
+            raise InputError(f"{self.source}: face_normals must be ({len(f)}, 3), got None")
         for name, rows in (("vertex_normals", len(v)), ("face_normals", len(f))):
-            array = np.asarray(getattr(self, name))
+            array = np.asarray(self.vertex_normals if name == "vertex_normals" else given)
+            if name == "face_normals" and given is None:
+                continue  # let go (lean): remade from the frame when read
             if array.shape != (rows, 3):
                 raise InputError(f"{self.source}: {name} must be ({rows}, 3), got "
                                  f"{array.shape}")
@@ -189,12 +259,18 @@ class Scene:
             raise InputError(f"{self.source}: occluding must be ({len(f)},) bools, got "
                              f"{np.shape(self.occluding)}")
 
-    @cached_property
-    def used(self) -> np.ndarray:
-        """(u,) int64 sorted indices of the vertices that faces reference."""
+    def referenced(self) -> np.ndarray:
+        """(v,) bool the vertices that faces reference."""
         referenced = np.zeros(len(self.vertices), dtype=bool)  # np.unique without a sort
         referenced[self.faces.ravel()] = True
-        return np.flatnonzero(referenced)
+        return referenced
+
+    @property
+    def used(self) -> np.ndarray:
+        """(u,) int64 sorted indices of the vertices that faces reference (made on each
+        use, not kept: 8 bytes a vertex a bake would hold while it traces; the bounds it
+        gives are kept)."""
+        return np.flatnonzero(self.referenced())
 
     @cached_property
     def bounds(self) -> np.ndarray:
@@ -212,21 +288,50 @@ class Scene:
         lo, hi = self.bounds
         return float(np.linalg.norm(hi - lo))
 
-    def areas(self) -> np.ndarray:
-        """(f,) float64 triangle areas (computed at load, or now)."""
-        return self.face_areas if self.face_areas is not None else _face_areas(self.vertices, self.faces)
+    def areas(self, block: slice | None = None) -> np.ndarray:
+        """(f,) float64 triangle areas (computed at load, or now: from the ``frame`` where
+        the scene has one, the load's bits; not kept); with ``block``, of ``faces[block]``
+        alone (the same bits as those rows of the whole)."""
+        faces = self.faces if block is None else self.faces[block]
+        if self.face_areas is not None:
+            return self.face_areas if block is None else self.face_areas[block]
+        if self.frame is not None:
+            return face_rows(self.vertices, faces, *self.frame, normals=False)[1]
+        return _face_areas(self.vertices, faces)  # (each row's bits its own)
+
+    def lean(self) -> "Scene":
+        """This scene without its face normals and areas (32 bytes a triangle): a bake that
+        reads them only at its start (a per-vertex AO bake reads the areas for the points'
+        sizes and the report, no face normal after the load) does not hold them while it
+        traces; whatever reads them later gets them remade from ``frame``, the same bits
+        (face normals kept from then on, areas made per call).  The scene itself where it
+        has no frame (built directly: nothing to remake them from)."""
+        if self.frame is None:
+            return self
+        out = replace(self, face_normals=None, face_areas=None)
+        # the report's area figures, made while the areas are here (a cached value, as
+        # ``bounds``: a scene replaced from this one makes its own)
+        out.__dict__["area_summary"] = self.area_summary
+        return out
+
+    @cached_property
+    def area_summary(self) -> tuple:
+        """(surface area float: the areas' sum, degenerate triangles int: area <= 0)."""
+        areas = self.areas()
+        return float(areas.sum()), int(np.count_nonzero(areas <= 0))
 
     def stats(self) -> dict:
         """Scene statistics for the report."""
         lo, hi = self.bounds
-        areas = self.areas()
+        surface, degenerate = self.area_summary
         return {
             "source": self.source,
             "vertices": int(len(self.vertices)),
             "triangles": int(len(self.faces)),
-            "degenerate_triangles": int(np.count_nonzero(areas <= 0)),
-            "unreferenced_vertices": int(len(self.vertices) - len(self.used)),
-            "surface_area": float(areas.sum()),
+            "degenerate_triangles": degenerate,
+            "unreferenced_vertices": int(len(self.vertices)
+                                         - np.count_nonzero(self.referenced())),
+            "surface_area": surface,
             "bounds_min": lo.tolist(),
             "bounds_max": hi.tolist(),
             "diagonal": self.diagonal,
@@ -528,7 +633,8 @@ def make_scene(
     names = {kind: (tuple(str(n) for n in given), np.asarray(index, dtype=np.int64))
              for kind, (given, index) in (names or {}).items() if len(given)} or None
     return Scene(vertices, faces, vnormals, fnormals, uv, faces_uv if uv is not None else None,
-                 source, mode, warnings, materials, face_material, areas, record, names)
+                 source, mode, warnings, materials, face_material, areas, record, names,
+                 frame=(center, scale))
 
 
 def _obj_normals(data) -> np.ndarray | None:

@@ -30,6 +30,7 @@ from aobake.records import Estimates
 from aobake.quantities import QUANTITIES, Traced
 from aobake.rays import RayGenerator
 from aobake.samplers import sample_set
+from aobake.scene import release_freed_memory
 from aobake.vectors import defined
 
 #: rays per chunk handed to one ``run()``: Embree's 2-thread scaling flattens out from ~64k,
@@ -313,6 +314,14 @@ class Tracer:
         order = morton_order(kept, self.kernels)
         if not every:
             order = valid[order]
+        if n < 2**31:  # held while every ray is traced: 4 bytes a point, not 8
+            order = order.astype(np.int32)
+        streamed = self.samples.piece < self.samples.m
+        if not (every or streamed):
+            # the chunks reach the points through ``order``: the copy of the traced points
+            # (24 bytes a point) is not held while the values are made and the rays traced
+            del kept
+            release_freed_memory()  # its pages, from the allocator's heap
         per_chunk = max(1, int(chunk_rays) // self.samples.rays)
         n_chunks = -(-len(order) // per_chunk)
         out = self.no_information(normals)
@@ -327,7 +336,7 @@ class Tracer:
         extras = {"ray_offset": offsets}
         if distances is not None:
             extras["ray_distances"] = distances
-        if self.samples.piece < self.samples.m:
+        if streamed:
             if len(kept):
                 offsets[valid] = point_offsets(
                     (kept - self.center) * self.scale,
@@ -336,6 +345,7 @@ class Tracer:
             self._stream(points, normals, ids, sizes, order, out, distances, threads, progress)
             offsets /= self.scale
             return Estimates(out, rays, extras, self.dof)
+        del valid  # (where some points are not traced: their index, 8 bytes a point)
 
         def work(i):
             sel = order[i * per_chunk:(i + 1) * per_chunk]

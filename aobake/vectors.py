@@ -38,14 +38,24 @@ def check_rows(name: str, array, width: int = 3, n: int | None = None,
     return array.astype(dtype, copy=False)
 
 
+#: rows of :func:`defined` at a time
+DEFINED_BLOCK = 1 << 16
+
+
 def defined(normals: np.ndarray) -> np.ndarray:
     """(n,) bool the rows of ``normals`` (n, 3) that are a direction: |n| > 0.5 (a zero row
     is the "no normal" convention; such a point casts no ray).  The length is summed column
     by column: np.linalg.norm's sum, left to right, the same bits, 3x faster than its
     reduction over the short last axis."""
     normals = np.asarray(normals, dtype=np.float64)
-    return np.sqrt((normals[:, 0] * normals[:, 0] + normals[:, 1] * normals[:, 1])
-                   + normals[:, 2] * normals[:, 2]) > 0.5
+    out = np.empty(len(normals), dtype=bool)
+    # a block of rows at a time: each row's bits are its own, and the float64 temporaries
+    # are a block's, not 24 bytes a row of a million-vertex bake at its peak
+    for start in range(0, len(normals), DEFINED_BLOCK):
+        rows = normals[start:start + DEFINED_BLOCK]
+        out[start:start + DEFINED_BLOCK] = np.sqrt(
+            (rows[:, 0] * rows[:, 0] + rows[:, 1] * rows[:, 1]) + rows[:, 2] * rows[:, 2]) > 0.5
+    return out
 
 
 def distinct(index: np.ndarray, size: int) -> np.ndarray:

@@ -218,6 +218,7 @@ def _outputs(result) -> int:
 def breakdown(args) -> dict:
     """The 2M per-vertex bake's stages one after another: each stage's peak and what it
     leaves, and the arrays that make it up (bytes)."""
+    import functools
     import gc
 
     import numpy as np
@@ -260,15 +261,28 @@ def breakdown(args) -> dict:
         held("load", f"scene.{name}", getattr(scene, name))
     for kind, (_, index) in (scene.names or {}).items():
         held("load", f"scene.names[{kind}]", index)
+    if hasattr(scene, "lean"):  # as aobake.api.run does for a scene it loaded
+        scene = scene.lean()
+        arrays.append({"stage": "load", "array": "scene.lean(): face normals and areas let go",
+                       "bytes": -32 * len(scene.faces), "dtype": "", "note":
+                       "remade from the frame where read (the points' sizes, the report)"})
     built = stage("occluders", lambda: occluder_stage.build(scene, config))
     growth = stages[-1]["after"] - stages[-1]["before"]
     normals = getattr(built.backend, "_face_normals", None)
-    held("occluders", "scene.used (cached)", scene.used)
-    own = normals is scene.face_normals
-    held("occluders", "backend._face_normals", None if own else normals,
-         "the scene's own rows, cast per hit (--backfaces ignore): no copy" if own
-         else "copy for --backfaces ignore")
-    python_held = scene.used.nbytes + (0 if own or normals is None else normals.nbytes)
+    kept_used = isinstance(type(scene).__dict__.get("used"), functools.cached_property)
+    held("occluders", "scene.used (cached)" if kept_used else "scene.used (not kept)",
+         scene.used if kept_used else None)
+    if callable(normals):
+        normals = None
+        arrays.append({"stage": "occluders", "array": "backend._face_normals", "bytes": 0,
+                       "dtype": "", "note": "not held: made at the first front-face query"})
+    own = normals is None or any(normals is scene.__dict__.get(key)
+                                 for key in ("face_normals", "_face_normals"))
+    if normals is not None:
+        held("occluders", "backend._face_normals", None if own else normals,
+             "the scene's own rows, cast per hit (--backfaces ignore): no copy" if own
+             else "copy for --backfaces ignore")
+    python_held = (scene.used.nbytes if kept_used else 0) + (0 if own or normals is None else normals.nbytes)
     # the float32 vertices (one float of padding) and uint32 faces Embree reads in place
     # (held by the scene's capsule, not by Python)
     buffers = (3 * len(scene.vertices) + 1) * 4 + 12 * len(scene.faces)

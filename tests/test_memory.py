@@ -6,15 +6,22 @@ and the one-pass angle-weighted normals equal the two-pass ones.
 from __future__ import annotations
 
 import gc
+import pickle
 
 import numpy as np
 import pytest
 import trimesh
 
-from aobake import occluders, repair
+from aobake import _native, occluders, repair
+from aobake import scene as scene_module
+from aobake import vectors as vectors_module
 from aobake.backends import native
 from aobake.backends.embree import EmbreeBackend, padded_float32, padded_rows
-from aobake.scene import face_normals, load_scene, make_scene, vertex_normals
+from aobake.errors import InputError
+from aobake.scene import Scene, face_normals, load_scene, make_scene, vertex_normals
+from aobake.targets import vertices as vertices_module
+from aobake.targets.vertices import vertex_sizes
+from aobake.vectors import defined
 
 
 def _shells():
@@ -142,3 +149,82 @@ def test_a_single_mesh_file_is_not_copied_on_load(tmp_path):
     assert scene.faces.dtype == np.int64 and scene.faces.flags.c_contiguous
     assert scene.names is None  # nothing named: no per-face name index was made
     assert np.array_equal(scene.faces, mesh.faces)
+
+
+# ---------------------------------------------------------------- a lean scene (Scene.lean)
+
+
+def _loaded(tmp_path, numpy_only=False):
+    vertices, faces = _shells()
+    vertices = np.vstack([vertices, [[9.0, 9.0, 9.0]]])  # unreferenced: no normal, not traced
+    path = tmp_path / "shells.ply"
+    trimesh.Trimesh(vertices, faces, process=False).export(path)
+    if numpy_only:
+        with _native.numpy_only():
+            return load_scene(path), path
+    return load_scene(path), path
+
+
+@pytest.mark.parametrize("numpy_only", [False, True])
+def test_a_lean_scene_remakes_the_loads_face_normals_and_areas(tmp_path, monkeypatch,
+                                                                numpy_only):
+    scene, _ = _loaded(tmp_path, numpy_only)
+    monkeypatch.setattr(scene_module, "FACE_BLOCK", 100)  # blocks, and a short last one
+    lean = scene.lean()
+    assert lean.__dict__["_face_normals"] is None and lean.face_areas is None
+    if numpy_only:
+        with _native.numpy_only():
+            areas, normals = lean.areas(), lean.face_normals
+    else:
+        areas, normals = lean.areas(), lean.face_normals
+    assert areas.tobytes() == scene.face_areas.tobytes()
+    assert normals.tobytes() == scene.face_normals.tobytes()
+    assert lean.face_normals is normals  # kept once made
+    assert lean.areas(slice(150, 420)).tobytes() == scene.face_areas[150:420].tobytes()
+    assert lean.stats() == scene.stats()
+    assert pickle.loads(pickle.dumps(scene.lean())).face_normals.tobytes() == \
+        scene.face_normals.tobytes()
+
+
+def test_a_scene_built_directly_is_not_lean():
+    vertices, faces = _shells()
+    normals = face_normals(vertices, faces)
+    scene = Scene(vertices, faces, vertex_normals(vertices, faces), normals)
+    assert scene.lean() is scene
+    with pytest.raises(InputError, match="face_normals"):
+        Scene(vertices, faces, vertex_normals(vertices, faces), None)
+
+
+def test_vertex_sizes_of_a_lean_scene_in_blocks(tmp_path, monkeypatch):
+    scene, _ = _loaded(tmp_path)
+    whole = vertex_sizes(scene)
+    monkeypatch.setattr(vertices_module, "SIZE_BLOCK", 77)
+    assert vertex_sizes(scene.lean()).tobytes() == whole.tobytes()
+
+
+def test_defined_in_blocks_is_the_whole(monkeypatch):
+    rows = np.random.default_rng(5).normal(size=(1000, 3)) * 0.4
+    rows[::9] = 0.0
+    whole = defined(rows)
+    monkeypatch.setattr(vectors_module, "DEFINED_BLOCK", 64)
+    assert np.array_equal(defined(rows), whole) and 0 < whole.mean() < 1
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("options", [{}, {"backfaces": "ignore", "quantities": ("ao", "obscurance")}])
+def test_a_bake_that_lets_the_face_rows_go_gives_the_same_bits(tmp_path, options):
+    """aobake.bake of a path leans the scene it loads; of a Scene, it keeps the caller's: the
+    same values, rays, offsets and report figures (the front-face test remakes the face
+    normals it reads; some vertices untraced: the traced points' copy let go)."""
+    import aobake
+
+    scene, path = _loaded(tmp_path)
+    assert not defined(scene.vertex_normals).all()  # the unreferenced vertex
+    kept = aobake.bake(scene, rays=16, seed=3, threads=2, chunk_rays=512, **options)
+    lean = aobake.bake(str(path), rays=16, seed=3, threads=2, chunk_rays=512, **options)
+    for name, array in kept.values.items():
+        assert lean.values[name].tobytes() == array.tobytes(), name
+    assert lean.rays.tobytes() == kept.rays.tobytes()
+    assert lean.report["scene"] == kept.report["scene"]
+    for key in ("ray_offset", "ray_offset_range"):
+        assert lean.report["parameters"][key] == kept.report["parameters"][key]

@@ -54,18 +54,28 @@ class TriangleBackend:
     with ``prim = -1`` where nothing is hit within tmax.
     """
 
-    def __init__(self, face_normals: np.ndarray, step: float):
+    def __init__(self, face_normals, step: float):
         # kept as given (the scene's own float64 rows: no copy); each hit's row is rounded to
-        # float32 as it is read, the bits a float32 copy of the whole array would give
-        self._face_normals = np.asarray(face_normals)
+        # float32 as it is read, the bits a float32 copy of the whole array would give.  Or a
+        # function that gives them, called at the first front-face query: a bake that asks
+        # none (AO without --backfaces ignore) never holds them (24 bytes a triangle).
+        self._face_normals = face_normals if callable(face_normals) \
+            else np.asarray(face_normals)
         self._step = np.float32(step)
+
+    def face_normals(self) -> np.ndarray:
+        """(f, 3) the face normals of the backend's triangles (made now if given as a
+        function, and kept)."""
+        if callable(self._face_normals):
+            self._face_normals = np.asarray(self._face_normals())
+        return self._face_normals
 
     def intersect_normals(self, origins, directions, tmax):
         """``intersect`` and the face normal of each hit, (k, 3) float32 (any row on a miss):
         the front-face test's (a backend whose faces are not one array, Embree instances,
         computes them per hit)."""
         t, prim = self.intersect(origins, directions, tmax)
-        return t, prim, self._face_normals[np.maximum(prim, 0)].astype(np.float32)
+        return t, prim, self.face_normals()[np.maximum(prim, 0)].astype(np.float32)
 
     def front_distance(self, origins, directions, tmax) -> np.ndarray:
         """(n,) float32 distance to the nearest front-face hit; inf if none within tmax."""
