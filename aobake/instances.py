@@ -268,12 +268,24 @@ def subset(whole, patterns):
 
 @dataclass
 class Read:
-    """What :func:`read` found: ``instances`` (offsets and bounds filled in) and
-    ``receivers``: the baked instances' meshes placed in scene units (trimesh copies, as
-    ``Scene.dump`` makes them, with ``metadata`` node and name)."""
+    """What :func:`read` found: ``instances`` (offsets and bounds filled in) and the
+    trimesh scene, whose ``place(k)`` makes the k-th baked instance's mesh placed in scene
+    units (a trimesh copy, as ``Scene.dump`` makes it, with ``metadata`` node and name):
+    made one at a time by the loader (``aobake.placed``), never all at once."""
 
     instances: Instances
-    receivers: list
+    loaded: object = field(repr=False)
+
+    def place(self, k: int):
+        """The k-th baked instance's mesh, placed (a new trimesh copy)."""
+        instances = self.instances
+        i = int(instances.baked[k])
+        name = instances.mesh_names[instances.mesh[i]]
+        current = self.loaded.geometry[name].copy()
+        current.apply_transform(instances.transforms[i])  # Scene.dump's own step, bit for bit
+        current.metadata["name"] = name
+        current.metadata["node"] = instances.names[i]
+        return current
 
 
 def read(loaded, path, patterns=()) -> Read | None:
@@ -303,16 +315,11 @@ def read(loaded, path, patterns=()) -> Read | None:
     names = tuple(entry[2] for entry in placed)
     nodes = tuple(entry[3] for entry in placed)
     chosen = select(names, nodes, tuple(geometry_names), mesh, patterns, path)
-    receivers, vertex_offsets, face_offsets = [], [0], [0]
-    for i in chosen:
-        current = loaded.geometry[geometry_names[mesh[i]]].copy()
-        current.apply_transform(transforms[i])  # Scene.dump's own step, bit for bit
-        current.metadata["name"] = geometry_names[mesh[i]]
-        current.metadata["node"] = names[i]
-        receivers.append(current)
-        vertex_offsets.append(vertex_offsets[-1] + len(current.vertices))
-        face_offsets.append(face_offsets[-1] + len(current.faces))
-    assert all(isinstance(r, trimesh.Trimesh) for r in receivers)
+    vertex_offsets, face_offsets = [0], [0]
+    for i in chosen:  # (a placed copy has its mesh's counts)
+        vertex_offsets.append(vertex_offsets[-1] + len(meshes[mesh[i]][0]))
+        face_offsets.append(face_offsets[-1] + len(meshes[mesh[i]][1]))
+    assert all(isinstance(loaded.geometry[name], trimesh.Trimesh) for name in geometry_names)
     instances = Instances(meshes, tuple(geometry_names), mesh, transforms, names, nodes,
                           np.asarray(chosen, dtype=np.int64),
                           np.asarray(vertex_offsets, dtype=np.int64),
@@ -322,7 +329,7 @@ def read(loaded, path, patterns=()) -> Read | None:
     log.info("%s: %d instances of %d meshes (%d triangles placed, %d unique), %d baked",
              path, len(mesh), len(meshes), int(instances.triangles().sum()),
              sum(len(f) for _, f in meshes), len(chosen))
-    return Read(instances, receivers)
+    return Read(instances, loaded)
 
 
 def _own_uv(geometry) -> np.ndarray | None:

@@ -181,8 +181,11 @@ def build(scene, config) -> Occluders:
     # scenes).  A power of two scales float32 values and spacings exactly, so this changes
     # no bit at ordinary scales, and Embree's float32 arithmetic never under- or overflows.
     # (a mask, not np.unique: numpy 2's hashing unique took 44 ms on the ogre's faces)
-    used = scene.used if subset is None else distinct(faces, len(scene.vertices))
-    center = np.median(scene.vertices[used], axis=0)
+    if subset is None:  # np.median(vertices[used], axis=0), without its copies of the rows
+        center = scene.used_median()
+    else:
+        used = distinct(faces, len(scene.vertices))
+        center = np.median(scene.vertices[used], axis=0)
     if subset is None:
         reach = float(np.maximum(np.abs(hi - center), np.abs(lo - center)).max())
     else:  # the occluders' own extent
@@ -355,7 +358,7 @@ def _build_instanced(scene, config, how: str) -> Occluders:
     whole scene's): with every instance baked, the flattened scene's frame exactly."""
     instances = scene.instances
     lo, hi = scene.bounds
-    center = np.median(scene.vertices[scene.used], axis=0)
+    center = scene.used_median()  # np.median(vertices[used], axis=0), without its copies
     reach = float(np.maximum(np.abs(hi - center), np.abs(lo - center)).max())
     scale = 2.0 ** -math.frexp(reach)[1]
     step = OFFSET_ULPS * float(np.spacing(np.float32(reach * scale)))

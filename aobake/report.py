@@ -50,6 +50,8 @@ def error_summary(quantities, values: dict, rays: np.ndarray) -> dict:
     sampled = rays > 0
     if not sampled.any():
         return {}
+    if sampled.all():  # the arrays themselves (the same values in the same order), no copies
+        sampled = slice(None)
     return {q.name: q.summary(values[q.value.name][sampled], values[q.error.name][sampled])
             for q in quantities}
 

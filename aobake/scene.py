@@ -45,7 +45,7 @@ import numpy as np
 
 from aobake import _native
 from aobake import repair as repairs
-from aobake.vectors import normalize
+from aobake.vectors import column_bounds, column_medians, normalize
 
 from aobake.errors import InputError
 
@@ -135,6 +135,26 @@ def face_rows(vertices: np.ndarray, faces: np.ndarray, center: np.ndarray, scale
     return unit, areas
 
 
+#: the longest run :func:`pairwise_sum` hands to numpy's own sum
+PAIRWISE_LEAF = 1 << 16
+
+
+def pairwise_sum(n: int, leaf, start: int = 0) -> float:
+    """``float(values.sum())`` of n float64 values that are never held at once: ``leaf(a,
+    b)`` gives values[a:b] ((b - a,) float64), PAIRWISE_LEAF at most at a time.
+
+    numpy sums a contiguous float64 array pairwise: a run of more than 128 values is split
+    at ``n2 = n // 2 - (n // 2) % 8`` and its halves summed the same way (numpy's
+    ``pairwise_sum``), so the sum of the whole is the sum of the halves' sums, bit for bit;
+    this splits as numpy does down to runs numpy then sums itself (tests/test_memory.py
+    checks it against ``np.sum``)."""
+    if n <= PAIRWISE_LEAF:
+        return float(np.add.reduce(leaf(start, start + n))) if n else 0.0
+    half = n // 2
+    half -= half % 8
+    return pairwise_sum(half, leaf, start) + pairwise_sum(n - half, leaf, start + half)
+
+
 class _FaceNormals:
     """``Scene.face_normals``: the array given, or where it was let go (``Scene.lean``)
     remade from the scene's ``frame`` on first use (:func:`face_rows`, the same bits) and
@@ -156,6 +176,23 @@ class _FaceNormals:
 
     def __set__(self, scene, value):
         scene.__dict__[self._key] = value
+
+
+class _Names:
+    """``Scene.names``: the dict given (or None), or where a function was given, the dict it
+    makes, made on first use and kept (see the field)."""
+
+    def __get__(self, scene, owner=None):
+        if scene is None:
+            return None  # the field's default
+        value = scene.__dict__.get("_names")
+        if callable(value):
+            value = value()
+            scene.__dict__["_names"] = value
+        return value
+
+    def __set__(self, scene, value):
+        scene.__dict__["_names"] = value
 
 
 @dataclass(frozen=True)
@@ -201,8 +238,10 @@ class Scene:
     #: (names: tuple of str, index: (f,) int64 each face's name, -1 for none), kinds
     #: "object" and "group" (OBJ ``o`` / ``g``), "node" and "mesh" (glTF / other formats
     #: through trimesh: the scene-graph node and its mesh), "material" (OBJ ``usemtl``, a
-    #: glTF material); None when the input names nothing
-    names: dict | None = field(default=None, repr=False)
+    #: glTF material); None when the input names nothing.  Given as a function that makes
+    #: that dict (a set's baked instances: ``aobake.placed``), it is made where first read
+    #: (a selection by name) and kept: a bake that selects nothing never holds the index
+    names: dict | None = _Names()
     #: (f,) bool the faces that block rays (``aobake.groups``: the others are baked but cast
     #: nothing), or None: every face does
     occluding: np.ndarray | None = field(default=None, repr=False)
@@ -251,7 +290,9 @@ class Scene:
             if array.shape != (rows, 3):
                 raise InputError(f"{self.source}: {name} must be ({rows}, 3), got "
                                  f"{array.shape}")
-        for kind, (names, index) in (self.names or {}).items():
+        given_names = self.__dict__.get("_names")
+        for kind, (names, index) in (given_names if isinstance(given_names, dict)
+                                     else {}).items():
             if np.shape(index) != (len(f),) or (len(index) and (np.min(index) < -1 or
                                                                  np.max(index) >= len(names))):
                 raise InputError(f"{self.source}: the {kind} names do not match the faces")
@@ -279,8 +320,14 @@ class Scene:
         relative max distance and the ground plane are the whole scene's)."""
         if self.instances is not None and not self.instances.everything:
             return np.array(self.instances.bounds, dtype=np.float64)
-        used = self.vertices[self.used]
-        return np.stack([used.min(axis=0), used.max(axis=0)])
+        referenced = self.referenced()
+        return column_bounds(self.vertices, None if referenced.all() else referenced)
+
+    def used_median(self) -> np.ndarray:
+        """(3,) float64 the per-axis median of the used vertices (the tracer's origin),
+        ``np.median(vertices[used], axis=0)``'s bits without its copies of the rows."""
+        referenced = self.referenced()
+        return column_medians(self.vertices, None if referenced.all() else referenced)
 
     @cached_property
     def diagonal(self) -> float:
@@ -308,17 +355,39 @@ class Scene:
         has no frame (built directly: nothing to remake them from)."""
         if self.frame is None:
             return self
-        out = replace(self, face_normals=None, face_areas=None)
-        # the report's area figures, made while the areas are here (a cached value, as
-        # ``bounds``: a scene replaced from this one makes its own)
-        out.__dict__["area_summary"] = self.area_summary
+        out = self.replaced(face_normals=None, face_areas=None)
+        if self.face_areas is not None:
+            # the report's area figures, made while the areas are here (a cached value, as
+            # ``bounds``: a scene replaced from this one makes its own)
+            out.__dict__["area_summary"] = self.area_summary
         return out
+
+    def replaced(self, **changes) -> "Scene":
+        """``dataclasses.replace`` that leaves face normals let go (:meth:`lean`) let go and
+        names still to be made unmade (``replace`` reads every field it is not given: it
+        would make them)."""
+        if self.__dict__.get("_face_normals") is None and "face_normals" not in changes:
+            changes["face_normals"] = None
+        if callable(self.__dict__.get("_names")) and "names" not in changes:
+            changes["names"] = self.__dict__["_names"]  # still to be made where read
+        return replace(self, **changes)
 
     @cached_property
     def area_summary(self) -> tuple:
-        """(surface area float: the areas' sum, degenerate triangles int: area <= 0)."""
-        areas = self.areas()
-        return float(areas.sum()), int(np.count_nonzero(areas <= 0))
+        """(surface area float: the areas' sum, degenerate triangles int: area <= 0).
+        Without the areas held (a lean scene): the same sum made a block of faces at a
+        time (:func:`pairwise_sum`)."""
+        if self.face_areas is not None or self.frame is None:
+            areas = self.areas()
+            return float(areas.sum()), int(np.count_nonzero(areas <= 0))
+        degenerate = [0]
+
+        def leaf(start, stop):
+            areas = self.areas(slice(start, stop))
+            degenerate[0] += int(np.count_nonzero(areas <= 0))
+            return areas
+
+        return pairwise_sum(len(self.faces), leaf), degenerate[0]
 
     def stats(self) -> dict:
         """Scene statistics for the report."""
@@ -902,8 +971,10 @@ def _load_with_trimesh(path: Path, uv_set: int = 0, bake: tuple = ()):
             except Exception as exc:  # noqa: BLE001 - PIL raises several types for a bad image
                 raise InputError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") \
                     from None
-        if placed is not None:  # one copy of each mesh; the baked instances placed
-            meshes = placed.receivers
+        if placed is not None:  # one copy of each mesh; the baked instances placed, one at a time
+            from aobake.placed import placed_arrays
+
+            return (*placed_arrays(placed, path), None, placed.instances)
         else:
             try:  # dump() copies each material, decoding its images: a truncated one fails here
                 dumped = loaded.dump()
@@ -1077,12 +1148,20 @@ def load_scene(source, normals_mode: str = "file", fix_normals: str = "warn",
         uv = sets[uv_set]
         if materials is None:  # no TEXCOORD_0 for trimesh: the materials have no UVs either
             materials = face_material = None
-    scene = make_scene(vertices, faces, normals, normals_mode, uv=uv, source=str(path),
-                       materials=materials, face_material=face_material,
-                       fix_normals=fix_normals, names=names)
+    if instances is not None:  # the baked instances, a placement at a time (lean)
+        from aobake.placed import make_placed_scene
+
+        scene = make_placed_scene(vertices, faces, normals, normals_mode,
+                                  (instances.vertex_offsets, instances.face_offsets), str(path),
+                                  fix_normals, uv=uv, materials=materials,
+                                  face_material=face_material, names=names)
+    else:
+        scene = make_scene(vertices, faces, normals, normals_mode, uv=uv, source=str(path),
+                           materials=materials, face_material=face_material,
+                           fix_normals=fix_normals, names=names)
     if sets is not None:
-        scene = replace(scene, uv_set=uv_set, uv_sets=sets)
+        scene = scene.replaced(uv_set=uv_set, uv_sets=sets)
     if instances is not None:
-        scene = replace(scene, instances=instances)
+        scene = scene.replaced(instances=instances)
     release_freed_memory()  # the loader's and make_scene's temporaries
     return scene

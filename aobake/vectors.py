@@ -94,3 +94,19 @@ def weld(positions: np.ndarray) -> np.ndarray:
     weld = np.empty(len(positions), dtype=np.int64)
     weld[order] = np.cumsum(new) - 1
     return weld
+
+
+def column_medians(rows: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """(3,) float64 ``np.median(rows[mask], axis=0)`` of (n, 3) ``rows`` (``mask`` (n,)
+    bool, or None: every row), a column at a time: each column's median is its own (the same
+    order statistics, the same mean of the middle two), so the same bits, with an 8-byte-a-
+    row temporary instead of the (n, 3) gather and np.median's (n, 3) copy of it."""
+    return np.array([np.median(rows[:, k] if mask is None else rows[:, k][mask])
+                     for k in range(rows.shape[1])])
+
+
+def column_bounds(rows: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """(2, 3) float64 the min and max corner of ``rows[mask]`` (min and max are exact in
+    any order), a column at a time."""
+    columns = [rows[:, k] if mask is None else rows[:, k][mask] for k in range(rows.shape[1])]
+    return np.array([[c.min() for c in columns], [c.max() for c in columns]])

@@ -138,6 +138,60 @@ def test_every_instance_baked_is_the_flattened_scene_bit_for_bit(rocks, monkeypa
     np.testing.assert_allclose(scene.instances.bounds, flat.bounds, rtol=0, atol=1e-12)
 
 
+def _dressed(path):
+    """Two meshes with normals and UVs, placed 6 times (rotations, a mirror): one wound
+    against itself in places, the other (an open sheet) inside out, against its normals."""
+    rock = _rock(1, 3)
+    faces = rock.faces.copy()
+    faces[:30] = faces[:30][:, [0, 2, 1]]
+    normals = rock.vertex_normals.copy()
+    normals[::7] = 0.0  # no file normal: filled from the faces
+    sheet = trimesh.creation.box((2.0, 0.01, 2.0))
+    meshes = [{"name": "rock", "vertices": rock.vertices, "faces": faces, "normals": normals,
+               "uv": rock.vertices[:, :2] * 0.3 + 0.5},
+              {"name": "sheet", "vertices": sheet.vertices, "faces": sheet.faces[:, [0, 2, 1]],
+               "normals": sheet.vertex_normals, "uv": sheet.vertices[:, [0, 2]] * 0.2 + 0.5}]
+    nodes = [{"name": f"n{i}", "mesh": i % 2, "translation": [3.0 * i, 0.1 * i, 0.0],
+              "rotation": _rotation([1, i, 0.3], 23 * i),
+              "scale": [1.0, 1.0 + 0.1 * i, -1.0 if i % 3 == 2 else 1.0]} for i in range(6)]
+    return write_instanced(path, meshes, nodes)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("normals", ["file", "angle", "area"])
+@pytest.mark.parametrize("fix", ["warn", "fix"])
+def test_the_set_is_made_an_instance_at_a_time_as_the_flattened_loader_makes_it(
+        tmp_path, monkeypatch, normals, fix):
+    """aobake.placed: the winding check, normals and warnings per instance give the
+    flattened loader's scene bit for bit (file normals, some missing, faces flipped by the
+    check, a mirrored placement, UVs and materials); face normals and the name index are
+    not held until read."""
+    path = _dressed(tmp_path / "dressed.glb")
+    scene = load_scene(path, normals, fix)
+    flat = _flat_load_with(path, monkeypatch, normals, fix)
+    assert scene.__dict__["_face_normals"] is None and scene.face_areas is None
+    assert callable(scene.__dict__["_names"])  # not made yet
+    for name in ("vertices", "faces", "vertex_normals", "face_normals", "uv", "faces_uv",
+                 "face_material"):
+        a, b = getattr(scene, name), getattr(flat, name)
+        assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), name
+    assert scene.areas().tobytes() == flat.areas().tobytes()
+    stats = scene.stats()
+    stats.pop("instances")
+    assert stats == flat.stats()
+    assert scene.repair["faces_against_neighbours"] > 0 and scene.repair["inward_components"] > 0
+    assert scene.warnings == flat.warnings and scene.materials == flat.materials
+    assert scene.names.keys() == flat.names.keys()
+    for kind, (given, index) in flat.names.items():
+        assert scene.names[kind][0] == given and scene.names[kind][1].tobytes() == index.tobytes()
+
+
+def _flat_load_with(path, monkeypatch, normals, fix):
+    with monkeypatch.context() as patch:
+        patch.setattr(placed, "read", lambda *a, **k: None)
+        return load_scene(path, normals, fix)
+
+
 @pytest.mark.slow
 def test_a_file_that_places_each_mesh_once_loads_flat(tmp_path):
     box = trimesh.creation.box()
