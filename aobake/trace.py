@@ -33,6 +33,10 @@ from aobake.samplers import sample_set
 from aobake.scene import release_freed_memory
 from aobake.vectors import defined
 
+#: a freed temporary at least this large has its heap pages handed back at once
+#: (``scene.release_freed_memory``): an estimate of a few points (a split's item) trims nothing
+TRIM_BYTES = 1 << 24
+
 #: rays per chunk handed to one ``run()``: Embree's 2-thread scaling flattens out from ~64k,
 #: and larger chunks amortise the per-chunk numpy work (measured: 64k 6.8, 128k 7.3 Mrays/s).
 DEFAULT_CHUNK_RAYS = 131072
@@ -320,8 +324,10 @@ class Tracer:
         if not (every or streamed):
             # the chunks reach the points through ``order``: the copy of the traced points
             # (24 bytes a point) is not held while the values are made and the rays traced
+            large = kept.nbytes >= TRIM_BYTES
             del kept
-            release_freed_memory()  # its pages, from the allocator's heap
+            if large:  # its pages, from the allocator's heap (a small one: not worth a trim)
+                release_freed_memory()
         per_chunk = max(1, int(chunk_rays) // self.samples.rays)
         n_chunks = -(-len(order) // per_chunk)
         out = self.no_information(normals)

@@ -18,10 +18,11 @@ from aobake import vectors as vectors_module
 from aobake.backends import native
 from aobake.backends.embree import EmbreeBackend, padded_float32, padded_rows
 from aobake.errors import InputError
-from aobake.scene import Scene, face_normals, load_scene, make_scene, vertex_normals
+from aobake.scene import (Scene, face_normals, load_scene, make_scene, pairwise_sum,
+                          vertex_normals)
 from aobake.targets import vertices as vertices_module
 from aobake.targets.vertices import vertex_sizes
-from aobake.vectors import defined
+from aobake.vectors import column_bounds, column_medians, defined
 
 
 def _shells():
@@ -198,8 +199,39 @@ def test_a_scene_built_directly_is_not_lean():
 def test_vertex_sizes_of_a_lean_scene_in_blocks(tmp_path, monkeypatch):
     scene, _ = _loaded(tmp_path)
     whole = vertex_sizes(scene)
+    vertices, faces = _shells()
+    direct = Scene(vertices * 1e3 + 5e5, faces, vertex_normals(vertices, faces),
+                   face_normals(vertices, faces))  # no frame, no areas: made per block
+    direct_whole = vertex_sizes(direct)
     monkeypatch.setattr(vertices_module, "SIZE_BLOCK", 77)
     assert vertex_sizes(scene.lean()).tobytes() == whole.tobytes()
+    assert vertex_sizes(direct).tobytes() == direct_whole.tobytes()
+
+
+@pytest.mark.parametrize("n", [0, 1, 7, 128, 129, 1000, 4099, 70001])
+def test_pairwise_sum_of_blocks_is_numpys_sum(monkeypatch, n):
+    values = np.random.default_rng(n).random(n) * 10.0 ** np.random.default_rng(1).uniform(
+        -8, 8, n)
+    monkeypatch.setattr(scene_module, "PAIRWISE_LEAF", 200)  # many splits, as numpy's
+    seen = []
+
+    def leaf(start, stop):
+        seen.append(stop - start)
+        return values[start:stop]
+
+    assert pairwise_sum(n, leaf) == float(values.sum())
+    assert max(seen, default=0) <= 200 and sum(seen) == n
+
+
+def test_columns_give_the_bits_of_the_gathered_rows():
+    rng = np.random.default_rng(6)
+    rows = rng.normal(size=(1001, 3)) * 10.0 ** rng.uniform(-3, 3, (1001, 1))
+    mask = rng.random(1001) < 0.7
+    for given in (None, mask):
+        picked = rows if given is None else rows[np.flatnonzero(given)]
+        assert column_medians(rows, given).tobytes() == np.median(picked, axis=0).tobytes()
+        assert column_bounds(rows, given).tobytes() == np.stack(
+            [picked.min(axis=0), picked.max(axis=0)]).tobytes()
 
 
 def test_defined_in_blocks_is_the_whole(monkeypatch):
