@@ -192,7 +192,8 @@ class _Names:
         return value
 
     def __set__(self, scene, value):
-        scene.__dict__["_names"] = value
+        # (the field's default, as dataclass hands it to __init__, is this descriptor)
+        scene.__dict__["_names"] = None if value is self else value
 
 
 @dataclass(frozen=True)
@@ -241,7 +242,7 @@ class Scene:
     #: glTF material); None when the input names nothing.  Given as a function that makes
     #: that dict (a set's baked instances: ``aobake.placed``), it is made where first read
     #: (a selection by name) and kept: a bake that selects nothing never holds the index
-    names: dict | None = _Names()
+    names: dict | None = field(default=_Names(), repr=False)
     #: (f,) bool the faces that block rays (``aobake.groups``: the others are baked but cast
     #: nothing), or None: every face does
     occluding: np.ndarray | None = field(default=None, repr=False)
