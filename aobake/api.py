@@ -175,6 +175,12 @@ def run(
         release(the_method)
     timings["trace_s"] = time.perf_counter() - clock
     done = target.finish(scene, config, plan, estimates, timings, warnings)
+    # what the rest reads of the points (their ids and sizes, 16 bytes a point, are let go
+    # before the record and the report make their passes over every point)
+    plan_kernels, n_points = plan.kernels, len(plan.points)
+    mapping = plan.state if config.keep_distances else None
+    del plan
+    release_freed_memory()  # (their pages too, and the trace's)
     if not hasattr(getattr(target, "inner", target), "receivers"):
         # (a high-to-low target says it of its low mesh itself)
         dark = groups.dark_warning(estimates, scene.source)
@@ -185,7 +191,7 @@ def run(
     record = the_method.record(estimates)
     report = reports.build(target.name, scene, config, record, the_method, done, wall=wall,
                            threads=threads, chunk_rays=chunk_rays, warnings=warnings,
-                           kernels={**the_method.kernel_stages(), **plan.kernels},
+                           kernels={**the_method.kernel_stages(), **plan_kernels},
                            executor={"name": executor, "workers": workers,
                                      "chunk_points": chunk_points, **extra})
     report.update(done.report)
@@ -203,7 +209,7 @@ def run(
         log.warning(message)
     done.result.report = report
     if config.keep_distances and hasattr(the_method, "kept"):
-        mapping = plan.state if plan.state is not None else np.arange(len(plan.points))
+        mapping = mapping if mapping is not None else np.arange(n_points)
         done.result.kept = the_method.kept(estimates, mapping)
     return done.result
 

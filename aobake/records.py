@@ -103,7 +103,7 @@ class Estimates:
     @property
     def rays_cast(self) -> int | None:
         """Rays traced in all (None for a method that casts none)."""
-        return None if self.rays is None else int(self.rays.astype(np.int64).sum())
+        return None if self.rays is None else int(np.sum(self.rays, dtype=np.int64))
 
 
 def merge(parts, n: int) -> Estimates:

@@ -76,7 +76,7 @@ def build(target: str, scene, config, record: dict, method, done, *, wall: float
         "points": int(done.points),
     }
     if method.casts_rays:
-        cast = int(rays.astype(np.int64).sum()) if done.cast is None else int(done.cast)
+        cast = int(np.sum(rays, dtype=np.int64)) if done.cast is None else int(done.cast)
         report.update({
             "points_sampled": int(np.count_nonzero(rays)),
             "rays_cast": cast,

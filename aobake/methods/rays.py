@@ -67,8 +67,8 @@ class RaysMethod:
         """The report's ``parameters`` (and ``tolerance``) from the merged estimates."""
         traced = estimates.rays > 0
         offsets = None
-        if traced.any():
-            used = estimates.extras["ray_offset"][traced]
+        if traced.any():  # (every point traced: the array itself, not a copy of it)
+            used = estimates.extras["ray_offset"][slice(None) if traced.all() else traced]
             offsets = (float(used.min()), float(np.median(used)), float(used.max()))
         record = {"parameters": {"method": self.name, **self.tracer.parameters(offsets)}}
         if self.config.tolerance is not None:

@@ -155,7 +155,7 @@ class VertexTarget:
             result = BakeResult(scene.vertices, scene.faces, scene.vertex_normals, None, values)
             return Finished(result, values, None, len(scene.vertices))
         # rays traced before copying to vertices that share samples
-        traced = int(estimates.rays.astype(np.int64).sum())
+        traced = int(np.sum(estimates.rays, dtype=np.int64))  # (no int64 copy of the rays)
         rays = estimates.rays if same else estimates.rays[inverse]
         result = BakeResult(scene.vertices, scene.faces, scene.vertex_normals, rays, values)
         return Finished(result, values, rays, len(scene.vertices), cast=traced)
