@@ -26,12 +26,54 @@ import numpy as np
 from aobake.quantities import FIELDS
 
 
+class PointRange:
+    """(n,) int64 0, 1, ..., n-1 without the array (8 bytes a point): the ``ids`` and
+    ``state`` of a per-vertex plan whose every vertex is its own point.  Indexing gives the
+    indices themselves (a slice: their range; an index array: a copy of it as int64; a
+    bool mask: its true places), and numpy reads the whole as the array (``__array__``), so
+    it stands wherever the (n,) array stood; only a bake that indexes it a chunk at a time
+    (the tracer) never makes the whole."""
+
+    dtype = np.dtype(np.int64)
+    ndim = 1
+
+    def __init__(self, n: int):
+        self.n = int(n)
+        self.shape = (self.n,)
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, key):
+        if isinstance(key, slice):
+            return np.arange(*key.indices(self.n), dtype=np.int64)
+        key = np.asarray(key)
+        if key.dtype == bool:
+            if key.shape != self.shape:
+                raise IndexError(f"boolean index of shape {key.shape} for ({self.n},)")
+            return np.flatnonzero(key)
+        if key.dtype.kind not in "iu":
+            raise IndexError(f"only integers, slices and bool masks index ids, got {key.dtype}")
+        out = key.astype(np.int64)
+        if out.size and (out.min() < -self.n or out.max() >= self.n):
+            raise IndexError(f"index out of range for {self.n} points")
+        return np.where(out < 0, out + self.n, out) if out.size and out.min() < 0 else out
+
+    def __array__(self, dtype=None, copy=None):
+        whole = np.arange(self.n, dtype=np.int64)
+        return whole if dtype is None else whole.astype(dtype)
+
+    def __reduce__(self):
+        return (PointRange, (self.n,))
+
+
 @dataclass
 class SamplePoints:
     """Where to trace.
 
     points : (n, 3) float64 scene units, normals : (n, 3) float64 unit (zero = not
-    traced: 0 rays, no-information values), ids : (n,) int64 sample-stream ids (a
+    traced: 0 rays, no-information values), ids : (n,) int64 sample-stream ids (or a
+    :class:`PointRange`: 0..n-1 without the array) (a
     point's rays are a pure function of (seed, id, sample id): equal ids get equal
     rays), sizes : (n,) float64 the size of each point's own triangles (sqrt of twice their
     mean area; sets the ray offset) or None when unknown, kernels : stage -> compiled? for

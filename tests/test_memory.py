@@ -305,3 +305,22 @@ def test_a_set_baked_whole_grows_with_its_outputs_not_with_copies_of_the_scene(t
     beyond = (rows[12]["peak"] - rows[12]["outputs"]) - (rows[2]["peak"] - rows[2]["outputs"])
     assert outputs > 40 << 20  # 10 copies' outputs: ~54 MB, far above the allocator's noise
     assert beyond <= 0.5 * outputs, (beyond / outputs, rows)
+
+
+def test_a_point_range_stands_for_the_ids_it_does_not_hold():
+    """PointRange (a plan's ids and state where every vertex is its own point): every way the
+    bake reads the (n,) int64 0..n-1 gives that array's values."""
+    from aobake.records import PointRange
+
+    ids, whole = PointRange(50), np.arange(50, dtype=np.int64)
+    order = np.random.default_rng(7).permutation(50).astype(np.int32)
+    mask = whole % 3 == 0
+    for key in (slice(None), slice(5, 17), slice(40, None, 3), order, order[:9], mask,
+                np.array([-1, 0, 49])):
+        got = ids[key]
+        assert got.dtype == np.int64 and np.array_equal(got, whole[key]), key
+    assert np.array_equal(np.asarray(ids), whole) and len(ids) == 50
+    assert np.array_equal(mask[ids], mask) and np.asarray(ids, dtype=np.int32).dtype == np.int32
+    assert len(pickle.loads(pickle.dumps(ids))) == 50
+    with pytest.raises(IndexError):
+        ids[np.array([50])]

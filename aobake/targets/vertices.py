@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from aobake import _native
-from aobake.records import BakeResult, Finished, SamplePoints
+from aobake.records import BakeResult, Finished, PointRange, SamplePoints
 from aobake.vectors import defined
 
 #: faces whose corner areas are summed at a time by :func:`vertex_sizes` (bounds its
@@ -99,8 +99,10 @@ def distinct_rows(positions: np.ndarray, normals: np.ndarray, kernels=None):
     return first, inverse
 
 
-def _identity(index: np.ndarray) -> bool:
+def _identity(index) -> bool:
     """``index`` is 0..n-1 (compared a block at a time: no n-sized temporary)."""
+    if isinstance(index, PointRange):
+        return True
     step = SIZE_BLOCK
     return all(np.array_equal(index[i:i + step], np.arange(i, min(len(index), i + step)))
                for i in range(0, len(index), step))
@@ -132,8 +134,9 @@ class VertexTarget:
         sizes = vertex_sizes(scene)
         if first is None:
             # Every vertex is its own point: the scene's arrays, not copies (the tracer and
-            # the executors only read them); ids and the inverse are one 0..v-1.
-            ids = np.arange(len(scene.vertices), dtype=np.int64)
+            # the executors only read them); ids and the inverse are one 0..v-1, not made
+            # (PointRange: 8 bytes a point the trace does not hold).
+            ids = PointRange(len(scene.vertices))
             return SamplePoints(scene.vertices, scene.vertex_normals, ids, sizes=sizes,
                                 state=ids)
         return SamplePoints(scene.vertices[first], scene.vertex_normals[first], first,
