@@ -282,9 +282,9 @@ def test_a_set_baked_whole_grows_with_its_outputs_not_with_copies_of_the_scene(t
     process each: the peak beyond the result's own arrays (positions, faces, normals, rays,
     values) grows by at most half as much as those arrays do from 2 to 12 copies.  The
     scene made of the whole flattened set (before aobake.placed) grew by ~1.8-1.9 times the
-    outputs' growth (140 bytes a placed triangle); what still grows (the points' ids,
-    sizes, ray offsets and trace order while the rays are traced, ~28 bytes a placed vertex:
-    docs/scale.md, "Memory") is ~0.28 times.  VmHWM is the process's own high-water mark."""
+    outputs' growth (140 bytes a placed triangle); what still grows (the points' sizes, ray
+    offsets and trace order while the rays are traced, and the passes over every point:
+    docs/scale.md, "Memory") is ~0.26 times.  VmHWM is the process's own high-water mark."""
     import json
     import subprocess
     import sys
