@@ -176,15 +176,9 @@ def make_placed_scene(vertices, faces, normals, normals_mode: str, parts, source
     if fix_normals == "off":
         record = repair_record("off")
     else:
-        if fix_normals == "fix" and flipped_total:
-            warnings.append(f"{source}: flipped {flipped_total} faces "
-                            f"({totals['faces_against_neighbours']} wound against their "
-                            f"neighbours, {totals['inward_components']} components pointing "
-                            "inward)")
-        elif fix_normals == "warn":
-            text = repairs.warning_text(totals, source)
-            if text:
-                warnings.append(text)
+        text = repairs.orientation_warning(fix_normals, totals, flipped_total, source)
+        if text:
+            warnings.append(text)
         record = repair_record(fix_normals, totals, flipped_total)
         record["normals_replaced"] = replaced_total
     if n_degenerate == len(faces):

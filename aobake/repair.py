@@ -366,3 +366,16 @@ def warning_text(counts: dict, source: str) -> str | None:
         return None
     return (f"{source}: {n} faces of {m} components are wound against their neighbours; "
             f"{k} components point inward: --fix-normals fix repairs them")
+
+
+def orientation_warning(fix_normals: str, counts: dict, flipped: int, source: str) -> str | None:
+    """The winding check's one line for ``--fix-normals`` (fix: the faces flipped, where
+    any were; warn: ``warning_text``), or None: ``aobake.scene.make_scene``'s and
+    ``aobake.placed``'s (a set made an instance at a time: its counts summed)."""
+    if fix_normals == "fix":
+        if not flipped:
+            return None
+        return (f"{source}: flipped {flipped} faces ({counts['faces_against_neighbours']} "
+                f"wound against their neighbours, {counts['inward_components']} components "
+                "pointing inward)")
+    return warning_text(counts, source) if fix_normals == "warn" else None

@@ -619,14 +619,10 @@ def make_scene(
             faces = repairs.flip_faces(faces, flipped)
             if uv is not None:
                 faces_uv = repairs.flip_faces(faces_uv, flipped)
-            warnings.append(f"{source}: flipped {int(flipped.sum())} faces "
-                            f"({counts['faces_against_neighbours']} wound against their "
-                            f"neighbours, {counts['inward_components']} components pointing "
-                            "inward)")
-        elif fix_normals == "warn":
-            text = repairs.warning_text(counts, source)
-            if text:
-                warnings.append(text)
+        text = repairs.orientation_warning(fix_normals, counts,
+                                           0 if flipped is None else int(flipped.sum()), source)
+        if text:
+            warnings.append(text)
         record = repair_record(fix_normals, counts, 0 if flipped is None else flipped.sum())
     # Angle-weighted vertex normals need the face normals and the corner cosines: one pass
     # of the kernel gives both (the same bits as two), and the cosines are dropped as soon
