@@ -64,7 +64,7 @@ def make_placed_scene(vertices, faces, normals, normals_mode: str, parts, source
     """
     from aobake.scene import (MAX_COORDINATE, MIN_EXTENT, QUANTISED_FRACTION, Scene,
                               _normalize, _summed_normals, _triangle_normals, face_rows,
-                              repair_record, vertex_normals)
+                              repair_record, replace_flipped_normals, vertex_normals)
 
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
@@ -152,12 +152,8 @@ def make_placed_scene(vertices, faces, normals, normals_mode: str, parts, source
         if mode == "file":
             out = _normalize(part_normals)
             if flipped is not None:
-                computed = vertex_normals(local, own, "angle")
-                touched = np.zeros(len(out), dtype=bool)
-                touched[own[flipped].ravel()] = True
-                against = touched & (np.einsum("ij,ij->i", out, computed) < 0)
-                out = np.where(against[:, None], computed, out)
-                replaced_total += int(np.count_nonzero(against))
+                out, replaced = replace_flipped_normals(out, local, own, flipped)
+                replaced_total += replaced
             referenced = np.zeros(len(out), dtype=bool)
             referenced[own.ravel()] = True
             if not out[referenced].any(axis=1).all():

@@ -538,6 +538,19 @@ MAX_COORDINATE = 1e150
 MIN_EXTENT = 1e-150
 
 
+def replace_flipped_normals(vnormals, local, faces, flipped):
+    """A flipped face's file normals were made for its old side: where one points against
+    its vertex's repaired (angle-weighted) normal it is replaced by that.  vnormals (v, 3)
+    float64 unit file normals, local (v, 3) the vertices in the load's frame, faces (f, 3)
+    int64 as repaired, flipped (f,) bool the faces flipped.  Returns (normals (v, 3), the
+    count replaced)."""
+    computed = vertex_normals(local, faces, "angle")
+    touched = np.zeros(len(vnormals), dtype=bool)
+    touched[faces[flipped].ravel()] = True
+    against = touched & (np.einsum("ij,ij->i", vnormals, computed) < 0)
+    return np.where(against[:, None], computed, vnormals), int(np.count_nonzero(against))
+
+
 def make_scene(
     vertices,
     faces,
@@ -650,14 +663,8 @@ def make_scene(
         if normals is not None:
             vnormals = _normalize(normals)
             if flipped is not None:
-                # A flipped face's file normals were made for its old side: where one points
-                # against its vertex's repaired (angle-weighted) normal it is replaced.
-                computed = vertex_normals(local, faces, "angle")
-                touched = np.zeros(len(vertices), dtype=bool)
-                touched[faces[flipped].ravel()] = True
-                against = touched & (np.einsum("ij,ij->i", vnormals, computed) < 0)
-                vnormals = np.where(against[:, None], computed, vnormals)
-                record["normals_replaced"] = int(np.count_nonzero(against))
+                vnormals, replaced = replace_flipped_normals(vnormals, local, faces, flipped)
+                record["normals_replaced"] = replaced
         else:
             mode = "angle"
     if mode != "file":
