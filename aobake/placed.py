@@ -63,8 +63,9 @@ def make_placed_scene(vertices, faces, normals, normals_mode: str, parts, source
     faces use its vertices only (InputError otherwise).
     """
     from aobake.scene import (MAX_COORDINATE, MIN_EXTENT, QUANTISED_FRACTION, Scene,
-                              _normalize, _summed_normals, _triangle_normals, face_rows,
-                              repair_record, replace_flipped_normals, vertex_normals)
+                              _normalize, _summed_normals, _triangle_normals,
+                              checked_materials, face_rows, repair_record,
+                              replace_flipped_normals, vertex_normals)
 
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
@@ -181,13 +182,7 @@ def make_placed_scene(vertices, faces, normals, normals_mode: str, parts, source
         raise InputError(f"{source}: every face has zero area")
     if n_degenerate:
         warnings.append(f"{source}: {n_degenerate} zero-area triangles (they never occlude)")
-    if materials is not None:
-        face_material = np.asarray(face_material, dtype=np.int64)
-        if face_material.shape != (len(faces),) or face_material.min() < 0 \
-                or face_material.max() >= len(materials):
-            raise InputError(f"{source}: material indices do not match the faces")
-    else:
-        face_material = None
+    face_material = checked_materials(face_material, materials, len(faces), source)
     step = float(np.spacing(largest))
     # make_scene's quantisation warning: typical = sqrt(2 median positive area), a
     # warning where step > QUANTISED_FRACTION * typical.  The median is at least the

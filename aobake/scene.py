@@ -538,6 +538,18 @@ MAX_COORDINATE = 1e150
 MIN_EXTENT = 1e-150
 
 
+def checked_materials(face_material, materials, n_faces: int, source: str):
+    """(f,) int64 each face's index into ``materials``, checked (InputError naming
+    ``source`` where they do not match the faces); None without materials."""
+    if materials is None:
+        return None
+    face_material = np.asarray(face_material, dtype=np.int64)
+    if face_material.shape != (n_faces,) or face_material.min() < 0 \
+            or face_material.max() >= len(materials):
+        raise InputError(f"{source}: material indices do not match the faces")
+    return face_material
+
+
 def replace_flipped_normals(vnormals, local, faces, flipped):
     """A flipped face's file normals were made for its old side: where one points against
     its vertex's repaired (angle-weighted) normal it is replaced by that.  vnormals (v, 3)
@@ -684,13 +696,7 @@ def make_scene(
             raise InputError(f"{source}: UV indices do not match the faces")
         if not np.isfinite(uv[faces_uv]).all():
             raise InputError(f"{source}: UV coordinates contain NaN or infinity")
-    if materials is not None:
-        face_material = np.asarray(face_material, dtype=np.int64)
-        if face_material.shape != (len(faces),) or face_material.min() < 0 \
-                or face_material.max() >= len(materials):
-            raise InputError(f"{source}: material indices do not match the faces")
-    else:
-        face_material = None
+    face_material = checked_materials(face_material, materials, len(faces), source)
     # float64 itself quantises coordinates far from the origin: at 1e15 every coordinate is a
     # multiple of 0.125.  Say so where that step is a visible fraction of the triangles.
     sized = areas[areas > 0]
