@@ -63,9 +63,10 @@ def make_placed_scene(vertices, faces, normals, normals_mode: str, parts, source
     faces use its vertices only (InputError otherwise).
     """
     from aobake.scene import (MAX_COORDINATE, MIN_EXTENT, QUANTISED_FRACTION, Scene,
-                              _normalize, _summed_normals, _triangle_normals,
-                              checked_materials, face_rows, repair_record,
+                              checked_materials, compiled_triangle_normals,
+                              compiled_vertex_normals, face_rows, repair_record,
                               replace_flipped_normals, vertex_normals)
+    from aobake.vectors import normalize
 
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
@@ -127,7 +128,7 @@ def make_placed_scene(vertices, faces, normals, normals_mode: str, parts, source
         part_normals = None if normals is None else normals[vs]
         flipped = None
         if fix_normals != "off" and len(own):
-            votes = None if part_normals is None else _normalize(part_normals)
+            votes = None if part_normals is None else normalize(part_normals)[0]
             orientation = repairs.orient(local, own, votes)
             counts = orientation.counts()
             totals = counts if totals is None else {k: totals[k] + counts[k] for k in totals}
@@ -136,14 +137,14 @@ def make_placed_scene(vertices, faces, normals, normals_mode: str, parts, source
                 own = repairs.flip_faces(own, flipped)
                 faces[fs] = own + vs.start
                 flipped_total += int(flipped.sum())
-        compiled = _triangle_normals(local, own, cosines=angles) if len(own) else None
+        compiled = compiled_triangle_normals(local, own, cosines=angles) if len(own) else None
         cosines = None
         if compiled is not None:
             fnormals, length, cosines = compiled[0], compiled[1], compiled[3]
         else:  # make_scene's numpy lines
             tri = local[own]
             cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-            fnormals, length = _normalize(cross), np.linalg.norm(cross, axis=1)
+            fnormals, length = normalize(cross)[0], np.linalg.norm(cross, axis=1)
             del tri, cross
         areas = 0.5 * length / (scale * scale)
         n_degenerate += int(np.count_nonzero(~fnormals.any(axis=1)))
@@ -151,7 +152,7 @@ def make_placed_scene(vertices, faces, normals, normals_mode: str, parts, source
         if len(positive):
             smallest = min(smallest, float(positive.min()))
         if mode == "file":
-            out = _normalize(part_normals)
+            out = normalize(part_normals)[0]
             if flipped is not None:
                 out, replaced = replace_flipped_normals(out, local, own, flipped)
                 replaced_total += replaced
@@ -163,7 +164,7 @@ def make_placed_scene(vertices, faces, normals, normals_mode: str, parts, source
         else:
             out = None
             if cosines is not None and mode == "angle":
-                out = _summed_normals(own, len(local), fnormals, None, cosines)
+                out = compiled_vertex_normals(own, len(local), fnormals, None, cosines)
             if out is None:
                 out = vertex_normals(local, own, mode)
         vnormals[vs] = out
@@ -219,7 +220,7 @@ def placed_arrays(read, path):
     per vertex, (materials, face_material (F,) int64) | None: with the UVs, names: kind ->
     (names, (F,) int64 | None)): what ``aobake.scene._load_with_trimesh`` makes of the
     placed copies all at once, the same values in the same order."""
-    from aobake.scene import _gltf_broken_textures, _trimesh_material
+    from aobake.scene import gltf_broken_textures, trimesh_material
 
     instances = read.instances
     n_vertices, n_faces = int(instances.vertex_offsets[-1]), int(instances.face_offsets[-1])
@@ -248,11 +249,11 @@ def placed_arrays(read, path):
             if uv is None:
                 uv = np.empty((n_vertices, 2))
                 face_material = np.empty(n_faces, dtype=np.int64)
-                broken = _gltf_broken_textures(path) if path.suffix.lower() in (
+                broken = gltf_broken_textures(path) if path.suffix.lower() in (
                     ".gltf", ".glb") else {}
             uv[vs] = np.asarray(own_uv, dtype=np.float64)
             # scene._trimesh_materials' loop, a copy at a time: distinct by content
-            material = _trimesh_material(mesh, len(materials), broken)
+            material = trimesh_material(mesh, len(materials), broken)
             factor = material["base_color_factor"]
             key = (material["name"], material["base_color_png"],
                    tuple(factor) if factor else None, material["metallic_roughness_png"],

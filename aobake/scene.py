@@ -122,7 +122,7 @@ def face_rows(vertices: np.ndarray, faces: np.ndarray, center: np.ndarray, scale
         tri = ((vertices[faces[block]] - center) * scale).reshape(-1, 3)
         if corners is None or len(corners) != k:
             corners = np.arange(3 * k, dtype=np.int64).reshape(k, 3)
-        compiled = _triangle_normals(tri, corners)
+        compiled = compiled_triangle_normals(tri, corners)
         if compiled is not None:
             rows, length = compiled[0], compiled[1]
         else:  # make_scene's numpy lines
@@ -439,7 +439,7 @@ def _normalize(vectors: np.ndarray) -> np.ndarray:
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(f, 3) float64 unit face normals from the winding; zero for degenerate faces."""
-    compiled = _triangle_normals(vertices, faces)
+    compiled = compiled_triangle_normals(vertices, faces)
     if compiled is not None:
         return compiled[0]
     tri = vertices[faces]
@@ -461,7 +461,7 @@ def _corner_cosines(tri: np.ndarray) -> np.ndarray:
     return cosines
 
 
-def _triangle_normals(vertices, faces, cross: bool = False, cosines: bool = False):
+def compiled_triangle_normals(vertices, faces, cross: bool = False, cosines: bool = False):
     """(unit (f, 3), length (f,), cross (f, 3) | None, cosines (3, f) | None) from the
     compiled kernel (``triangle_normals``: the numpy formulations' bits, tested), or None
     where it was not built, is switched off, or the input is not float64 vertices (v, 3)
@@ -491,11 +491,11 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray, weighting: str = "an
     the same bits, ~5x faster (tests/test_normals_kernel.py compares them)."""
     if weighting not in ("area", "angle"):
         raise ValueError(f"unknown normal weighting {weighting!r}")
-    compiled = _triangle_normals(vertices, faces, cross=weighting == "area",
+    compiled = compiled_triangle_normals(vertices, faces, cross=weighting == "area",
                                  cosines=weighting == "angle")
     if compiled is not None:
         unit, _, cross, cosines = compiled
-        out = _summed_normals(faces, len(vertices), unit, cross, cosines)
+        out = compiled_vertex_normals(faces, len(vertices), unit, cross, cosines)
         if out is not None:
             return out
     tri = vertices[faces]
@@ -515,7 +515,7 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray, weighting: str = "an
     return _normalize(accum)
 
 
-def _summed_normals(faces, n_vertices: int, unit, cross, cosines):
+def compiled_vertex_normals(faces, n_vertices: int, unit, cross, cosines):
     """The compiled ``vertex_normal_sums`` of :func:`vertex_normals`: (v, 3) unit normals
     from the face rows ``cross`` (area weighting; ``cosines`` None) or ``unit`` weighted by
     the corner angles ``np.arccos(cosines)`` ((3, f), taken in place: ``cosines`` is
@@ -653,7 +653,7 @@ def make_scene(
     # of the kernel gives both (the same bits as two), and the cosines are dropped as soon
     # as the normals are summed.
     angles = normals_mode == "angle" or (normals_mode == "file" and normals is None)
-    compiled = _triangle_normals(local, faces, cosines=angles)
+    compiled = compiled_triangle_normals(local, faces, cosines=angles)
     cosines = None
     if compiled is not None:  # the bits of the lines below (normalize's length is norm's)
         fnormals, length, cosines = compiled[0], compiled[1], compiled[3]
@@ -682,7 +682,7 @@ def make_scene(
     if mode != "file":
         vnormals = None
         if cosines is not None and mode == "angle":
-            vnormals = _summed_normals(faces, len(vertices), fnormals, None, cosines)
+            vnormals = compiled_vertex_normals(faces, len(vertices), fnormals, None, cosines)
         if vnormals is None:
             vnormals = vertex_normals(local, faces, mode)
     elif not vnormals[referenced].any(axis=1).all():
@@ -807,7 +807,7 @@ def _image_name(header: dict, index) -> str:
     return f"images[{index}] (embedded)"
 
 
-def _gltf_broken_textures(path: Path) -> dict:
+def gltf_broken_textures(path: Path) -> dict:
     """glTF material name (None: unnamed) -> "texture X: problem" for every alphaMode MASK
     material whose declared baseColorTexture cannot be read or decoded.
 
@@ -854,9 +854,9 @@ def _gltf_broken_textures(path: Path) -> dict:
     return broken
 
 
-def _trimesh_material(mesh, index: int, broken: dict | None = None) -> dict:
+def trimesh_material(mesh, index: int, broken: dict | None = None) -> dict:
     """Base colour of one trimesh mesh's PBR (or simple) material; ``broken`` as
-    :func:`_gltf_broken_textures` returns (its entries mark MASK materials left without
+    :func:`gltf_broken_textures` returns (its entries mark MASK materials left without
     their texture)."""
     material = getattr(mesh.visual, "material", None)
     out = _white(getattr(material, "name", None) or f"material_{index}")
@@ -914,7 +914,7 @@ def _trimesh_materials(meshes, broken: dict | None = None) -> tuple[list, np.nda
     """One entry per distinct material object of the meshes, and each face's index."""
     index, materials, per_mesh = {}, [], []
     for mesh in meshes:
-        material = _trimesh_material(mesh, len(materials), broken)
+        material = trimesh_material(mesh, len(materials), broken)
         # By content: trimesh's scene dump may copy one shared material per node.
         factor = material["base_color_factor"]
         key = (material["name"], material["base_color_png"], tuple(factor) if factor else None,
@@ -1036,7 +1036,7 @@ def _load_with_trimesh(path: Path, uv_set: int = 0, bake: tuple = ()):
             sets[k] = np.concatenate(per_mesh)
     materials = None
     if uvs:
-        broken = _gltf_broken_textures(path) if path.suffix.lower() in (".gltf", ".glb") else {}
+        broken = gltf_broken_textures(path) if path.suffix.lower() in (".gltf", ".glb") else {}
         materials = _trimesh_materials(meshes, broken)
     def joined(arrays):  # one mesh's array as it is (no copy)
         return None if not arrays else arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
