@@ -1,12 +1,13 @@
-/* aobake._kernels, a box-filtered view's primary rays: the positions of the joint
- * estimator's sobol samples in their pixels (aobake.samplers.joint.positions, "sobol") and
- * the camera rays through them (aobake.targets.view_box._Context.directions), compiled.
+/* aobake._kernels, a box-filtered view's rays (aobake.targets.view_box), compiled:
+ * pixel_rays, the positions of the joint estimator's sobol samples in their pixels
+ * (aobake.samplers.joint.positions, "sobol") and the camera rays through them
+ * (view_box._Context.directions); box_rays, the AO rays from those rays' hits
+ * (view_box._Context.hits, _offsets, _ao_rays).
  *
- * Why: in numpy these are ~20 whole-array passes per block that hold the GIL between them,
- * a fifth of a view's CPU time and most of what kept a second thread from helping (measured
- * on the still life at 160x90, 256 rays per pixel: 76 of 380 ms on one thread; two threads
- * took 0.32 s where the GIL-free part alone would allow 0.25 s).  Here one pass, the GIL
- * released.  numpy stays the reference and the fallback; tests check the two agree bit for
+ * Why: in numpy these are whole-array passes per block that hold the GIL between them,
+ * about a third of a view's CPU time and what kept a second thread from helping (measured
+ * on the still life at 160x90, 256 rays per pixel: ~130 of 380 ms on one thread; two
+ * threads took 0.32 s where one took 0.40 s).  Here one pass each, the GIL released.  numpy stays the reference and the fallback; tests check the two agree bit for
  * bit (tests/test_view_box_stratified.py).
  *
  * Exactness: the scrambles are uint32 arithmetic (wrapping, as numpy's); the directions are
