@@ -14,6 +14,7 @@
  *   _unionfind.c parity_union_find            aobake.repair: components and their 2-colouring
  *   _normals.c  triangle_normals, vertex_normal_sums  aobake.scene: face and vertex normals
  *   _pixels.c   pixel_rays, box_rays          aobake.targets.view_box: a box view's rays
+ *   _obj.c      obj_floats, obj_corners       aobake.obj: the OBJ fast reader's blocks
  *
  * This file holds the module's method table; _kernels.h what the files share (buffer
  * checks, the splitmix64 hash of aobake.rng, the functions' declarations).
@@ -36,6 +37,12 @@ static PyMethodDef methods[] = {
      "box_rays(directions, t, prim, faces, eye, center, scale, up, height, ground_size, "
      "fraction, ulps, keys, slots, table, sampler, weighting, r, m, out_origins, "
      "out_directions): a box view's AO rays from its positions' primary hits."},
+    {"obj_floats", obj_floats, METH_VARARGS,
+     "obj_floats(block, count, key, least) -> (w, bytearray) | None: the values of count "
+     "lines 'KEY x1 ... xw' (aobake.obj._floats)."},
+    {"obj_corners", obj_corners, METH_VARARGS,
+     "obj_corners(block, count) -> (per_face, vertex, texture, normal, has_texture, "
+     "has_normal) | None: the corners of count f lines (aobake.obj._corners)."},
     {"raster_rows", raster_rows, METH_VARARGS,
      "raster_rows(ax, ay, dx, dy, owner, corner, vmax, verts, c0, c1, row_start, row_tris, width, "
      "n_sub, seed_key, q, g, row_lo, row_hi, write, rows, out_texel, out_face, out_bary, "

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from aobake import _native
 from aobake.errors import InputError
 
 
@@ -261,6 +262,8 @@ def _read_slow(path, text: str) -> ObjData:
 # Values: floats are parsed by numpy's bytes->float64 conversion, which calls Python's float()
 # (the same bits and the same accepted spellings as the slow reader); integers by
 # np.fromstring after checking each is [-]digits, at most 18 of them (no int64 overflow).
+# Where aobake._kernels was built, its obj_floats and obj_corners (aobake/_obj.c) parse a
+# block first, the same values in one pass, and leave to numpy what they do not read.
 
 _SKIP, _V, _VT, _VN, _F, _OTHER = range(6)
 _ELEMENTS = ("v", "vt", "vn", "f")
@@ -284,12 +287,18 @@ class _Corners(NamedTuple):
     has_normal: np.ndarray
 
 
-def _floats(block: bytes, count: int, key: bytes, least: int) -> np.ndarray | None:
+def _floats(block: bytes, count: int, key: bytes, least: int, kernels=None) -> np.ndarray | None:
     """(count, w) float64 from ``count`` lines ``key x1 ... xw`` that all have the same w >= least.
 
-    One split of the whole block; the lines have the same width exactly when every w+1-th
-    token is the key (a value is never the key: float() rejects it, which raises ValueError).
+    ``kernels``: aobake._kernels, whose obj_floats reads the plain forms (aobake/_obj.c) and
+    leaves the rest to the numpy below.  One split of the whole block; the lines have the
+    same width exactly when every w+1-th token is the key (a value is never the key: float()
+    rejects it, which raises ValueError).
     """
+    if kernels is not None:
+        parsed = kernels.obj_floats(block, count, key, least)
+        if parsed is not None:
+            return np.frombuffer(parsed[1], np.float64).reshape(count, parsed[0])
     if not block.isascii():  # non-ASCII whitespace (U+00A0 ...) splits str, not bytes
         return None
     tokens = block.split()
@@ -306,8 +315,16 @@ def _edges(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return edges[0::2], edges[1::2]
 
 
-def _corners(block: bytes, count: int) -> _Corners | None:
-    """Tokenise ``count`` f lines (each "f", its corners, one line break) without a Python loop."""
+def _corners(block: bytes, count: int, kernels=None) -> _Corners | None:
+    """Tokenise ``count`` f lines (each "f", its corners, one line break) without a Python loop.
+
+    ``kernels``: aobake._kernels, whose obj_corners reads the plain forms (aobake/_obj.c) and
+    leaves the rest to the numpy below."""
+    if kernels is not None:
+        parsed = kernels.obj_corners(block, count)
+        if parsed is not None:
+            ints = [np.frombuffer(b, np.int64) for b in parsed[:4]]
+            return _Corners(*ints, *(np.frombuffer(b, np.bool_) for b in parsed[4:]))
     if block.translate(None, _FACE_BYTES) or block.count(b"f") != count:
         return None
     a = np.frombuffer(block, np.uint8)
@@ -369,12 +386,12 @@ def _read_fast(path, data: bytes, text: str, encoding: str) -> ObjData | None:
     if not data.isascii() and any(c in text for c in ("\x85", "\u2028", "\u2029")):
         return None
     try:
-        return _read_fast_bytes(path, data, encoding)
+        return _read_fast_bytes(path, data, encoding, _native.kernels())
     except (ValueError, IndexError):  # a value float() rejects, a malformed usemtl ...
         return None
 
 
-def _read_fast_bytes(path, data: bytes, encoding: str) -> ObjData | None:
+def _read_fast_bytes(path, data: bytes, encoding: str, kernels=None) -> ObjData | None:
     # One line break added so every line ends with one, two bytes so the first three bytes of
     # every line can be read.
     a = np.frombuffer(data + b"\n  ", np.uint8)
@@ -420,24 +437,24 @@ def _read_fast_bytes(path, data: bytes, encoding: str) -> ObjData | None:
     def block(k):
         return body[kind_of_byte == k].tobytes()
 
-    values = _floats(block(_V), int(counts[_V]), b"v", 3)
+    values = _floats(block(_V), int(counts[_V]), b"v", 3, kernels)
     if values is None:
         return None
     vertices = np.ascontiguousarray(values[:, :3])
     uv = normals = None
     if counts[_VT]:
-        values = _floats(block(_VT), int(counts[_VT]), b"vt", 1)
+        values = _floats(block(_VT), int(counts[_VT]), b"vt", 1, kernels)
         if values is None:
             return None
         uv = np.zeros((len(values), 2))
         uv[:, :min(2, values.shape[1])] = values[:, :2]  # "vt u" has v = 0, as in the slow reader
     if counts[_VN]:
-        values = _floats(block(_VN), int(counts[_VN]), b"vn", 3)
+        values = _floats(block(_VN), int(counts[_VN]), b"vn", 3, kernels)
         if values is None:
             return None
         normals = np.ascontiguousarray(values[:, :3])
 
-    corners = _corners(block(_F), int(counts[_F]))
+    corners = _corners(block(_F), int(counts[_F]), kernels)
     if corners is None:
         return None
     f_lines = np.flatnonzero(kind == _F)

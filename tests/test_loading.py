@@ -528,3 +528,122 @@ def test_normalize_is_the_linalg_norm_formulation_bit_for_bit():
                 got, want = normalize(vectors), reference(vectors)
                 assert all(x.shape == y.shape and x.tobytes() == y.tobytes()
                            for x, y in zip(got, want))
+
+
+# --- The compiled block parsers (aobake/_obj.c) against their numpy twins -----------------------
+
+def _compiled():
+    """The compiled module (the ``kernel`` fixture's, for tests that hypothesis drives)."""
+    from aobake import _native
+
+    if not _native.built():
+        pytest.skip("aobake._kernels was not built (no C compiler at install)")
+    return _native.kernels()
+
+
+def _both_readers(data: bytes):
+    """(compiled, numpy) _read_fast results for a file's bytes (None: declined)."""
+    from aobake import _native
+
+    text, encoding = objmod._decode("mem.obj", data)
+    compiled = objmod._read_fast("mem.obj", data, text, encoding)
+    with _native.numpy_only():
+        plain = objmod._read_fast("mem.obj", data, text, encoding)
+    return compiled, plain
+
+
+def _same_either_way(data: bytes):
+    try:
+        compiled, plain = _both_readers(data)
+    except InputError:  # binary content: the decoding both share
+        return
+    assert (compiled is None) == (plain is None)
+    if compiled is not None:
+        _assert_identical(compiled, plain)
+
+
+@pytest.mark.parametrize("name", sorted(FAST_FORMS))
+def test_obj_kernels_read_the_fast_forms_as_numpy_does(kernel, name):
+    content = FAST_FORMS[name]
+    _same_either_way(content.encode() if content is not None else b"v 0 0 0\nf 1 1 1\n")
+
+
+@pytest.mark.slow
+@HYP
+@given(text=_obj_files(), where=st.integers(0, 10**6), junk=_junk, replace=st.booleans())
+def test_obj_kernels_property_spoilt_files(text, where, junk, replace):
+    _compiled()
+    lines = text.split("\n")
+    _same_either_way(text.encode())
+    where %= len(lines)
+    lines[where:where + replace] = [junk]
+    _same_either_way("\n".join(lines).encode("utf-8", errors="surrogateescape"))
+
+
+# Spellings at the edges of the exact path (19 significant digits, 2^53, 10^22) and past it
+# (Python's own parser), signed zeros, subnormals, overflow; and what the kernel declines.
+_EDGE_FLOATS = ["0", "-0", "+0.0", "-0.000", "1", "-1.", ".5", "5.", "0.1", "0.30000000000000004",
+                "9007199254740992", "9007199254740993", "9007199254740993.0", "1e22", "1e23",
+                "9007199254740991e22", "9007199254740993e-22", "1234567890123456789",
+                "12345678901234567890", "0.00000000000000000000000123", "123456789012345678901234567890",
+                "1e-320", "4.9406564584124654e-324", "2.4703282292062327e-324", "1e-400",
+                "1.7976931348623157e308", "1e309", "-1e400", "2.2250738585072011e-308",
+                "000000000000000000000000001.5", "1.5e0000000000000000000001", "1E+05", "1e-05",
+                "3.141592653589793238462643383279", "-2.5E-3", "+3e+2"]
+
+
+@pytest.mark.parametrize("token", _EDGE_FLOATS)
+def test_obj_floats_kernel_is_python_float(kernel, token):
+    block = f"v {token} 1 {token}\nv 0 {token} 2\n".encode()
+    width, values = kernel.obj_floats(block, 2, b"v", 3)
+    got = np.frombuffer(values, np.float64).reshape(2, width)
+    want = np.array([[float(token), 1.0, float(token)], [0.0, float(token), 2.0]])
+    assert got.tobytes() == want.tobytes()
+
+
+@pytest.mark.parametrize("block, count", [
+    (b"v 1 2 inf\n", 1), (b"v nan 1 2\n", 1), (b"v 1_0 1 2\n", 1), (b"v 1 2\n", 1),
+    (b"v 1 2 3\nv 1 2\n", 2), (b"v 1 2 3 # c\n", 1), (b"v 1 2 3\n", 2), (b"v 1 2 3\nv 1 2 3\n", 1),
+    (b"v . 1 2\n", 1), (b"v 1e 1 2\n", 1), (b"v 1e+ 1 2\n", 1), (b"v 1 2 3\xa0\n", 1),
+    (b"vn 1 2 3\n", 1), (b"v 1 2 3", 1), (b"v 1 2 3\nv\n", 2), (b"v 0x10 1 2\n", 1),
+])
+def test_obj_floats_kernel_declines_what_it_does_not_read(kernel, block, count):
+    assert kernel.obj_floats(block, count, b"v", 3) is None
+
+
+@pytest.mark.slow
+@settings(max_examples=2000, deadline=None, derandomize=True)
+@given(st.lists(st.one_of(
+    st.floats(allow_nan=False, allow_infinity=False).map(repr),
+    st.floats(allow_nan=False, allow_infinity=False).map(lambda x: f"{x:.17e}"),
+    st.floats(-1e3, 1e3).map(lambda x: f"{x:.{abs(hash(x)) % 25}f}"),
+    st.tuples(st.text("0123456789", min_size=1, max_size=30), st.text("0123456789", max_size=30),
+              st.integers(-340, 340)).map(lambda t: f"{t[0]}.{t[1]}e{t[2]}"),
+), min_size=3, max_size=3))
+def test_obj_floats_kernel_property(tokens):
+    width, values = _compiled().obj_floats(("v " + " ".join(tokens) + "\n").encode(), 1, b"v", 3)
+    assert np.frombuffer(values, np.float64).tobytes() == \
+        np.array([float(t) for t in tokens]).tobytes()
+
+
+@pytest.mark.parametrize("block", [
+    b"f 1 2 3\n", b"f 1/2 2/3 3/4\n", b"f 1//3 2//3 3//1\n", b"f 1/2/3 -1/-2/-3 4/5/6 7/8/9\n",
+    b"f 1/ 2// 3/4/\n", b"f\t1 \t2  3 \t\nf 4 5 6\r", b"f 000000000000000001 2 -00000000000000003\n",
+    b"f 1 2\n", b"f 1 2\nf \n",
+])
+def test_obj_corners_kernel_matches_numpy(kernel, block):
+    count = block.count(b"f")
+    compiled = objmod._corners(block, count, kernel)
+    assert kernel.obj_corners(block, count) is not None
+    plain = objmod._corners(block, count)
+    for a, b in zip(compiled, plain):
+        assert (a.dtype, a.shape, a.tobytes()) == (b.dtype, b.shape, b.tobytes())
+
+
+@pytest.mark.parametrize("block", [
+    b"f 1 2 3 # c\n", b"f 1/2/3/4 2 3\n", b"f /2 1 2\n", b"f 1 2 -\n", b"f 1 2 1-2\n",
+    b"f --1 2 3\n", b"f 1 2 0000000000000000001\n", b"f 1 2 3", b"f 1 2 3\nf 1 f 2\n",
+    b" f 1 2 3\n", b"f 1 2 +3\n", b"f \n",
+])
+def test_obj_corners_kernel_declines_what_it_does_not_read(kernel, block):
+    assert kernel.obj_corners(block, max(1, block.count(b"\n"))) is None
