@@ -17,7 +17,7 @@ from setuptools import Extension, setup
 FLAGS = [] if sys.platform == "win32" else ["-O3", "-ffp-contract=off", "-fno-fast-math"]
 #: aobake._kernels's sources: the module's method table, then one file per stage
 KERNELS = ["_kernels", "_rays", "_counts", "_raster", "_surface", "_seams", "_sparse", "_post",
-           "_sort", "_pack", "_unionfind", "_normals", "_pixels", "_obj"]
+           "_sort", "_pack", "_unionfind", "_normals", "_pixels", "_obj", "_orient"]
 
 setup(
     ext_modules=[

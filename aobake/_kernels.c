@@ -15,6 +15,7 @@
  *   _normals.c  triangle_normals, vertex_normal_sums  aobake.scene: face and vertex normals
  *   _pixels.c   pixel_rays, box_rays          aobake.targets.view_box: a box view's rays
  *   _obj.c      obj_floats, obj_corners       aobake.obj: the OBJ fast reader's blocks
+ *   _orient.c   orient_terms, orient_volumes  aobake.repair.orient: its per-face terms
  *
  * This file holds the module's method table; _kernels.h what the files share (buffer
  * checks, the splitmix64 hash of aobake.rng, the functions' declarations).
@@ -43,6 +44,12 @@ static PyMethodDef methods[] = {
     {"obj_corners", obj_corners, METH_VARARGS,
      "obj_corners(block, count) -> (per_face, vertex, texture, normal, has_texture, "
      "has_normal) | None: the corners of count f lines (aobake.obj._corners)."},
+    {"orient_terms", orient_terms, METH_VARARGS,
+     "orient_terms(vertices, corners, normals, out_area, out_mean, out_agree) -> bool: "
+     "the winding check's per-face areas, mean corners and normal votes."},
+    {"orient_volumes", orient_volumes, METH_VARARGS,
+     "orient_volumes(vertices, corners, centre, comp, out_det) -> bool: the winding "
+     "check's per-face volume terms about each component's centre."},
     {"raster_rows", raster_rows, METH_VARARGS,
      "raster_rows(ax, ay, dx, dy, owner, corner, vmax, verts, c0, c1, row_start, row_tris, width, "
      "n_sub, seed_key, q, g, row_lo, row_hi, write, rows, out_texel, out_face, out_bary, "

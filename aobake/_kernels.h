@@ -81,6 +81,8 @@ PyObject *box_rays(PyObject *self, PyObject *args);         /* _pixels.c */
 PyObject *row_counts(PyObject *self, PyObject *args);       /* _counts.c */
 PyObject *obj_floats(PyObject *self, PyObject *args);       /* _obj.c */
 PyObject *obj_corners(PyObject *self, PyObject *args);      /* _obj.c */
+PyObject *orient_terms(PyObject *self, PyObject *args);     /* _orient.c */
+PyObject *orient_volumes(PyObject *self, PyObject *args);   /* _orient.c */
 PyObject *raster_rows(PyObject *self, PyObject *args);      /* _raster.c */
 PyObject *surface_interp(PyObject *self, PyObject *args);   /* _surface.c */
 PyObject *surface_shading(PyObject *self, PyObject *args);  /* _surface.c */

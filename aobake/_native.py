@@ -28,7 +28,8 @@ FUNCTIONS = set(KERNELS.values()) | {"radix_argsort", "surface_interp", "chart_m
                                       "seam_pattern", "seam_values", "surface_shading",
                                       "parity_union_find", "triangle_normals",
                                       "vertex_normal_sums", "pixel_rays",
-                                      "box_rays", "obj_floats", "obj_corners"}
+                                      "box_rays", "obj_floats", "obj_corners",
+                                      "orient_terms", "orient_volumes"}
 
 if _compiled is not None and not FUNCTIONS <= set(dir(_compiled)):
     # An editable install not rebuilt since the kernels changed: numpy for everything

@@ -248,24 +248,10 @@ def orient(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
     n_comp = len(roots)
     comp, colour = component[proper], parity[proper]
 
-    # Per-face terms a block of faces at a time (each row's arithmetic as on the whole
-    # array: the same bits), so no (f, 3, 3) corner array lives for the whole mesh.
     corners = faces[proper]
-    m = len(corners)
-    area = np.empty(m)
-    mean = np.empty((3, m))
-    agree = None if normals is None else np.empty(m)
     if normals is not None:
         normals = np.asarray(normals, dtype=np.float64)
-    for lo in range(0, m, BLOCK):
-        blk = slice(lo, lo + BLOCK)
-        tri = vertices[corners[blk]]
-        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        area[blk] = 0.5 * np.linalg.norm(cross, axis=1)
-        for k in range(3):
-            mean[k, blk] = tri[:, :, k].mean(axis=1)
-        if agree is not None:
-            agree[blk] = np.einsum("ij,ij->i", cross, normals[corners[blk]].sum(axis=1))
+    area, mean, agree = _face_terms(vertices, corners, normals, compiled)
     area1 = np.bincount(comp, weights=area * colour, minlength=n_comp)
     area0 = np.bincount(comp, weights=area * ~colour, minlength=n_comp)
     count1 = np.bincount(comp, weights=colour, minlength=n_comp)
@@ -282,11 +268,7 @@ def orient(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
     centre = np.stack([np.bincount(comp, weights=mean[k], minlength=n_comp)
                        for k in range(3)], axis=1) / size[:, None]
     del mean
-    det = np.empty(m)
-    for lo in range(0, m, BLOCK):
-        blk = slice(lo, lo + BLOCK)
-        rel = vertices[corners[blk]] - centre[comp[blk]][:, None, :]
-        det[blk] = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
+    det = _face_volumes(vertices, corners, centre, comp, compiled)
     del corners
     volume = np.bincount(comp, weights=sign * det, minlength=n_comp)
     scale = np.bincount(comp, weights=np.abs(det), minlength=n_comp)
@@ -308,6 +290,51 @@ def orient(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None =
     flip = np.zeros(n_faces, dtype=bool)
     flip[proper] = against_proper ^ inward[comp]
     return Orientation(component, against, flip, closed, nearly_closed, inward, conflicting)
+
+
+def _face_terms(vertices, corners, normals, kernels=None):
+    """Per-face terms of :func:`orient`: (area (m,), mean corner (3, m), agree (m,) | None).
+
+    vertices : (v, 3) float64, corners : (m, 3) int64, normals : (v, 3) float64 | None.
+    agree: the cross product dotted with the corners' summed normals (None without
+    normals).  ``kernels``: aobake._kernels, whose orient_terms (aobake/_orient.c) gives
+    the same bits; the numpy runs a block of faces at a time (each row's arithmetic as on
+    the whole array: the same bits), so no (m, 3, 3) corner array lives for the whole mesh.
+    """
+    m = len(corners)
+    area, mean = np.empty(m), np.empty((3, m))
+    agree = None if normals is None else np.empty(m)
+    empty = np.empty(0)
+    if kernels is not None and kernels.orient_terms(
+            np.ascontiguousarray(vertices), np.ascontiguousarray(corners),
+            empty if normals is None else np.ascontiguousarray(normals), area, mean,
+            empty if agree is None else agree):
+        return area, mean, agree
+    for lo in range(0, m, BLOCK):
+        blk = slice(lo, lo + BLOCK)
+        tri = vertices[corners[blk]]
+        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        area[blk] = 0.5 * np.linalg.norm(cross, axis=1)
+        for k in range(3):
+            mean[k, blk] = tri[:, :, k].mean(axis=1)
+        if agree is not None:
+            agree[blk] = np.einsum("ij,ij->i", cross, normals[corners[blk]].sum(axis=1))
+    return area, mean, agree
+
+
+def _face_volumes(vertices, corners, centre, comp, kernels=None):
+    """(m,) float64: each face's determinant r0 . (r1 x r2) of its corners relative to its
+    component's centre (centre (c, 3) float64, comp (m,) int64), through orient_volumes
+    (aobake/_orient.c, the same bits) where ``kernels`` is given, else numpy by blocks."""
+    det = np.empty(len(corners))
+    if kernels is not None and kernels.orient_volumes(
+            *map(np.ascontiguousarray, (vertices, corners, centre, comp)), det):
+        return det
+    for lo in range(0, len(corners), BLOCK):
+        blk = slice(lo, lo + BLOCK)
+        rel = vertices[corners[blk]] - centre[comp[blk]][:, None, :]
+        det[blk] = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
+    return det
 
 
 def _caps(vertices, edges: EdgePairs, component, face_sign, centre, n_comp, kernels=None):

@@ -647,3 +647,22 @@ def test_obj_corners_kernel_matches_numpy(kernel, block):
 ])
 def test_obj_corners_kernel_declines_what_it_does_not_read(kernel, block):
     assert kernel.obj_corners(block, max(1, block.count(b"\n"))) is None
+
+
+def test_obj_vertex_normals_are_np_add_at_sums():
+    """scene._obj_normals sums each vertex's corner normals as np.add.at does (in corner
+    order, from 0.0): the same bits, corners without a vn left out."""
+    from aobake.scene import _obj_normals
+
+    rng = np.random.default_rng(3)
+    normals = rng.normal(size=(40, 3)) * np.exp(rng.normal(size=(40, 3)) * 5)
+    faces = rng.integers(1, 10, size=(300, 3))
+    has = rng.random((300, 3)) < 0.8
+    text = GRID + "".join(f"vn {x!r} {y!r} {z!r}\n" for x, y, z in normals.tolist()) + "".join(
+        "f " + " ".join(f"{v}//{rng.integers(1, 41)}" if h else str(v) for v, h in zip(f, hs))
+        + "\n" for f, hs in zip(faces, has))
+    data = _fast_equals_slow(text.encode())
+    corners = data.faces_normal.ravel()
+    want = np.zeros_like(data.vertices)
+    np.add.at(want, data.faces.ravel()[corners >= 0], data.normals[corners[corners >= 0]])
+    assert _obj_normals(data).tobytes() == want.tobytes()

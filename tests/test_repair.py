@@ -184,6 +184,37 @@ def test_detector_is_the_same_on_the_numpy_path(kernel):
                                 "inward"))
 
 
+def test_compiled_face_terms_are_the_numpy_bits(kernel):
+    """orient's per-face terms (areas, mean corners, normal votes, volumes about the
+    centres) from aobake/_orient.c equal numpy's bit for bit, on coordinates spread over
+    many binades (so any other order of the sums would show), and on a real winding."""
+    rng = np.random.default_rng(11)
+    v = 300
+    vertices = rng.normal(size=(v, 3)) * np.exp(rng.normal(size=(v, 3)) * 6)
+    normals = rng.normal(size=(v, 3)) * np.exp(rng.normal(size=(v, 3)) * 6)
+    # signed zeros: numpy's sums of negative zeros are +0.0
+    vertices[:40] = np.where(rng.random((40, 3)) < 0.5, -0.0, 0.0)
+    normals[:40] = np.where(rng.random((40, 3)) < 0.5, -0.0, 0.0)
+    for m in (1, 7, 5000):
+        corners = rng.integers(0, v, size=(m, 3))
+        corners[: m // 3] %= 40  # faces of zero vertices, degenerate ones among them
+        centre = rng.normal(size=(4, 3))
+        centre[0] = -0.0
+        comp = rng.integers(0, 4, size=m)
+        for n in (normals, None):
+            got = repair._face_terms(vertices, corners, n, kernel)
+            want = repair._face_terms(vertices, corners, n)
+            for a, b in zip(got, want):
+                assert (a is None and b is None) or a.tobytes() == b.tobytes()
+        assert repair._face_volumes(vertices, corners, centre, comp, kernel).tobytes() == \
+            repair._face_volumes(vertices, corners, centre, comp).tobytes()
+    # an index out of range: the kernel declines, numpy raises
+    assert not kernel.orient_terms(vertices, np.array([[0, 1, v]]), np.empty(0), np.empty(1),
+                                   np.empty(3), np.empty(0))
+    assert not kernel.orient_volumes(vertices, np.array([[0, 1, 2]]), centre, np.array([4]),
+                                     np.empty(1))
+
+
 # --- --fix-normals in the bake ----------------------------------------------------------
 
 
