@@ -511,3 +511,73 @@ def test_other_quantities_agree_with_the_positions_estimator(options):
            + positions.channels[f"{quantity}_stderr"][both].astype(np.float64) ** 2)
     assert abs(d.mean()) <= 4 * math.sqrt(var.mean() / both.sum()) + 1e-6, d.mean()
     assert 0.6 <= np.mean(d ** 2) / var.mean() <= 1.4, np.mean(d ** 2) / var.mean()
+
+
+# --- pixels no triangle reaches are not traced (view_box._Context.reachable) -------------------
+
+def _uncut(monkeypatch):
+    """view_box.trace with every pixel's rays cast (no culling)."""
+    import functools
+
+    monkeypatch.setattr(view_box, "trace", functools.partial(view_box.trace, cull=False))
+
+
+def _mesh_in_part_of_the_frame():
+    """Two boxes and a tilted quad seen from a corner, one box cut by the frame's edge."""
+    box = trimesh.creation.box(extents=[1.0, 0.6, 0.8])
+    other = trimesh.creation.box(extents=[0.3, 0.3, 0.3])
+    other.apply_translation([1.4, 0.9, 0.2])
+    plate = trimesh.creation.box(extents=[0.8, 0.02, 0.5])
+    plate.apply_transform(trimesh.transformations.rotation_matrix(0.4, [1, 1, 0]))
+    plate.apply_translation([-1.2, 0.1, 0.5])
+    return trimesh.util.concatenate([box, other, plate])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("options", [
+    dict(), dict(box_sampling="joint", sampler="random", quantities=("ao", "obscurance")),
+    dict(ground_plane=True), dict(look_from=(0.1, 0.05, 0.2), look_at=(1, 1, 1)),
+])
+def test_culled_pixels_give_the_same_bits(monkeypatch, tmp_path, options):
+    """Leaving uncast the rays of pixels no triangle's projection reaches changes no bit:
+    the mesh partly out of frame; i.i.d. samples; a ground plane (nothing culled); the eye
+    inside the box (triangles reach the eye's plane: nothing culled)."""
+    path = tmp_path / "m.ply"
+    _mesh_in_part_of_the_frame().export(path)
+    settings = dict(size=(48, 27), rays=32, pixel_filter="box", seed=3, **options)
+    look = {k: settings.pop(k) for k in ("look_from", "look_at") if k in settings}
+    if look:
+        settings["camera"] = cameras.look_at(look["look_from"], look["look_at"], [0, 1, 0],
+                                             70.0, size=settings.pop("size"))
+    culled = aobake.bake_view(str(path), **settings)
+    _uncut(monkeypatch)
+    every = aobake.bake_view(str(path), **settings)
+    assert culled.channels.keys() == every.channels.keys()
+    for name in culled.channels:
+        assert np.asarray(culled.channels[name]).tobytes() == \
+            np.asarray(every.channels[name]).tobytes(), name
+    assert culled.report["rays_cast"] == every.report["rays_cast"]
+
+
+@pytest.mark.slow
+def test_the_pixels_left_uncast_are_ones_no_ray_hits(monkeypatch, tmp_path):
+    """The culling mask holds every pixel a position's ray hits (traced without culling),
+    and leaves out most of the background of a mesh that fills part of the frame."""
+    path = tmp_path / "m.ply"
+    _mesh_in_part_of_the_frame().export(path)
+    masks = []
+    original = view_box._Context.reachable
+
+    def keep(self):
+        masks.append(original(self))
+        return masks[-1]
+
+    monkeypatch.setattr(view_box._Context, "reachable", keep)
+    settings = dict(size=(96, 54), rays=16, pixel_filter="box", seed=1)
+    aobake.bake_view(str(path), **settings)
+    (mask,) = masks
+    _uncut(monkeypatch)
+    result = aobake.bake_view(str(path), **settings)
+    covered = np.asarray(result.channels["coverage"]).reshape(-1) > 0
+    assert not np.any(covered & ~mask)
+    assert mask.mean() < 0.5 * (1 + covered.mean())  # background left out, not a stub

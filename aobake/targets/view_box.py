@@ -255,6 +255,57 @@ class _Context:
         self.tau = config.resolve_tau(built.diagonal) / built.scale  # per local unit
         self.warp = WEIGHTINGS[config.weighting]
 
+    def reachable(self) -> np.ndarray | None:
+        """(P,) bool: the pixels whose footprint some triangle's projection may overlap, a
+        superset of the pixels any primary ray hits; None where every pixel is to be traced
+        (a ground plane, or a triangle reaching the eye's plane).
+
+        Why: a ray through a pixel that no triangle's projection overlaps misses, and a
+        miss costs Embree about what a hit does (about half the pixel stage where most of
+        the image is background); a pixel left out gets the sums all misses give (zeros),
+        so the results are the same bits.  Conservative: each triangle's projected bounding
+        box (from float64 world coordinates) grown by a margin of a pixel and more, far
+        beyond the float32 rays' and Embree's own rounding (their directions' relative
+        error, ~1e-7, is ~1e-7 w / half_w pixels)."""
+        cam, built = self.cam, self.built
+        if built.ground is not None:
+            return None
+        rel = np.asarray(self.scene.vertices, dtype=np.float64) - self.eye
+        z = rel @ self.forward
+        if not np.all(np.isfinite(z)):
+            return None
+        faces = self.scene.faces
+        zf = z[faces]
+        # triangles wholly behind the eye's plane are never hit (d . forward > 0); one
+        # reaching it projects without bound: trace everything
+        near = np.finfo(np.float64).eps * 64 * float(np.abs(rel).max())
+        ahead = zf > near
+        if np.any(ahead.any(axis=1) & ~ahead.all(axis=1)):
+            return None
+        front = ahead.all(axis=1)
+        z = np.where(z > near, z, 1.0)
+        x = ((rel @ self.right / z) / self.half_w + 1.0) * (cam.width / 2.0)
+        y = (1.0 - (rel @ self.up_vector / z) / self.half_h) * (cam.height / 2.0)
+        xf, yf = x[faces[front]], y[faces[front]]
+        margin = 1.0 + 1e-4 * max(cam.width / self.half_w, cam.height / self.half_h)
+        x0 = np.floor(xf.min(axis=1) - margin)
+        x1 = np.floor(xf.max(axis=1) + margin)
+        y0 = np.floor(yf.min(axis=1) - margin)
+        y1 = np.floor(yf.max(axis=1) + margin)
+        w, h = cam.width, cam.height
+        inside = (x1 >= 0) & (x0 <= w - 1) & (y1 >= 0) & (y0 <= h - 1)
+        x0, x1 = (np.clip(v[inside], 0, w - 1).astype(np.int64) for v in (x0, x1))
+        y0, y1 = (np.clip(v[inside], 0, h - 1).astype(np.int64) for v in (y0, y1))
+        # the boxes' union by a 2-D difference array: +1 / -1 at their corners, summed
+        stride = w + 1
+        size = (h + 1) * stride
+        plus = np.bincount(np.concatenate([y0 * stride + x0, (y1 + 1) * stride + x1 + 1]),
+                           minlength=size)
+        minus = np.bincount(np.concatenate([y0 * stride + x1 + 1, (y1 + 1) * stride + x0]),
+                            minlength=size)
+        count = (plus - minus).reshape(h + 1, stride).cumsum(axis=0).cumsum(axis=1)
+        return (count[:h, :w] > 0).reshape(-1)
+
     def directions(self, pixels: np.ndarray, ux: np.ndarray, uy: np.ndarray) -> np.ndarray:
         """(N, 3) float64 unit world directions through positions (ux, uy) (N,) of pixels
         ``pixels`` (N,) int64 (``camera.directions_through``'s arithmetic, written per
@@ -538,12 +589,33 @@ def items(joint: Joint, n_pixels: int) -> list:
             for i0 in range(0, m, piece)]
 
 
+def _reachable_only(ctx: _Context, pixels, reachable, i0: int, count: int, gather) -> dict:
+    """``_item`` of ``pixels`` (k,) with the rays of the pixels not ``reachable`` (k,) bool
+    left uncast: their sums are those of rays that all miss (zeros), the same bits."""
+    groups, names = ctx.joint.groups, [q.name for q in ctx.quantities]
+    k = len(pixels)
+    out = {"hits": np.zeros(k, dtype=np.int64), "near": None, "c": np.zeros((k, groups)),
+           "y": {name: np.zeros((k, groups)) for name in names},
+           "m2": {name: np.zeros((k, groups)) for name in names} if ctx.joint.iid else {}}
+    if not reachable.any():
+        return out
+    part = _item(ctx, pixels[reachable], i0, count, gather[reachable])
+    out["hits"][reachable] = part["hits"]
+    out["near"] = part["near"]
+    out["c"][reachable] = part["c"]
+    for key in ("y", "m2"):
+        for name, value in part[key].items():
+            out[key][name][reachable] = value
+    return out
+
+
 def trace(scene, config, built, cam, joint: Joint, threads: int, centre_hit: np.ndarray,
-          receiving=None) -> dict:
+          receiving=None, cull: bool = True) -> dict:
     """Every pixel's sums over all its rays (``_item``'s): y name -> (P, R), c (P, R), hits
     (P,), m2 name -> (P, R) for i.i.d. samples; ``near``: pixel -> (2,) the position of the
     covered position nearest the centre of each pixel whose centre ray missed; and the
-    ``context``."""
+    ``context``.  ``cull``: leave uncast the rays of pixels no triangle can reach
+    (``_Context.reachable``; the same sums: False only to test that)."""
     from aobake.trace import run_chunks
 
     n_pixels = cam.height * cam.width
@@ -581,9 +653,14 @@ def trace(scene, config, built, cam, joint: Joint, threads: int, centre_hit: np.
                 if p not in best or (d2, index) < best[p][:2]:
                     best[p] = (d2, index, u)
 
+    reachable = ctx.reachable() if cull else None
+
     def work(i):
         a, b, i0, count = work_items[i]
-        return _item(ctx, np.arange(a, b, dtype=np.int64), i0, count, gather[a:b])
+        pixels = np.arange(a, b, dtype=np.int64)
+        if reachable is None or reachable[a:b].all():
+            return _item(ctx, pixels, i0, count, gather[a:b])
+        return _reachable_only(ctx, pixels, reachable[a:b], i0, count, gather[a:b])
 
     def land(i, part):
         pending[i] = part
