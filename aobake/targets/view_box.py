@@ -275,23 +275,24 @@ class _Context:
         if not np.all(np.isfinite(z)):
             return None
         faces = self.scene.faces
-        zf = z[faces]
+        # per face, column by column (a reduction over axis 1 of length 3 is numpy's slow case)
+        near = np.finfo(np.float64).eps * 64 * float(np.abs(rel).max())
+        ahead = [z[faces[:, c]] > near for c in range(3)]
+        front = ahead[0] & ahead[1] & ahead[2]
         # triangles wholly behind the eye's plane are never hit (d . forward > 0); one
         # reaching it projects without bound: trace everything
-        near = np.finfo(np.float64).eps * 64 * float(np.abs(rel).max())
-        ahead = zf > near
-        if np.any(ahead.any(axis=1) & ~ahead.all(axis=1)):
+        if np.any((ahead[0] | ahead[1] | ahead[2]) & ~front):
             return None
-        front = ahead.all(axis=1)
         z = np.where(z > near, z, 1.0)
         x = ((rel @ self.right / z) / self.half_w + 1.0) * (cam.width / 2.0)
         y = (1.0 - (rel @ self.up_vector / z) / self.half_h) * (cam.height / 2.0)
-        xf, yf = x[faces[front]], y[faces[front]]
+        corners = [faces[front, c] for c in range(3)]
+        xs, ys = [x[c] for c in corners], [y[c] for c in corners]
         margin = 1.0 + 1e-4 * max(cam.width / self.half_w, cam.height / self.half_h)
-        x0 = np.floor(xf.min(axis=1) - margin)
-        x1 = np.floor(xf.max(axis=1) + margin)
-        y0 = np.floor(yf.min(axis=1) - margin)
-        y1 = np.floor(yf.max(axis=1) + margin)
+        x0 = np.floor(np.minimum(np.minimum(xs[0], xs[1]), xs[2]) - margin)
+        x1 = np.floor(np.maximum(np.maximum(xs[0], xs[1]), xs[2]) + margin)
+        y0 = np.floor(np.minimum(np.minimum(ys[0], ys[1]), ys[2]) - margin)
+        y1 = np.floor(np.maximum(np.maximum(ys[0], ys[1]), ys[2]) + margin)
         w, h = cam.width, cam.height
         inside = (x1 >= 0) & (x0 <= w - 1) & (y1 >= 0) & (y0 <= h - 1)
         x0, x1 = (np.clip(v[inside], 0, w - 1).astype(np.int64) for v in (x0, x1))
