@@ -306,9 +306,16 @@ def dark_warning(estimates, source) -> str | None:
     for name in ("ao", "obscurance"):
         if name not in fields:
             continue
-        values = fields[name] if rays is None else fields[name][rays > 0]
-        if len(values) and not np.any(values > 0):
-            return (f"{source}: {name} is 0 at every one of the {len(values)} points baked: "
+        # a block of points at a time (no (n,) mask, no copy of the values)
+        values, block, baked, seen = fields[name], 1 << 16, 0, False
+        for start in range(0, len(values), block):
+            part = values[start:start + block]
+            if rays is not None:
+                part = part[rays[start:start + block] > 0]
+            baked += len(part)
+            seen = seen or bool(np.any(part > 0))
+        if baked and not seen:
+            return (f"{source}: {name} is 0 at every one of the {baked} points baked: "
                     "every ray is blocked (check --receive-only / --occluder-only, the ground "
                     "plane, and faces turned inward)")
     return None

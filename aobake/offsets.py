@@ -27,3 +27,83 @@ def point_offsets(local: np.ndarray, sizes: np.ndarray | None, fraction: float) 
     if sizes is None:
         return floor
     return np.maximum(floor, fraction * sizes)
+
+
+class PointOffsets:
+    """(n,) float64 the ray offset each point's rays started at (scene units; 0 where the
+    point was not traced), made again a block of points at a time where read, not held:
+    the ``ray_offset`` extra of a trace whose sizes are a ``records.BlockSizes``.
+
+    points (n, 3) float64, normals (n, 3) float64 (zero rows: not traced), sizes : the
+    ``BlockSizes``, center (3,) float64, scale float (a power of two), fraction : the ray
+    offset setting: the tracer's own frame and rule (``Tracer.traced``), element by
+    element, so each value is the one that point's rays used, the same bits."""
+
+    dtype = np.dtype(np.float64)
+    ndim = 1
+
+    def __init__(self, points, normals, sizes, center, scale: float, fraction: float,
+                 counted=None):
+        """counted : the offsets' first selection pass (``select.TopCounts``), counted by the
+        tracer as it used them, or None (:meth:`summary` then counts them itself)."""
+        self.points, self.normals, self.sizes = points, normals, sizes
+        self.center, self.scale, self.fraction = center, scale, fraction
+        self.counted = counted
+        self.shape = (len(points),)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def traced(self, k: int) -> np.ndarray:
+        """(t,) float64 the offsets of block k's traced points, in point order."""
+        from aobake.vectors import defined
+
+        b0, b1 = int(self.sizes.bounds[k]), int(self.sizes.bounds[k + 1])
+        valid = defined(self.normals[b0:b1])
+        local = (self.points[b0:b1][valid] - self.center) * self.scale
+        used = point_offsets(local, self.sizes.block(k)[valid] * self.scale, self.fraction)
+        return used / self.scale  # (a power of two: exact, as the tracer divides)
+
+    def blocks(self):
+        """The traced points' offsets, a block at a time (``aobake.select``'s ``blocks``)."""
+        for k in range(len(self.sizes.bounds) - 1):
+            yield self.traced(k)
+
+    def summary(self) -> tuple | None:
+        """(min, median, max) over the traced points, np.min's, np.median's and np.max's
+        bits (``aobake.select``); None when no point was traced."""
+        from aobake import select
+
+        values, n = select.order_statistics(
+            self.blocks, lambda n: [0, n - 1] + ([n // 2] if n % 2 else [n // 2 - 1, n // 2]),
+            first=self.counted)
+        if n == 0:
+            return None
+        middle = float(np.median(np.array(values[2:], dtype=np.float64)))
+        return values[0], middle, values[1]
+
+    def __array__(self, dtype=None, copy=None):
+        from aobake.vectors import defined
+
+        out = np.zeros(len(self))
+        for k in range(len(self.sizes.bounds) - 1):
+            b0, b1 = int(self.sizes.bounds[k]), int(self.sizes.bounds[k + 1])
+            out[b0:b1][defined(self.normals[b0:b1])] = self.traced(k)
+        return out if dtype is None else out.astype(dtype)
+
+    def __getitem__(self, key):
+        return np.asarray(self)[key]
+
+
+def offset_summary(offsets, rays: np.ndarray) -> tuple | None:
+    """(min, median, max) ray offset over the points that cast rays (``rays`` (n,) > 0) of
+    ``offsets`` (n,) float64 or a :class:`PointOffsets`; None when none did."""
+    summary = getattr(offsets, "summary", None)
+    if summary is not None:
+        return summary()
+    traced = rays > 0
+    if not traced.any():
+        return None
+    # (every point traced: the array itself, not a copy of it)
+    used = offsets[slice(None) if traced.all() else traced]
+    return float(used.min()), float(np.median(used)), float(used.max())

@@ -67,6 +67,74 @@ class PointRange:
         return (PointRange, (self.n,))
 
 
+class BlockSizes:
+    """(n,) float64 per-point sizes made a block of points at a time, never held whole: the
+    ``sizes`` of a plan whose points fall into blocks whose sizes each depend on that block
+    alone (a set's instances: a vertex's triangles are its instance's).
+
+    bounds : (b + 1,) int64 increasing from 0 to n: block k is points bounds[k] ..
+    bounds[k + 1] - 1; make : k -> (bounds[k + 1] - bounds[k],) float64 that block's sizes.
+    The tracer reads it a block at a time (``block``); indexing gives the rows asked for
+    (a slice, an index array or a bool mask: the blocks they fall in are made), and numpy
+    reads the whole as the array (``__array__``), so it stands wherever the (n,) array
+    stood.  Pickled, it is that array (a worker gets values, not the scene)."""
+
+    dtype = np.dtype(np.float64)
+    ndim = 1
+
+    def __init__(self, bounds, make):
+        self.bounds = np.asarray(bounds, dtype=np.int64)
+        self.make = make
+        self.shape = (int(self.bounds[-1]),)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def block(self, k: int) -> np.ndarray:
+        """(bounds[k + 1] - bounds[k],) float64 the sizes of block k's points."""
+        return self.make(k)
+
+    def __getitem__(self, key):
+        n = len(self)
+        if isinstance(key, slice):
+            start, stop, step = key.indices(n)
+            if step != 1:
+                return self[np.arange(start, stop, step)]
+            first = int(np.searchsorted(self.bounds, start, side="right")) - 1
+            pieces = []
+            for k in range(max(first, 0), len(self.bounds) - 1):
+                b0, b1 = int(self.bounds[k]), int(self.bounds[k + 1])
+                if b0 >= stop:
+                    break
+                if b1 > start:
+                    pieces.append(self.block(k)[max(start, b0) - b0:min(stop, b1) - b0])
+            return np.concatenate(pieces) if pieces else np.zeros(0)
+        key = np.asarray(key)
+        if key.dtype == bool:
+            if key.shape != self.shape:
+                raise IndexError(f"boolean index of shape {key.shape} for ({n},)")
+            key = np.flatnonzero(key)
+        if key.dtype.kind not in "iu":
+            raise IndexError(f"only integers, slices and bool masks index sizes, got {key.dtype}")
+        index = key.astype(np.int64).reshape(-1)
+        if index.size and (index.min() < -n or index.max() >= n):
+            raise IndexError(f"index out of range for {n} points")
+        index = np.where(index < 0, index + n, index)
+        out = np.empty(len(index))
+        which = np.searchsorted(self.bounds, index, side="right") - 1
+        for k in np.unique(which).tolist():
+            here = which == k
+            out[here] = self.block(k)[index[here] - self.bounds[k]]
+        return out.reshape(key.shape)
+
+    def __array__(self, dtype=None, copy=None):
+        whole = self[0:len(self)]
+        return whole if dtype is None else whole.astype(dtype)
+
+    def __reduce__(self):
+        return (np.asarray, (np.asarray(self),))
+
+
 @dataclass
 class SamplePoints:
     """Where to trace.
@@ -76,7 +144,8 @@ class SamplePoints:
     :class:`PointRange`: 0..n-1 without the array) (a
     point's rays are a pure function of (seed, id, sample id): equal ids get equal
     rays), sizes : (n,) float64 the size of each point's own triangles (sqrt of twice their
-    mean area; sets the ray offset) or None when unknown, kernels : stage -> compiled? for
+    mean area; sets the ray offset; or a :class:`BlockSizes`: made a block at a time) or
+    None when unknown, kernels : stage -> compiled? for
     the compiled stages the target ran, state : whatever ``finish`` needs back, faces :
     (n,) int64 the triangle each point lies on (-1: none) and bary : (n, 3) float64 its
     barycentric coordinates there, or None when the target does not know them (vertices,

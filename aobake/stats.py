@@ -194,8 +194,16 @@ def texel_stderr(variance_sum: np.ndarray, count: np.ndarray) -> np.ndarray:
 
 
 def summary(stderr: np.ndarray) -> dict:
-    """Mean and 95th percentile of (n,) standard errors."""
-    return {"stderr_mean": float(stderr.mean()), "stderr_p95": float(np.percentile(stderr, 95))}
+    """Mean and 95th percentile of (n,) standard errors (np.percentile's value, found a
+    block at a time by ``aobake.select``: np.percentile partitions a copy, 8 bytes a point
+    of every point baked)."""
+    from aobake import select
+
+    if stderr.dtype != np.float64:  # (np.percentile works in the array's own precision)
+        return {"stderr_mean": float(stderr.mean()),
+                "stderr_p95": float(np.percentile(stderr, 95))}
+    return {"stderr_mean": float(stderr.mean()),
+            "stderr_p95": float(select.percentile(select.of_array(stderr), 95))}
 
 
 # --------------------------------------------------------------------------- intervals

@@ -13,25 +13,26 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from dataclasses import replace
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from typing import Callable
 
 import numpy as np
 
-from aobake import _native
+from aobake import _native, select
 from aobake.backends.union import query_name
 from aobake.constants import OFFSET_ULPS
-from aobake.offsets import point_offsets  # noqa: F401  (aobake.trace.point_offsets)
+from aobake.offsets import PointOffsets, point_offsets  # noqa: F401  (trace.point_offsets)
 from aobake.paths import STREAM_BOUNCE, path_values
 from aobake.rng import hash_key
 from aobake.samplers.base import inward_key, replicate_keys, sample_hashes
-from aobake.records import Estimates
+from aobake.records import BlockSizes, Estimates
 from aobake.quantities import QUANTITIES, Traced
 from aobake.rays import RayGenerator
 from aobake.samplers import sample_set
 from aobake.scene import release_freed_memory
-from aobake.vectors import defined
+from aobake.vectors import count_defined, defined
 
 #: a freed temporary at least this large has its heap pages handed back at once
 #: (``scene.release_freed_memory``): an estimate of a few points (a split's item) trims nothing
@@ -310,6 +311,12 @@ class Tracer:
         """
         n = len(points)
         normals = np.asarray(normals, dtype=np.float64)
+        streamed = self.samples.piece < self.samples.m
+        if isinstance(sizes, BlockSizes):
+            if not (streamed or self.config.keep_distances):
+                return self._estimate_blocks(points, normals, ids, sizes, threads, chunk_rays,
+                                             progress)
+            sizes = np.asarray(sizes)  # (their pieces index single points: the array)
         traced = defined(normals)
         every = bool(traced.all())  # the usual case: no copies of the points, no index
         valid = slice(None) if every else np.flatnonzero(traced)
@@ -320,7 +327,6 @@ class Tracer:
             order = valid[order]
         if n < 2**31:  # held while every ray is traced: 4 bytes a point, not 8
             order = order.astype(np.int32)
-        streamed = self.samples.piece < self.samples.m
         if not (every or streamed):
             # the chunks reach the points through ``order``: the copy of the traced points
             # (24 bytes a point) is not held while the values are made and the rays traced
@@ -379,6 +385,81 @@ class Tracer:
         run_chunks(n_chunks, work, land, threads or default_threads(), tick)
         offsets /= self.scale  # scene units (a power of two: exact)
         return Estimates(out, rays, extras, self.dof)
+
+    def _estimate_blocks(self, points, normals, ids, sizes, threads, chunk_rays,
+                         progress) -> Estimates:
+        """:meth:`estimate` for sizes made a block of points at a time (``records.BlockSizes``:
+        a set's instances), holding nothing for every point besides the results: each
+        block's traced points are put in their own Morton order and cut into chunks; a
+        block's order and sizes are made when its first chunk runs and let go when its last
+        lands (at most 2 * threads chunks are in flight: a few blocks' worth); the ray
+        offsets are not kept (``offsets.PointOffsets`` makes them again where the report
+        reads them).  Every point's values depend on that point alone, so tracing the
+        blocks' points in this order changes no bit."""
+        n = len(points)
+        bounds = sizes.bounds
+        per_chunk = max(1, int(chunk_rays) // self.samples.rays)
+        blocks = len(bounds) - 1
+        # each block's traced count, a block's normals at a time (no (n,) mask)
+        counts = np.array([count_defined(normals[bounds[k]:bounds[k + 1]])
+                           for k in range(blocks)], dtype=np.int64)
+        first_chunk = np.concatenate([[0], np.cumsum(-(-counts // per_chunk))])
+        total = int(counts.sum())
+        out = self.no_information(normals)
+        rays = np.zeros(n, dtype=np.int32)
+        counted = select.TopCounts()
+        held: dict = {}  # block -> [its traced points' order (t,) int64, its sizes, chunks left]
+        lock = threading.Lock()
+
+        def block_of(i):
+            return int(np.searchsorted(first_chunk, i, side="right")) - 1
+
+        def context(k):
+            with lock:  # the first chunk of a block makes its order and sizes, once
+                if k not in held:
+                    b0, b1 = int(bounds[k]), int(bounds[k + 1])
+                    valid = np.flatnonzero(defined(normals[b0:b1]))
+                    order = valid[morton_order(points[b0:b1][valid], self.kernels)]
+                    rays[b0 + valid] = self.samples.rays
+                    held[k] = [order, sizes.block(k),
+                               int(first_chunk[k + 1] - first_chunk[k])]
+                return held[k]
+
+        def work(i):
+            k = block_of(i)
+            order, block_sizes, _ = context(k)
+            j = i - int(first_chunk[k])
+            local = order[j * per_chunk:(j + 1) * per_chunk]
+            sel = local + int(bounds[k])
+            used = np.empty(len(sel))
+            traced = self.traced(points[sel], normals[sel], ids[sel], block_sizes[local],
+                                 offsets_out=used)
+            used /= self.scale  # scene units (a power of two: exact)
+            return k, sel, self.estimate_traced(traced), used
+
+        def land(i, result):
+            k, sel, values, used = result
+            for name, array in values.items():
+                out[name][sel] = array
+            counted.add(used)  # the report's offset summary: its first pass, counted here
+            held[k][2] -= 1
+            if not held[k][2]:
+                with lock:
+                    del held[k]
+
+        done = [0]
+
+        def tick(i):
+            k = block_of(i)
+            j = i - int(first_chunk[k])
+            done[0] += int(min(per_chunk, counts[k] - j * per_chunk))
+            if progress:
+                progress(done[0], total)
+
+        run_chunks(int(first_chunk[-1]), work, land, threads or default_threads(), tick)
+        offsets = PointOffsets(points, normals, sizes, self.center, self.scale,
+                               self.config.ray_offset, counted)
+        return Estimates(out, rays, {"ray_offset": offsets}, self.dof)
 
     def _stream(self, points, normals, ids, sizes, order, out, distances, threads,
                 progress) -> None:

@@ -14,6 +14,7 @@ import numpy as np
 
 from aobake import adaptive
 from aobake.errors import InputError
+from aobake.offsets import offset_summary
 from aobake.records import Estimates
 from aobake.trace import Tracer
 
@@ -60,16 +61,14 @@ class RaysMethod:
         if self.config.tolerance is None:
             return self.tracer.estimate(points.points, points.normals, points.ids, threads,
                                         chunk_rays, progress, sizes=points.sizes)
+        # (its stages index the sizes of the points each stage casts more rays for: the array)
+        sizes = None if points.sizes is None else np.asarray(points.sizes, dtype=np.float64)
         return adaptive.estimate(self.tracer, points.points, points.normals, points.ids,
-                                 threads, chunk_rays, progress, points.sizes)
+                                 threads, chunk_rays, progress, sizes)
 
     def record(self, estimates: Estimates) -> dict:
         """The report's ``parameters`` (and ``tolerance``) from the merged estimates."""
-        traced = estimates.rays > 0
-        offsets = None
-        if traced.any():  # (every point traced: the array itself, not a copy of it)
-            used = estimates.extras["ray_offset"][slice(None) if traced.all() else traced]
-            offsets = (float(used.min()), float(np.median(used)), float(used.max()))
+        offsets = offset_summary(estimates.extras["ray_offset"], estimates.rays)
         record = {"parameters": {"method": self.name, **self.tracer.parameters(offsets)}}
         if self.config.tolerance is not None:
             record["tolerance"] = adaptive.summary(self.tracer, estimates)

@@ -1,0 +1,175 @@
+"""A set's instances traced a block at a time (issue 34 point 3): exact order statistics
+read a block at a time (``aobake.select``), sizes made per instance (``records.BlockSizes``,
+``targets.vertices.part_sizes``), the distinct-row search per group of overlapping
+instances, and the bake they make: the same bits as the whole-array path."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+import trimesh
+
+from aobake import select
+from aobake.records import BlockSizes
+
+
+def _samples(rng, n, kind):
+    if kind == 0:
+        return rng.random(n)
+    if kind == 1:  # many ties
+        return rng.integers(0, 5, n).astype(float) * 0.1
+    if kind == 2:  # both signs, many octaves
+        return np.exp(rng.normal(0, 3, n)) * rng.choice([-1.0, 1.0], n)
+    return np.full(n, 0.3)
+
+
+@pytest.mark.parametrize("limit", [1, 3, select.GATHER_LIMIT])
+def test_order_statistics_are_numpys_bits_in_any_blocks(limit, monkeypatch):
+    """np.median and np.percentile of the values, bit for bit, from any cut into blocks, also
+    where a bin holds more than ``limit`` values (the histogram refined to the key's last
+    bits: ties, a constant array)."""
+    monkeypatch.setattr(select, "GATHER_LIMIT", limit)
+    rng = np.random.default_rng(34)
+    for trial in range(400):
+        n = int(rng.integers(1, 400)) if trial < 360 else int(rng.integers(1, 20000))
+        x = _samples(rng, n, trial % 4)
+        blocks = select.of_array(x, block=int(rng.integers(1, 500)))
+        assert select.median(blocks) == float(np.median(x)), (n, trial)
+        for q in (0, 50, 95, 99.9, 100):
+            assert select.percentile(blocks, q) == float(np.percentile(x, q)), (n, q, trial)
+    sorted_x = np.sort(x)
+    values, count = select.order_statistics(blocks, lambda n: [0, n // 3, n - 1])
+    assert count == len(x) and values == [sorted_x[0], sorted_x[len(x) // 3], sorted_x[-1]]
+
+
+def test_order_statistics_of_nothing_and_of_nan():
+    assert select.median(select.of_array(np.zeros(0))) is None
+    assert select.percentile(select.of_array(np.zeros(0)), 95) is None
+    x = np.array([1.0, np.nan, 2.0])
+    assert np.isnan(select.median(select.of_array(x)))
+    assert np.isnan(select.percentile(select.of_array(x), 95))
+    mask = np.array([True, False, True])
+    assert select.median(select.of_array(x, mask)) == 1.5
+
+
+def test_block_sizes_stand_for_the_array_they_do_not_hold():
+    """Every way the bake reads a plan's (n,) sizes gives that array's values; made only for
+    the blocks a read reaches; pickled as the array."""
+    whole = np.random.default_rng(1).random(50)
+    bounds = np.array([0, 7, 7, 30, 50])
+    made = []
+
+    def make(k):
+        made.append(k)
+        return whole[bounds[k]:bounds[k + 1]].copy()
+
+    sizes = BlockSizes(bounds, make)
+    order = np.random.default_rng(7).permutation(50)
+    mask = np.arange(50) % 3 == 0
+    for key in (slice(None), slice(5, 17), slice(8, 9), slice(40, None, 3), order, order[:9],
+                mask, np.array([-1, 0, 49]), slice(7, 7)):
+        assert np.array_equal(sizes[key], whole[key]), key
+    made.clear()
+    assert np.array_equal(sizes[31:40], whole[31:40]) and made == [3]
+    assert np.array_equal(np.asarray(sizes), whole) and len(sizes) == 50
+    assert np.array_equal(pickle.loads(pickle.dumps(sizes)), whole)
+    with pytest.raises(IndexError):
+        sizes[np.array([50])]
+
+
+def _set(tmp_path, overlap=False):
+    """A set of five spheres sharing one mesh: turned, scaled, mirrored; with ``overlap`` two
+    of them placed alike (their vertices coincide: shared samples)."""
+    from gltf_scenes import write_instanced
+
+    sphere = trimesh.creation.icosphere(2)
+    nodes = [{"name": "a", "mesh": 0, "translation": [0.0, 0.0, 0.0]},
+             {"name": "b", "mesh": 0, "translation": [1.5, 0.2, 0.0],
+              "rotation": [0.0, 0.3826834, 0.0, 0.9238795]},
+             {"name": "c", "mesh": 0, "translation": [0.0, 1.2, 0.9], "scale": [1.3, 0.7, 1.0]},
+             {"name": "d", "mesh": 0, "translation": [3.0, 0.0, 0.0], "scale": [-1.0, 1.0, 1.0]},
+             {"name": "e", "mesh": 0, "translation": [0.0, 0.0, 0.0] if overlap
+              else [6.0, 0.0, 0.0]}]
+    return write_instanced(tmp_path / "set.glb", [{"name": "sphere", "vertices": sphere.vertices,
+                                                   "faces": sphere.faces}], nodes)
+
+
+def _whole_array_path(monkeypatch):
+    """The bake as before blocks: the plan's sizes one array (vertex_sizes of the whole)."""
+    from aobake.targets import vertices
+
+    monkeypatch.setattr(vertices, "vertex_parts", lambda scene: None)
+
+
+def _same(a, b):
+    for name in a.values:
+        assert np.array_equal(a.values[name], b.values[name]), name
+    assert np.array_equal(a.rays, b.rays)
+    for key in ("ray_offset", "ray_offset_range"):
+        assert a.report["parameters"][key] == b.report["parameters"][key], key
+    assert a.report["error"] == b.report["error"]
+    assert a.report["rays_cast"] == b.report["rays_cast"]
+
+
+@pytest.mark.slow
+def test_a_set_traced_a_block_at_a_time_gives_the_whole_arrays_bits(tmp_path, monkeypatch):
+    """Sizes per instance, each instance's own trace order, the offsets made again for the
+    report: the values, rays and report of the whole-array path, at any thread count and
+    chunk size, and where an explicit split cuts the plan into items."""
+    import aobake
+    from aobake.targets import vertices
+
+    path = str(_set(tmp_path))
+    options = dict(rays=8, quantities=("ao", "bent_normal"), seed=3)
+    from aobake.scene import load_scene
+
+    scene = load_scene(path)
+    assert vertices.vertex_parts(scene) is not None  # the blocks' path runs
+    blocked = [aobake.bake(path, threads=t, chunk_rays=c, **options)
+               for t, c in ((1, 131072), (2, 96), (2, 8))]
+    split = aobake.bake(path, threads=2, chunk_points=700, **options)
+    _whole_array_path(monkeypatch)
+    whole = aobake.bake(path, threads=2, **options)
+    for result in blocked + [split]:
+        _same(result, whole)
+
+
+@pytest.mark.slow
+def test_instances_placed_alike_share_samples_as_before(tmp_path, monkeypatch):
+    """Two instances placed alike put vertices at the same position with the same normal:
+    the search over their overlapping boxes finds them, and the bake shares their samples
+    as the whole set's search does (the same bits)."""
+    import aobake
+    from aobake.scene import load_scene
+    from aobake.targets import vertices
+
+    path = str(_set(tmp_path, overlap=True))
+    scene = load_scene(path)
+    parts = vertices.vertex_parts(scene)
+    assert not vertices.distinct_by_part(scene.vertices, scene.vertex_normals, parts[0])
+    first, _ = vertices.distinct_rows(scene.vertices, scene.vertex_normals)
+    assert first is not None
+    result = aobake.bake(path, rays=8, seed=5)
+    a, e = (slice(*map(int, parts[0][k:k + 2])) for k in (0, 4))
+    assert np.array_equal(result.ao[a], result.ao[e])
+    _whole_array_path(monkeypatch)
+    _same(result, aobake.bake(path, rays=8, seed=5))
+
+
+def test_part_sizes_are_the_whole_sets_rows(tmp_path):
+    """Each instance's vertex sizes are those rows of the whole set's vertex_sizes, bit for
+    bit, and every group of instances whose boxes do not overlap is searched alone."""
+    from aobake.scene import load_scene
+    from aobake.targets import vertices
+
+    scene = load_scene(str(_set(tmp_path)))
+    parts = vertices.vertex_parts(scene)
+    assert len(parts[0]) == 6
+    mine = np.concatenate([vertices.part_sizes(scene, parts, k) for k in range(5)])
+    assert np.array_equal(mine, vertices.vertex_sizes(scene))
+    assert vertices.distinct_by_part(scene.vertices, scene.vertex_normals, parts[0])
+    lo = np.array([[0, 0, 0], [2, 0, 0], [1, 1, 1], [5, 5, 5]], dtype=float)
+    hi = lo + 1.0  # 0 touches 2, 2 touches 1: one group; 3 alone
+    assert sorted(map(sorted, vertices._overlapping(lo, hi))) == [[0, 1, 2], [3]]
