@@ -51,7 +51,10 @@ settings and aobake's version).  Each row's error is the per-texel RMSE against 
 the scored texels with the reference's own noise taken out,
 sqrt(max(0, mean(e^2) - mean(se_ref^2))), as benchmarks/bench_renderers.py does per pixel.
 
-**Budgets** are rays per texel: aobake's ``--rays`` (split over 4 positions), Cycles'
+**Budgets** are rays per texel: aobake's ``--rays`` (split over 4 positions; sobol's
+budgets are R 2^k, so one with another odd factor runs as that many ``--replicates``: 384 =
+3 x 128; an interpolated budget is not one aobake casts, so its first budget run that
+reaches each target is printed too, as run), Cycles'
 samples (one AO ray each).  A series stops at the first budget whose RMSE is below the
 smallest target (``--all-budgets`` runs them all).  Time to each target (``--targets``,
 0.01 and 0.005): between the two budgets whose errors bracket it, log RMSE against log
@@ -540,6 +543,16 @@ def main(argv=None) -> int:
                 log(f"  RMSE {t:g}, {kind}: Cycles / aobake = {ratio:.2f}"
                     + ("" if exact else " (rests on a bound or an extrapolation)")
                     + ("" if a[3] and c[3] else " (not comparable: load)"))
+            # an interpolated budget is not one aobake can cast (sobol: R 2^k): its first
+            # row that reaches the target, as run, against Cycles' interpolated time
+            reached = [r for r in sorted(rows["aobake"], key=lambda r: r["budget"])
+                       if r["rmse"] <= t]
+            c = summary["cycles"][t]["wall"]
+            if reached and c[1] is not None:
+                r = reached[0]
+                log(f"  RMSE {t:g}, wall, aobake as run ({r['budget']} rays/texel, RMSE "
+                    f"{r['rmse']:.5f}, {r['seconds']:.2f} s): Cycles / aobake = "
+                    f"{c[1] / r['seconds']:.2f}")
     for line in skipped:
         log(f"skipped: {line}")
     if args.json:
