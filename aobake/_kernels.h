@@ -61,6 +61,25 @@ static inline uint32_t lk_permute(uint32_t x, uint32_t seed)
     return x;
 }
 
+/* np.cross of two 3-vectors: (a1 b2 - a2 b1, a2 b0 - a0 b2, a0 b1 - a1 b0), each product
+ * rounded, then the difference (numpy's order; no fused multiply-add, see setup.py). */
+static inline void cross3(const double a[3], const double b[3], double out[3])
+{
+    out[0] = a[1] * b[2] - a[2] * b[1];
+    out[1] = a[2] * b[0] - a[0] * b[2];
+    out[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+/* Every one of n indices is in 0..count-1 (else a kernel declines and numpy, which raises,
+ * says what is wrong). */
+static inline int indices_in_range(const int64_t *index, Py_ssize_t n, Py_ssize_t count)
+{
+    for (Py_ssize_t i = 0; i < n; ++i)
+        if (index[i] < 0 || index[i] >= count)
+            return 0;
+    return 1;
+}
+
 /* At most this many threads in a kernel that splits its rows among threads (the seam
  * system's assembly and the conjugate gradients). */
 #define MAX_THREADS 16

@@ -15,14 +15,6 @@
  */
 #include "_kernels.h"
 
-/* Every corner index names a vertex (else the caller falls back to numpy, which raises). */
-static int corners_in_range(const int64_t *faces, Py_ssize_t n, Py_ssize_t nv)
-{
-    for (Py_ssize_t i = 0; i < n; ++i)
-        if (faces[i] < 0 || faces[i] >= nv)
-            return 0;
-    return 1;
-}
 #include <math.h>
 #include <stdint.h>
 
@@ -40,12 +32,6 @@ static inline double unit3(const double v[3], double out[3])
     return length;
 }
 
-static inline void cross3(const double a[3], const double b[3], double out[3])
-{
-    out[0] = a[1] * b[2] - a[2] * b[1];
-    out[1] = a[2] * b[0] - a[0] * b[2];
-    out[2] = a[0] * b[1] - a[1] * b[0];
-}
 
 /* triangle_normals(vertices, faces, out_unit, out_length, out_cross, out_cos) -> bool
  *
@@ -76,7 +62,7 @@ PyObject *triangle_normals(PyObject *self, PyObject *args)
         double *unit = bu.buf, *length = bl.buf, *out_cross = bc.buf, *cosine = bk.buf;
         int ok;
         Py_BEGIN_ALLOW_THREADS
-        ok = corners_in_range(faces, 3 * nf, nv);
+        ok = indices_in_range(faces, 3 * nf, nv);
         for (Py_ssize_t f = 0; ok && f < nf; ++f) {
             const double *p[3];
             for (int c = 0; c < 3; ++c)
@@ -142,7 +128,7 @@ PyObject *vertex_normal_sums(PyObject *self, PyObject *args)
         double *out = bo.buf;
         int ok;
         Py_BEGIN_ALLOW_THREADS
-        ok = corners_in_range(faces, 3 * nf, nv);
+        ok = indices_in_range(faces, 3 * nf, nv);
         if (ok) {
             for (Py_ssize_t i = 0; i < 3 * nv; ++i)
                 out[i] = 0.0;

@@ -15,24 +15,9 @@
 
 #include <math.h>
 
-static inline void cross3(const double a[3], const double b[3], double out[3])
-{
-    out[0] = a[1] * b[2] - a[2] * b[1];
-    out[1] = a[2] * b[0] - a[0] * b[2];
-    out[2] = a[0] * b[1] - a[1] * b[0];
-}
-
 static inline double dot3(const double a[3], const double b[3])
 {
     return ((a[0] * b[0] + a[2] * b[2]) + a[1] * b[1]) + 0.0;
-}
-
-static int in_range(const int64_t *index, Py_ssize_t n, Py_ssize_t count)
-{
-    for (Py_ssize_t i = 0; i < n; ++i)
-        if (index[i] < 0 || index[i] >= count)
-            return 0;
-    return 1;
 }
 
 /* orient_terms(vertices, corners, normals, out_area, out_mean, out_agree) -> bool
@@ -62,7 +47,7 @@ PyObject *orient_terms(PyObject *self, PyObject *args)
         double *area = ba.buf, *mean = bm.buf, *agree = bg.buf;
         int ok;
         Py_BEGIN_ALLOW_THREADS
-        ok = in_range(corners, 3 * m, nv);
+        ok = indices_in_range(corners, 3 * m, nv);
         for (Py_ssize_t f = 0; ok && f < m; ++f) {
             const double *p0 = vertices + 3 * corners[3 * f], *p1 = vertices + 3 * corners[3 * f + 1],
                          *p2 = vertices + 3 * corners[3 * f + 2];
@@ -116,7 +101,7 @@ PyObject *orient_volumes(PyObject *self, PyObject *args)
         double *det = bd.buf;
         int ok;
         Py_BEGIN_ALLOW_THREADS
-        ok = in_range(corners, 3 * m, nv) && in_range(comp, m, nc);
+        ok = indices_in_range(corners, 3 * m, nv) && indices_in_range(comp, m, nc);
         for (Py_ssize_t f = 0; ok && f < m; ++f) {
             const double *c = centre + 3 * comp[f];
             double rel[3][3];
