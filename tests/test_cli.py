@@ -387,3 +387,27 @@ def test_image_without_ao_is_refused_before_the_bake(mesh_path, tmp_path):
     res = run_cli(mesh_path, "--out", tmp_path / "ao.png", "-q", "bent_normal", "--rays", 4)
     assert res.exit_code == 1 and "add -q ao" in res.output
     assert list(tmp_path.iterdir()) == [mesh_path]
+
+
+@pytest.mark.parametrize("args, words", [
+    (["m.obj", "--bogus"], "No such option '--bogus'"),
+    (["m.obj", "--rays"], "Option '--rays' requires an argument"),
+    (["m.obj", "--sampler", "nope"], "'nope' is not one of"),
+    (["view"], "Missing argument 'MESH'"),
+    (["view", "m.obj", "--size", "--out"], "--size"),
+    (["compare", "a.npz"], "Missing argument 'CANDIDATE'"),
+    (["refit", "--nope"], "No such option '--nope'"),
+    (["batch", "--nope"], "No such option '--nope'"),
+])
+def test_click_usage_errors_keep_the_error_contract(tmp_path, args, words):
+    """An unknown option, a missing value or argument, a bad choice: one line
+    ``aobake: error: ...``, then how to get help, status 2, and nothing written (click's own
+    form, a usage block and ``Error: ...``, is what a log filter would miss)."""
+    res = run_cli(*args)
+    assert res.exit_code == 2, res.output
+    lines = res.output.splitlines()
+    assert lines[0].startswith("aobake: error: ") and words in lines[0], res.output
+    command = "aobake" + ("" if args[0] == "m.obj" else f" {args[0]}")
+    assert lines[1:] == [f"Try '{command} --help' for help."], res.output
+    assert "Usage:" not in res.output and "Traceback" not in res.output
+    assert list(tmp_path.iterdir()) == []

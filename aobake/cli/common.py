@@ -12,8 +12,38 @@ import click
 from aobake.cli.signals import Terminated, catch_signals, interrupted, restore_signals
 from aobake.errors import AobakeError, UsageError
 
-__all__ = ["Terminated", "catch_signals", "guarded", "keep_freed_memory", "restore_signals",
-           "route_python_warnings"]
+__all__ = ["Command", "Terminated", "catch_signals", "guarded", "keep_freed_memory",
+           "restore_signals", "route_python_warnings"]
+
+
+class Command(click.Command):
+    """A click command whose own usage errors (an unknown option, a missing value, a bad
+    choice) keep the contract every other error keeps: one line ``aobake: error: ...`` on
+    stderr, then how to get help, status 2, where click would print its usage block and an
+    ``Error:`` line a pipeline's log filter for ``aobake: error:`` would miss."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True,
+             **extra):
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        try:
+            code = super().main(args, prog_name, complete_var, False, **extra)
+        except click.ClickException as exc:  # usage errors (2), file errors (1)
+            path = getattr(getattr(exc, "ctx", None), "command_path", None) or prog_name
+            click.echo(f"aobake: error: {exc.format_message()}", err=True)
+            if isinstance(exc, click.UsageError):
+                click.echo(f"Try '{path or 'aobake'} --help' for help.", err=True)
+            sys.exit(exc.exit_code)
+        except click.Abort as exc:
+            # click turns a SIGINT while it parses into Abort: the signal's contract (130)
+            cause = exc.__cause__ or exc.__context__
+            if isinstance(cause, KeyboardInterrupt):
+                raise cause from None
+            click.echo("aobake: error: aborted (end of input)", err=True)
+            sys.exit(1)
+        # as click's standalone mode: the process ends here (--help and ctx.exit(n) give
+        # their status; a command that returned gives 0)
+        sys.exit(code if isinstance(code, int) else 0)
 
 
 #: glibc mallopt parameters (malloc.h)

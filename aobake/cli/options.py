@@ -18,6 +18,7 @@ import math
 import click
 
 from aobake import capabilities
+from aobake.cli.common import Command
 from aobake.settings import SPECS, parse_distance
 from aobake.errors import InputError
 from aobake.executors import EXECUTORS
@@ -236,7 +237,7 @@ def _title(panel: str) -> str:
     return PANELS.get(panel, f"--method {panel}")
 
 
-class PanelCommand(click.Command):
+class PanelCommand(Command):
     """A click command whose help lists its options in panels (:data:`PANELS`): those of
     ``shown`` in full, the others by name with their option counts, each behind
     ``--help-on PANEL``; ``--help-on all`` lists every option."""

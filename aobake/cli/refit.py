@@ -7,11 +7,11 @@ from pathlib import Path
 
 import click
 
-from aobake.cli.common import guarded
+from aobake.cli.common import Command, guarded
 from aobake.cli.options import DistanceType, TauType
 
 
-@click.command(context_settings={"help_option_names": ["-h", "--help"]})
+@click.command(cls=Command, context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("bake", type=click.Path(path_type=Path))
 @click.option("--out", "-o", "out", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Where to write the refitted bake (any per-vertex format; .npz keeps the "

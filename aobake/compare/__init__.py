@@ -55,6 +55,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from aobake.cli.common import Command
 from aobake.compare.align import align_texels, align_vertices
 from aobake.compare.heatmap import check_path, diverging, write_heatmap
 from aobake.compare.matching import (POSITION_TOLERANCE, match_vertices, position_tolerance,
@@ -406,7 +407,7 @@ def format_table(result: dict) -> str:
     return "\n".join(lines)
 
 
-@click.command(context_settings={"help_option_names": ["-h", "--help"]})
+@click.command(cls=Command, context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("reference", type=click.Path(path_type=Path))
 @click.argument("candidate", type=click.Path(path_type=Path))
 @click.option("--quantity", "-q", type=click.Choice(COMPARABLE), default="ao", show_default=True,
