@@ -95,6 +95,28 @@ class PointOffsets:
         return np.asarray(self)[key]
 
 
+class OffsetFold:
+    """The ``ray_offset`` extra of a split bake's parts (``records.Merged``'s fold) where the
+    plan's sizes are made a block at a time: each part's offsets of its traced points
+    (``rays > 0``) are counted into the selection's first pass (``select.TopCounts``) and
+    let go, and the result is a :class:`PointOffsets` that makes them again where read
+    (the same values: the tracer's rule on the same point and size), not an (n,) array.
+
+    make : counted -> the :class:`PointOffsets` of the whole plan."""
+
+    def __init__(self, make):
+        from aobake import select
+
+        self.make, self.counted = make, select.TopCounts()
+
+    def add(self, start: int, stop: int, part) -> None:
+        offsets = np.asarray(part.extras["ray_offset"], dtype=np.float64)
+        self.counted.add(offsets[part.rays > 0])
+
+    def result(self) -> PointOffsets:
+        return self.make(self.counted)
+
+
 def offset_summary(offsets, rays: np.ndarray) -> tuple | None:
     """(min, median, max) ray offset over the points that cast rays (``rays`` (n,) > 0) of
     ``offsets`` (n,) float64 or a :class:`PointOffsets`; None when none did."""

@@ -249,6 +249,65 @@ def merge(parts, n: int) -> Estimates:
     return Estimates(fields, rays, extras, first.dof)
 
 
+class Merged:
+    """The Estimates of n points filled in place as parts land (``add``): what an executor
+    that splits the points into ranges holds beyond the result is the parts in flight, never
+    every part until the end, nor an index or a count per point.
+
+    folds : extra name -> a fold that takes that extra of each part (``add(start, stop,
+    part)``) and stands for it in the result (``result()``: an object numpy reads as the
+    (n, ...) array, or a summary the method's record reads), instead of an (n, ...) array
+    of it: the method's say (``RaysMethod.folds``).  Rows land by index, so the split and
+    the order the parts arrive in change nothing."""
+
+    def __init__(self, n: int, folds: dict | None = None):
+        self.n, self.folds = int(n), dict(folds or {})
+        self.fields = self.extras = self.rays = self.dof = None
+        self.ranges: list = []
+
+    def add(self, start: int, stop: int, part: "Estimates") -> None:
+        """Rows start..stop-1 are ``part`` (an Estimates of stop - start points)."""
+        if self.fields is None:  # the first part says the fields' kinds and shapes
+            def like(array):
+                return np.empty((self.n,) + array.shape[1:], dtype=array.dtype)
+
+            self.fields = {name: like(a) for name, a in part.fields.items()}
+            self.extras = {name: like(a) for name, a in part.extras.items()
+                           if name not in self.folds}
+            self.rays = None if part.rays is None else like(part.rays)
+            self.dof = part.dof
+        elif part.dof != self.dof:  # a property of the method's settings, not of the points
+            raise ValueError(f"merge: the parts disagree on their degrees of freedom "
+                             f"{{{self.dof}, {part.dof}}}")
+        rows = slice(start, stop)
+        for name, array in part.fields.items():
+            self.fields[name][rows] = array
+        for name, array in part.extras.items():
+            if name in self.folds:
+                self.folds[name].add(start, stop, part)
+            else:
+                self.extras[name][rows] = array
+        if self.rays is not None:
+            self.rays[rows] = part.rays
+        self.ranges.append((int(start), int(stop)))
+
+    def result(self) -> "Estimates":
+        """The merged Estimates; the ranges added must tile 0..n-1 exactly once."""
+        if self.fields is None:
+            raise ValueError("merge needs at least one part")
+        end = 0
+        for start, stop in sorted(self.ranges):
+            if start != end or stop < start:
+                raise ValueError("merge: the parts must cover every point exactly once")
+            end = stop
+        if end != self.n:
+            raise ValueError("merge: the parts must cover every point exactly once")
+        extras = dict(self.extras)
+        for name, fold in self.folds.items():
+            extras[name] = fold.result()
+        return Estimates(self.fields, self.rays, extras, self.dof)
+
+
 @dataclass
 class BakeResult:
     """Per-point results.

@@ -30,6 +30,13 @@ shared).
   one baked (``aobake.bake(path)``), ``--instance-rays`` per vertex (4: the memory does not
   depend on it).  Its row also gives the bytes of the result's own arrays (positions,
   faces, normals, rays, values: the outputs) and the peak less them.
+* ``instances-all-N:VARIANT`` (any N): the same bake another way, to see that it stays
+  flat too: ``chunk`` (the threads executor with ``--chunk-points`` 100,000: a split run
+  here), ``processes`` (``--executor processes``, ``--threads`` workers), ``dask`` (a
+  LocalCluster of ``--threads`` workers, 1 thread each), ``tolerance`` (``--tolerance
+  0.05``, ``--max-rays 64``).  Its row also gives the workers' peak (``children_peak``:
+  the largest ``VmHWM`` of any process under the case's, read every 50 ms: a worker's growth
+  in its last 50 ms may be missed).
 * ``floor``: trimesh's load of the 2M PLY plus a bare Embree scene of it (embreex,
   committed): what any tool holding that mesh and its BVH needs, the issue's 490 MB.
 * ``imports``: the interpreter with aobake's imports (numpy, trimesh, embreex, scipy):
@@ -67,6 +74,9 @@ CASES = ("imports", "floor", "vertices-2m", "vertices-8m", "lightmap-2m", "insta
 #: subdivisions of the ogre per case (trimesh's subdivide: 4x the triangles each)
 LEVELS = {"2m": 2, "8m": 3}
 INSTANCES = 1000
+#: ``instances-all-N:VARIANT``: the bake's options for each way of running it
+VARIANTS = {"": {}, "chunk": {"chunk_points": 100_000}, "processes": {"executor": "processes"},
+            "dask": {"executor": "dask"}, "tolerance": {"tolerance": 0.05, "max_rays": 64}}
 
 
 # ---------------------------------------------------------------- meshes (written once)
@@ -191,15 +201,69 @@ def child(case: str, args) -> dict:
                    timings=result.report["timings"], outputs=_outputs(result),
                    instances=INSTANCES, baked=1)
     elif case.startswith("instances-all-"):
-        count = int(case.rsplit("-", 1)[1])
-        result = aobake.bake(str(instanced_path(meshes, count)), rays=args.instance_rays,
-                             threads=args.threads)
+        name, _, variant = case.partition(":")
+        count = int(name.rsplit("-", 1)[1])
+        options = dict(VARIANTS[variant])
+        if variant in ("processes", "dask"):
+            options["workers"] = args.threads
+        watch = _Descendants() if variant in ("processes", "dask") else None
+        try:
+            result = aobake.bake(str(instanced_path(meshes, count)), rays=args.instance_rays,
+                                 threads=args.threads, **options)
+        finally:
+            if watch is not None:
+                out["children_peak"] = watch.stop()
         out.update(triangles=len(result.faces), rays=int(result.report["rays_cast"]),
                    timings=result.report["timings"], outputs=_outputs(result),
                    instances=count, baked=count)
     out["wall_s"] = time.perf_counter() - clock
     out["hwm"] = _status("VmHWM")
     return out
+
+
+class _Descendants:
+    """The largest ``VmHWM`` of any process under this one (a pool's or a LocalCluster's
+    workers), read every 50 ms on a thread until :meth:`stop`."""
+
+    def __init__(self):
+        import threading
+
+        self.peak, self.done = 0, threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _children(self) -> list:
+        parents: dict = {}
+        for entry in os.listdir("/proc"):
+            if entry.isdigit():
+                try:
+                    with open(f"/proc/{entry}/stat") as stat:
+                        ppid = int(stat.read().rsplit(")", 1)[1].split()[1])
+                except (OSError, IndexError, ValueError):
+                    continue
+                parents.setdefault(ppid, []).append(int(entry))
+        out, todo = [], [os.getpid()]
+        while todo:
+            for pid in parents.get(todo.pop(), []):
+                out.append(pid)
+                todo.append(pid)
+        return out
+
+    def _run(self) -> None:
+        while not self.done.wait(0.05):
+            for pid in self._children():
+                try:
+                    with open(f"/proc/{pid}/status") as status:
+                        for line in status:
+                            if line.startswith("VmHWM:"):
+                                self.peak = max(self.peak, int(line.split()[1]) * 1024)
+                except OSError:
+                    pass
+
+    def stop(self) -> int:
+        self.done.set()
+        self.thread.join()
+        return self.peak
 
 
 def _outputs(result) -> int:
@@ -440,14 +504,16 @@ def print_cases(rows: list, trees: list) -> None:
     placed = [r for r in rows if "outputs" in r and "error" not in r]
     if placed:
         print("\n| case | tree | instances | baked | baked triangles | peak RSS MiB | outputs "
-              "MiB | peak less outputs MiB | less imports too MiB | wall s |")
-        print("|---|---|---|---|---|---|---|---|---|---|")
+              "MiB | peak less outputs MiB | less imports too MiB | workers' peak MiB | wall s |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
         for row in placed:
             rest = row["peak"] - row["outputs"]
             print(f"| {row['case']} | {Path(row['tree']).name} | {row['instances']:,} | "
                   f"{row['baked']:,} | {row['triangles']:,} | {_mib(row['peak'])} | "
                   f"{_mib(row['outputs'])} | {_mib(rest)} | "
-                  f"{_mib(rest - imports.get(row['tree'], 0))} | {row['wall_s']:.1f} |")
+                  f"{_mib(rest - imports.get(row['tree'], 0))} | "
+                  f"{_mib(row['children_peak']) if row.get('children_peak') else '-'} | "
+                  f"{row['wall_s']:.1f} |")
     if len(trees) == 2:
         print("\n| case | peak this / before | CPU s this / before | wall s this / before |")
         print("|---|---|---|---|")
@@ -507,7 +573,8 @@ def main(argv=None) -> int:
         return 0
     cases = [c for c in args.cases.split(",") if c]
     unknown = {c for c in cases if c not in CASES and not (
-        c.startswith("instances-all-") and c.rsplit("-", 1)[1].isdigit())}
+        c.startswith("instances-all-") and c.partition(":")[0].rsplit("-", 1)[1].isdigit()
+        and c.partition(":")[2] in VARIANTS)}
     if unknown:
         parser.error(f"unknown cases {sorted(unknown)}; choose from {CASES}")
     meshes = Path(args.meshes)
@@ -519,7 +586,7 @@ def main(argv=None) -> int:
         if case == "instances":
             instanced_path(meshes)
         if case.startswith("instances-all-"):
-            instanced_path(meshes, int(case.rsplit("-", 1)[1]))
+            instanced_path(meshes, int(case.partition(":")[0].rsplit("-", 1)[1]))
     trees = [ROOT] + ([args.before.resolve()] if args.before else [])
     print(f"load average {os.getloadavg()[0]:.1f}", flush=True)
     rows = []
@@ -528,8 +595,9 @@ def main(argv=None) -> int:
             for tree in (trees if _ % 2 == 0 else trees[::-1]):  # alternate who goes first
                 row = measure(tree, case, args)
                 rows.append(row)
-                print(json.dumps({k: row.get(k) for k in ("case", "tree", "peak", "cpu_s",
-                                                          "wall_s", "error")}), flush=True)
+                print(json.dumps({k: row.get(k) for k in ("case", "tree", "peak", "outputs",
+                                                          "children_peak", "cpu_s", "wall_s",
+                                                          "error")}), flush=True)
     print(f"load average {os.getloadavg()[0]:.1f}\n")
     print_cases(rows, trees)
     records = []

@@ -173,3 +173,99 @@ def test_part_sizes_are_the_whole_sets_rows(tmp_path):
     lo = np.array([[0, 0, 0], [2, 0, 0], [1, 1, 1], [5, 5, 5]], dtype=float)
     hi = lo + 1.0  # 0 touches 2, 2 touches 1: one group; 3 alone
     assert sorted(map(sorted, vertices._overlapping(lo, hi))) == [[0, 1, 2], [3]]
+
+
+def test_merged_fills_the_result_as_parts_land_and_checks_the_tiling():
+    """``records.Merged``: parts landing in any order give ``records.merge``'s arrays; a fold
+    takes its extra instead of an (n,) array; a gap or an overlap is refused."""
+    from aobake.records import Estimates, Merged, merge
+
+    rng = np.random.default_rng(2)
+    n, cuts = 40, [0, 7, 7, 19, 33, 40]
+    whole = Estimates({"ao": rng.random(n), "bent_normal": rng.random((n, 3))},
+                      rng.integers(0, 9, n).astype(np.int32), {"ray_offset": rng.random(n)}, 7)
+
+    def part(a, b):
+        return Estimates({k: v[a:b] for k, v in whole.fields.items()}, whole.rays[a:b],
+                         {k: v[a:b] for k, v in whole.extras.items()}, 7)
+
+    class Sum:
+        def __init__(self):
+            self.total = 0.0
+
+        def add(self, start, stop, p):
+            self.total += float(p.extras["ray_offset"].sum())
+
+        def result(self):
+            return self.total
+
+    pieces = list(zip(cuts[:-1], cuts[1:]))
+    merged, folded = Merged(n), Merged(n, {"ray_offset": Sum()})
+    for a, b in pieces[::-1]:
+        merged.add(a, b, part(a, b))
+        folded.add(a, b, part(a, b))
+    want = merge([(np.arange(a, b), part(a, b)) for a, b in pieces], n)
+    for got in (merged.result(), folded.result()):
+        for name in want.fields:
+            assert np.array_equal(got.fields[name], want.fields[name]), name
+        assert np.array_equal(got.rays, want.rays) and got.dof == 7
+    assert np.array_equal(merged.result().extras["ray_offset"], want.extras["ray_offset"])
+    assert folded.result().extras["ray_offset"] == pytest.approx(whole.extras["ray_offset"].sum())
+    for bad in ([(0, 19), (19, 39)], [(0, 20), (19, 40)], [(0, 19), (20, 40)]):
+        m = Merged(n)
+        for a, b in bad:
+            m.add(a, b, part(a, b))
+        with pytest.raises(ValueError, match="exactly once"):
+            m.result()
+
+
+def test_split_items_are_cut_when_read(tmp_path):
+    """``executors.base.items`` cuts an item's rows when it is read: a plan whose sizes are
+    made a block at a time makes only the blocks an item reaches."""
+    from aobake.executors.base import Job, items
+    from aobake.records import PointRange, SamplePoints
+
+    n = 50
+    whole = np.random.default_rng(3).random(n)
+    bounds = np.array([0, 10, 25, 50])
+    made = []
+
+    def make(k):
+        made.append(k)
+        return whole[bounds[k]:bounds[k + 1]].copy()
+
+    plan = SamplePoints(np.zeros((n, 3)), np.ones((n, 3)), PointRange(n),
+                        sizes=BlockSizes(bounds, make))
+    work = items(Job(None, None, "rays", 8, True, "k"), plan, 20)
+    assert len(work) == 3 and made == []
+    item = work[1]
+    assert (item.start, item.stop) == (20, 40) and made == [1, 2]
+    assert np.array_equal(item.sizes, whole[20:40])
+    assert np.array_equal(item.ids, np.arange(20, 40))
+    assert [(i.start, i.stop) for i in work] == [(0, 20), (20, 40), (40, 50)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("executor", ["processes", "dask"])
+def test_a_set_split_over_workers_gives_the_whole_arrays_bits(tmp_path, monkeypatch, executor):
+    """A set's instances on the split executors (items cut as submitted, their rows landing
+    in the result as they end, the ray offsets folded: ``offsets.OffsetFold``): the values,
+    rays and report of the whole-array path, for the executor's own split and an explicit
+    one; and --tolerance's likewise."""
+    import aobake
+
+    if executor == "dask":
+        pytest.importorskip("distributed")
+    path = str(_set(tmp_path))
+    options = dict(rays=8, quantities=("ao", "bent_normal"), seed=3)
+    split = [aobake.bake(path, threads=2, executor=executor, workers=2, chunk_points=c,
+                         **options) for c in (None, 700)]
+    tolerance = dict(rays=8, seed=4, tolerance=0.1, max_rays=64)
+    adaptive = aobake.bake(path, threads=2, executor=executor, workers=2, chunk_points=900,
+                           **tolerance)
+    _whole_array_path(monkeypatch)
+    whole = aobake.bake(path, threads=2, **options)
+    for result in split:
+        _same(result, whole)
+    _same(adaptive, aobake.bake(path, threads=2, **tolerance))
+    assert adaptive.report["tolerance"] == aobake.bake(path, **tolerance).report["tolerance"]

@@ -75,15 +75,55 @@ def ranges(n: int, per_item: int) -> list:
     return [(start, min(n, start + per_item)) for start in range(0, n, per_item)]
 
 
-def items(job: Job, plan, per_item: int) -> list:
-    """The work items of ``plan`` (``SamplePoints``), ``per_item`` points each."""
-    out = []
-    for start, stop in ranges(len(plan.points), per_item):
-        sel = slice(start, stop)
-        def part(array):
-            return None if array is None else array[sel]
+def cut(job: Job, plan, start: int, stop: int) -> WorkItem:
+    """The work item of points start..stop-1 of ``plan`` (``SamplePoints``): its per-point
+    arrays cut (views of the plan's, or the rows a plan that makes them on demand gives:
+    ``records.BlockSizes``, ``records.PointRange``), the view's image whole."""
+    sel = slice(start, stop)
 
-        out.append(WorkItem(job.key, start, stop, plan.points[sel], plan.normals[sel],
-                            plan.ids[sel], part(plan.sizes), part(plan.faces),
-                            part(plan.bary), plan.image))
-    return out
+    def part(array):
+        return None if array is None else array[sel]
+
+    return WorkItem(job.key, start, stop, plan.points[sel], plan.normals[sel], plan.ids[sel],
+                    part(plan.sizes), part(plan.faces), part(plan.bary), plan.image)
+
+
+class Items:
+    """The work items of ``plan`` (``SamplePoints``), ``per_item`` points each: a sequence
+    whose items are cut when asked for (``len``, indexing, iteration), so an executor holds
+    the items in flight, not a cut of every point's rows at once."""
+
+    def __init__(self, job: Job, plan, per_item: int):
+        self.job, self.plan = job, plan
+        self.bounds = ranges(len(plan.points), per_item)
+
+    def __len__(self) -> int:
+        return len(self.bounds)
+
+    def __getitem__(self, k: int) -> WorkItem:
+        return cut(self.job, self.plan, *self.bounds[k])
+
+    def __iter__(self):
+        for start, stop in self.bounds:
+            yield cut(self.job, self.plan, start, stop)
+
+
+def items(job: Job, plan, per_item: int) -> Items:
+    """The work items of ``plan``, ``per_item`` points each (:class:`Items`: cut when read)."""
+    return Items(job, plan, per_item)
+
+
+def whole(job: Job, plan) -> WorkItem:
+    """The work item of every point of ``plan``, its arrays as the plan holds them (not cut:
+    a plan's sizes made a block at a time stay so), for cutting items from it."""
+    return WorkItem(job.key, 0, len(plan.points), plan.points, plan.normals, plan.ids,
+                    plan.sizes, plan.faces, plan.bary, plan.image)
+
+
+def merged(method, plan):
+    """A ``records.Merged`` for the estimates of ``plan``'s points, with the folds
+    ``method`` asks for (``folds(plan)``: extras it reads as a summary, not per point)."""
+    from aobake.records import Merged
+
+    folds = getattr(method, "folds", None)
+    return Merged(len(plan.points), folds(plan) if folds is not None else None)

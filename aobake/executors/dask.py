@@ -42,6 +42,7 @@ and the unfinished items resubmitted, at most ``MAX_RESHIPS`` times.  An interru
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import contextvars
 import logging
@@ -55,9 +56,8 @@ from dataclasses import replace
 import numpy as np
 
 from aobake.errors import AobakeError, InputError
-from aobake.records import merge
 from aobake.executors import worker
-from aobake.executors.base import items, release
+from aobake.executors.base import merged, release, whole as whole_item
 
 log = logging.getLogger(__name__)
 
@@ -77,6 +77,10 @@ PILOT_SECONDS = 0.05
 ALLOWED_FAILURES = 2
 #: re-runs of an item that raised (deterministic: it would raise again)
 RETRIES = 0
+#: items in flight per worker (submitted, not yet gathered): each item is cut when submitted
+#: and its rows land in the result as it is gathered, so the parent (and a LocalCluster's
+#: scheduler, which runs in it) holds this many items' points and results, not every item's
+IN_FLIGHT_PER_WORKER = 2
 #: times the job is scattered again after every worker holding it died
 MAX_RESHIPS = 2
 #: seconds a named scheduler has to answer: the probe's connection (retried while it is
@@ -625,25 +629,25 @@ class DaskExecutor:
         wall = time.perf_counter()
         # a key no other client of a shared cluster has (it names the workers' cache entry)
         job = replace(job, key=f"{job.key}-{uuid.uuid4().hex[:12]}")
-        whole = items(job, plan, n)[0]
-        parts, start, pilot_s, per_point = [], 0, 0.0, None
+        whole = whole_item(job, plan)  # (its arrays as the plan holds them: cut per item)
+        result = merged(method, plan)
+        start, pilot_s, per_point = 0, 0.0, None
         if not self.chunk_points:
             clock = time.perf_counter()
-            parts, start, per_point = _pilot(method, whole, n, job.rays_per_point, chunk_rays,
-                                             progress)
+            start, per_point = _pilot(method, whole, n, job.rays_per_point, chunk_rays,
+                                      progress, result)
             pilot_s = time.perf_counter() - clock
             if (n - start) * per_point / threads < MIN_ITEM_SECONDS:
                 # less than an item's worth is left: shipping the scene to a worker, which
                 # rebuilds its acceleration structure, costs more than tracing it here
                 if start < n:
-                    rest = method.estimate(_cut(whole, start, n).sample_points(), threads,
-                                           chunk_rays)
-                    parts.append((np.arange(start, n), rest))
+                    result.add(start, n, method.estimate(_cut(whole, start, n).sample_points(),
+                                                         threads, chunk_rays))
                     if progress:
                         progress(n, n)
                 log.info("dask executor: %d points, all estimated here (less than %g s of "
                          "tracing left after the pilot)", n, MIN_ITEM_SECONDS)
-                return merge(parts, n)
+                return result.result()
         release(method)  # the rest is estimated on the cluster
         with session_here as session:
             if self.chunk_points:
@@ -656,11 +660,11 @@ class DaskExecutor:
             stats = {"points": n, "pilot_points": start, "pilot_s": pilot_s,
                      "items": len(ranges),
                      "per_item": max((b - a for a, b in ranges), default=0)}
-            parts += _run_items(session, job, whole, ranges, chunk_rays, progress, start, n,
-                                stats)
+            _run_items(session, job, whole, ranges, chunk_rays, progress, start, n, stats,
+                       result)
             stats["wall_s"] = time.perf_counter() - wall
             session.stats.append(stats)
-        return merge(parts, n)
+        return result.result()
 
 
 def _cut(whole, start: int, stop: int):
@@ -685,21 +689,22 @@ def split(n: int, start: int, seconds_per_point: float, workers: int, threads: i
     return [(a, min(n, a + size)) for a in range(start, n, size)]
 
 
-def _pilot(method, whole, n: int, rays_per_point: int, chunk_rays: int, progress):
-    """Estimate the first points here on one thread until PILOT_SECONDS have passed:
-    (parts, points done, seconds per point on one thread)."""
-    parts, done, seconds = [], 0, 0.0
+def _pilot(method, whole, n: int, rays_per_point: int, chunk_rays: int, progress, result):
+    """Estimate the first points here on one thread until PILOT_SECONDS have passed, their
+    rows landing in ``result`` (``records.Merged``): (points done, seconds per point on one
+    thread)."""
+    done, seconds = 0, 0.0
     size = max(1, math.ceil(PILOT_RAYS / max(1, rays_per_point)))
     while done < n and seconds < PILOT_SECONDS:
         stop = min(n, done + size)
         clock = time.perf_counter()
         part = method.estimate(_cut(whole, done, stop).sample_points(), 1, chunk_rays)
         seconds += time.perf_counter() - clock
-        parts.append((np.arange(done, stop), part))
+        result.add(done, stop, part)
         done, size = stop, size * 4
         if progress:
             progress(done, n)
-    return parts, done, seconds / max(done, 1)
+    return done, seconds / max(done, 1)
 
 
 def _worker_threads() -> int:
@@ -737,9 +742,12 @@ def run(item, chunk_rays: int, job, image=None):
                                "estimate_cpu_s": cpu_s}
 
 
-def _run_items(session, job, whole, ranges, chunk_rays, progress, done, n, stats) -> list:
-    """[(index, Estimates)] of the items ``ranges`` of ``whole``, run on the session's
-    cluster; ``stats`` gets the workers' seconds and the reships."""
+def _run_items(session, job, whole, ranges, chunk_rays, progress, done, n, stats,
+               result) -> None:
+    """Run the items ``ranges`` of ``whole`` on the session's cluster, their rows landing in
+    ``result`` (``records.Merged``) as each is gathered; at most IN_FLIGHT_PER_WORKER items
+    per worker are submitted at a time (each cut as it is submitted).  ``stats`` gets the
+    workers' seconds and the reships."""
     import distributed
     from distributed.client import FutureCancelledError
 
@@ -750,8 +758,9 @@ def _run_items(session, job, whole, ranges, chunk_rays, progress, done, n, stats
     stats.update(prepare_s=0.0, estimate_s=0.0, estimate_cpu_s=0.0, reships=0,
                  workers=len(session.workers()))
     before = set(session.workers())
-    parts, shipped = [], []
-    todo, attempt = [_cut(whole, a, b) for a, b in ranges], 0
+    window = IN_FLIGHT_PER_WORKER * max(1, len(before))
+    shipped = []
+    todo, attempt = collections.deque(ranges), 0
     since = time.time()
     try:
         while todo:
@@ -761,13 +770,23 @@ def _run_items(session, job, whole, ranges, chunk_rays, progress, done, n, stats
             if image is not None:
                 image_future = client.scatter(image, broadcast=True, hash=False)
                 shipped.append(image_future)
-            futures = {client.submit(run, item, chunk_rays, job_future, image_future,
-                                     key=f"aobake-item-{item.start}-{attempt}-{job.key}",
-                                     pure=False, retries=RETRIES): item for item in todo}
+            futures: dict = {}
+            running = distributed.as_completed(loop=client.loop)
+
+            def submit():
+                item = _cut(whole, *todo.popleft())
+                future = client.submit(run, item, chunk_rays, job_future, image_future,
+                                       key=f"aobake-item-{item.start}-{attempt}-{job.key}",
+                                       pure=False, retries=RETRIES)
+                futures[future] = item
+                running.add(future)
+
+            for _ in range(min(window, len(todo))):
+                submit()
             lost = []
             try:
-                for future in distributed.as_completed(futures, loop=client.loop):
-                    item = futures[future]
+                for future in running:
+                    item = futures.pop(future)
                     try:
                         first, stop, part, timing = future.result()
                     except FutureCancelledError:
@@ -776,21 +795,26 @@ def _run_items(session, job, whole, ranges, chunk_rays, progress, done, n, stats
                     except distributed.KilledWorker as exc:
                         raise ClusterError(_killed(item, exc.allowed_failures)) from None
                     future.release()  # the worker frees it: the result lives here now
-                    parts.append((np.arange(first, stop), part))
+                    result.add(first, stop, part)
+                    del part
                     for name in ("prepare_s", "estimate_s", "estimate_cpu_s"):
                         stats[name] += timing[name]
                     done += stop - first
                     if progress:
                         progress(done, n)
+                    if todo and not lost:  # (once the job is lost, none is sent after it)
+                        submit()
             finally:
                 client.cancel(list(futures))  # nothing left running on an error or interrupt
-            todo, attempt = lost, attempt + 1
-            if todo:
+            if lost:
+                todo.extendleft((item.start, item.stop) for item in reversed(lost))
+            attempt += 1
+            if lost:
                 # Every worker holding the job died (two workers a poisonous item killed in
                 # turn, say): the scheduler cannot count those deaths against the items any
                 # more, so count them from its log of removed workers.
                 deaths = _deaths(client, job.key, since)
-                worst = max(todo, key=lambda item: deaths.get(item.start, 0))
+                worst = max(lost, key=lambda item: deaths.get(item.start, 0))
                 allowed = _allowed_failures(client)
                 if deaths.get(worst.start, 0) > allowed:
                     raise ClusterError(_killed(worst, allowed))
@@ -813,7 +837,6 @@ def _run_items(session, job, whole, ranges, chunk_rays, progress, done, n, stats
     log.info("dask executor: %d points, %d estimated here, %d items of <= %d points on %d "
              "workers", n, stats["pilot_points"], stats["items"], stats["per_item"],
              stats["workers"])
-    return parts
 
 
 def _killed(item, allowed: int) -> str:

@@ -6,10 +6,7 @@ from __future__ import annotations
 
 import os
 
-import numpy as np
-
-from aobake.records import merge
-from aobake.executors.base import items, release
+from aobake.executors.base import items, merged, release
 
 
 class ThreadsExecutor:
@@ -25,15 +22,16 @@ class ThreadsExecutor:
         try:
             if not self.chunk_points or not len(plan.points):  # (no points: nothing to cut)
                 return method.estimate(plan, threads, chunk_rays, progress)
-            # An explicit split runs item by item here too (the same bits: tested).
-            parts, done = [], 0
+            # An explicit split runs item by item here too (the same bits: tested), each
+            # item's rows landing in the result as it ends (nothing held per item after it)
+            result, done = merged(method, plan), 0
             for item in items(job, plan, self.chunk_points):
-                part = method.estimate(item.sample_points(), threads, chunk_rays)
-                parts.append((np.arange(item.start, item.stop), part))
+                result.add(item.start, item.stop,
+                           method.estimate(item.sample_points(), threads, chunk_rays))
                 done += item.stop - item.start
                 if progress:
                     progress(done, len(plan.points))
-            return merge(parts, len(plan.points))
+            return result.result()
         finally:
             release(method)
 

@@ -11,6 +11,7 @@ wanted; a child a worker started ends itself: ``aobake.child.watch_parent``).
 from __future__ import annotations
 
 import contextlib
+import itertools
 import logging
 import multiprocessing
 import os
@@ -21,12 +22,9 @@ import tempfile
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
-import numpy as np
-
 from aobake.errors import AobakeError
-from aobake.records import merge
 from aobake.executors import signals, worker
-from aobake.executors.base import items, release
+from aobake.executors.base import items, merged, release
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +36,12 @@ class PoolError(AobakeError):
 #: work items per worker when the split is not given: enough that a slow item does not
 #: leave the other workers idle at the end, few enough that each carries real tracing
 ITEMS_PER_WORKER = 4
+
+#: items in flight per worker (submitted, not yet landed): each item is cut when submitted
+#: and its rows land in the result when it ends, so the parent holds this many items'
+#: points and results, not every item's (one queued behind the one running keeps every
+#: worker busy)
+IN_FLIGHT_PER_WORKER = 2
 
 
 class ProcessesExecutor:
@@ -73,7 +77,8 @@ class ProcessesExecutor:
             from multiprocessing import resource_tracker
 
             resource_tracker.ensure_running()
-        parts, done, pool = [], 0, None
+        result, done, pool = merged(method, plan), 0, None
+        todo = iter(work)
         folder = tempfile.mkdtemp(prefix="aobake-job-")
         try:
             # The job goes to the workers through a file: multiprocessing writes a worker's
@@ -89,8 +94,9 @@ class ProcessesExecutor:
                 pool = ProcessPoolExecutor(max_workers=min(workers, len(work)),
                                            mp_context=context, initializer=_start_worker,
                                            initargs=(path,))
-                pending = {pool.submit(worker.run_item, item, 1, chunk_rays): item
-                           for item in work}
+                pending = {}
+                for item in itertools.islice(todo, IN_FLIGHT_PER_WORKER * workers):
+                    pending[pool.submit(worker.run_item, item, 1, chunk_rays)] = item
             while pending:
                 finished, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for future in finished:
@@ -102,10 +108,13 @@ class ProcessesExecutor:
                             f"a worker process died while points {item.start}..{item.stop - 1} "
                             "were estimated (killed, out of memory, or a crash in native "
                             "code); the bake was stopped") from None
-                    parts.append((np.arange(start, stop), part))
+                    result.add(start, stop, part)
+                    del part
                     done += stop - start
                     if progress:
                         progress(done, n)
+                    for item in itertools.islice(todo, 1):  # the next item takes its place
+                        pending[pool.submit(worker.run_item, item, 1, chunk_rays)] = item
         except BaseException:
             if pool is not None:  # an interrupt or a failed item: the rest is not wanted
                 _end_workers(pool)
@@ -119,7 +128,7 @@ class ProcessesExecutor:
                 shutil.rmtree(folder, ignore_errors=True)
         log.info("processes executor: %d items of <= %d points on %d workers", len(work),
                  per_item, min(workers, len(work)))
-        return merge(parts, n)
+        return result.result()
 
 
 def _start_worker(path: str) -> None:

@@ -14,8 +14,8 @@ import numpy as np
 
 from aobake import adaptive
 from aobake.errors import InputError
-from aobake.offsets import offset_summary
-from aobake.records import Estimates
+from aobake.offsets import OffsetFold, PointOffsets, offset_summary
+from aobake.records import BlockSizes, Estimates
 from aobake.trace import Tracer
 
 #: the most bytes of kept ray distances a bake may hold (float32: 4 bytes per ray)
@@ -65,6 +65,21 @@ class RaysMethod:
         sizes = None if points.sizes is None else np.asarray(points.sizes, dtype=np.float64)
         return adaptive.estimate(self.tracer, points.points, points.normals, points.ids,
                                  threads, chunk_rays, progress, sizes)
+
+    def folds(self, plan) -> dict:
+        """The extras a split of ``plan`` (``SamplePoints``) folds as its parts land
+        (``records.Merged``) rather than merging per point: where the plan's sizes are made a
+        block at a time (``records.BlockSizes``: a set's instances), the ray offsets
+        (``offsets.OffsetFold``: made again for the report, as an unsplit bake's are)."""
+        if not isinstance(plan.sizes, BlockSizes):
+            return {}
+        tracer = self.tracer
+
+        def offsets(counted):
+            return PointOffsets(plan.points, plan.normals, plan.sizes, tracer.center,
+                                tracer.scale, self.config.ray_offset, counted)
+
+        return {"ray_offset": OffsetFold(offsets)}
 
     def record(self, estimates: Estimates) -> dict:
         """The report's ``parameters`` (and ``tolerance``) from the merged estimates."""
