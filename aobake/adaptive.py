@@ -237,22 +237,100 @@ def further(tracer, points, normals, ids, sizes, threads, chunk_rays, names, tra
     capped[traced] |= (reach > config.tolerance) & (final_rays[traced] >= cap)
 
 
+def estimate_blocks(tracer, plan, threads, chunk_rays, progress, folds) -> Estimates:
+    """:func:`estimate` of a plan whose sizes are made a block of points at a time
+    (``records.BlockSizes``: a set's instances), a block at a time: each block's stages run
+    on its points alone (every point's stages depend on that point alone: the same rows as
+    one call on all of them) and its rows land in the result (``records.Merged``) with the
+    extras ``folds`` takes (the ray offsets, and the final counts into a :class:`Tally`),
+    so nothing is held for every point besides the results."""
+    from aobake.records import Merged
+
+    points, normals, ids, sizes = plan.points, plan.normals, plan.ids, plan.sizes
+    n = len(points)
+    result = Merged(n, folds)
+    bounds = sizes.bounds
+    for k in range(len(bounds) - 1):
+        b0, b1 = int(bounds[k]), int(bounds[k + 1])
+        if b1 == b0:
+            continue
+        step = None if progress is None else (lambda done, count, b0=b0: progress(b0 + done, n))
+        result.add(b0, b1, estimate(tracer, points[b0:b1], normals[b0:b1], ids[b0:b1], threads,
+                                    chunk_rays, step, sizes.block(k)))
+    return result.result()
+
+
+class Tally:
+    """What the report's ``tolerance`` section reads of the points, counted a part at a
+    time (``add``, a ``records.Merged`` fold of the extras ``final_rays`` and ``capped``),
+    never an array per point: the points met, missed and capped, the widest reach, the rays
+    in all, and how many points ended at each count (final and in all): the counts take a
+    few distinct values, so their min, median and max are exact from the histograms."""
+
+    def __init__(self, tracer):
+        self.tracer = tracer
+        self.met = self.missed = self.capped = self.traced = self.rays_total = 0
+        self.worst = None
+        self.final: dict = {}  # final count -> points (traced ones)
+        self.cast: dict = {}  # rays in all -> points (traced ones)
+
+    def add(self, start: int, stop: int, part) -> None:
+        """Count ``part``'s points (an Estimates of :func:`estimate`)."""
+        self.count(part.fields, part.rays, part.extras["final_rays"], part.extras["capped"])
+
+    def count(self, out: dict, rays, final_rays, capped) -> None:
+        """Count points of (k,) ``rays``, ``final_rays``, ``capped`` with their fields
+        ``out`` (name -> (k, ...))."""
+        tracer, tolerance = self.tracer, self.tracer.config.tolerance
+        names = [(q.value.name, q.error.name) for q in tracer.quantities if q.interval]
+        reach = np.zeros(len(rays))
+        for value, _ in names:
+            q = next(q for q in tracer.quantities if q.value.name == value)
+            low, high = out[q.interval[0].name], out[q.interval[1].name]
+            reach = np.maximum(reach, np.maximum(out[value] - low, high - out[value]))
+        traced = rays > 0
+        met = (reach <= tolerance) & traced
+        self.met += int(np.count_nonzero(met))
+        self.missed += int(np.count_nonzero(~met & ~capped & traced))
+        self.capped += int(np.count_nonzero(~met & capped & traced))
+        self.rays_total += int(rays.astype(np.int64).sum())
+        if traced.any():
+            worst = float(reach[traced].max())
+            self.worst = worst if self.worst is None else max(self.worst, worst)
+            self.traced += int(np.count_nonzero(traced))
+            for histogram, values in ((self.final, final_rays[traced]),
+                                      (self.cast, rays[traced])):
+                kinds, counts = np.unique(values, return_counts=True)
+                for value, count in zip(kinds.tolist(), counts.tolist()):
+                    histogram[value] = histogram.get(value, 0) + count
+
+    def result(self) -> "Tally":
+        return self
+
+    @classmethod
+    def of(cls, tracer, estimates, block: int = 1 << 16) -> "Tally":
+        """The tally of merged Estimates whose extras are the (n,) arrays, a block of points
+        at a time."""
+        tally = cls(tracer)
+        out, rays = estimates.fields, estimates.rays
+        final_rays, capped = estimates.extras["final_rays"], estimates.extras["capped"]
+        for a in range(0, len(rays), block):
+            rows = slice(a, a + block)
+            tally.count({name: array[rows] for name, array in out.items()}, rays[rows],
+                        final_rays[rows], capped[rows])
+        return tally
+
+
 def summary(tracer, estimates) -> dict:
-    """The report's ``tolerance`` section from the merged estimates of :func:`estimate`."""
+    """The report's ``tolerance`` section from the merged estimates of :func:`estimate` (their
+    extras ``final_rays`` and ``capped`` as arrays, or a :class:`Tally` of them)."""
     config = tracer.config
     tolerance, max_rays = config.tolerance, config.max_rays
-    out, rays = estimates.fields, estimates.rays
-    final_rays, capped = estimates.extras["final_rays"], estimates.extras["capped"]
-    traced = np.flatnonzero(rays > 0)
-    names = [(q.value.name, q.error.name) for q in tracer.quantities if q.interval]
-    reach = np.zeros(len(rays))
-    for value, _ in names:
-        q = next(q for q in tracer.quantities if q.value.name == value)
-        low, high = out[q.interval[0].name], out[q.interval[1].name]
-        reach = np.maximum(reach, np.maximum(out[value] - low, high - out[value]))
-    met = (reach <= tolerance) & (rays > 0)
-    worst = float(reach[traced].max()) if len(traced) else 0.0
-    fixed = int(final_rays[traced].max()) * len(traced) if len(traced) else 0
+    tally = estimates.extras["final_rays"]
+    if not isinstance(tally, Tally):
+        tally = Tally.of(tracer, estimates)
+    worst = tally.worst if tally.traced else 0.0
+    fixed = max(tally.final) * tally.traced if tally.traced else 0
     section = {
         "tolerance": tolerance,
         "scheme": "a pilot of rays, then fresh rays chosen from its spread, and further "
@@ -263,17 +341,17 @@ def summary(tracer, estimates) -> dict:
         "pilot_rays_per_point": tracer.samples.rays,
         # Three disjoint counts of the traced points: met E; else capped (even --max-rays
         # was predicted too few); else missed (the pilot under-estimated the spread).
-        "points_met": int(np.count_nonzero(met)),
-        "points_missed": int(np.count_nonzero(~met & ~capped & (rays > 0))),
-        "points_capped": int(np.count_nonzero(~met & capped & (rays > 0))),
+        "points_met": tally.met,
+        "points_missed": tally.missed,
+        "points_capped": tally.capped,
         "worst_reach": worst,
-        "rays_total": int(rays.astype(np.int64).sum()),
+        "rays_total": tally.rays_total,
         # the last stage's count: the rays in each point's estimate
-        "final_rays": _spread(final_rays[traced]),
+        "final_rays": _spread(tally.final),
         # every ray a point cast after the pilot (all its stages: a point whose final stage
         # was its third cast the two before it too), and with the pilot
-        "rays_after_pilot": _spread(rays[traced].astype(np.int64) - tracer.samples.rays),
-        "rays_per_point": _spread(rays[traced].astype(np.int64)),
+        "rays_after_pilot": _spread(tally.cast, -tracer.samples.rays),
+        "rays_per_point": _spread(tally.cast),
         # A fixed count reaching the same worst case: every point at the largest final count
         # (the count the worst point needed), and no pilot.
         "fixed_budget_rays": fixed,
@@ -283,12 +361,25 @@ def summary(tracer, estimates) -> dict:
     return section
 
 
-def _spread(counts: np.ndarray) -> dict:
-    """{"min", "median", "max"} of per-point ray counts (zeros for no point)."""
-    if not len(counts):
+def _spread(histogram: dict, shift: int = 0) -> dict:
+    """{"min", "median", "max"} of per-point ray counts plus ``shift``, from ``histogram``
+    (count -> points; zeros for no point): np.min's, np.median's and np.max's values of the
+    counts' array."""
+    if not histogram:
         return {"min": 0, "median": 0.0, "max": 0}
-    return {"min": int(counts.min()), "median": float(np.median(counts)),
-            "max": int(counts.max())}
+    values = sorted(histogram)
+    total = sum(histogram.values())
+
+    def kth(k):  # the k-th smallest count (0-based)
+        for value in values:
+            k -= histogram[value]
+            if k < 0:
+                return value
+        raise IndexError(k)
+
+    middle = [kth(total // 2)] if total % 2 else [kth(total // 2 - 1), kth(total // 2)]
+    median = float(np.median(np.array(middle, dtype=np.int64) + shift))
+    return {"min": int(values[0] + shift), "median": median, "max": int(values[-1] + shift)}
 
 
 def min_final_dof(config) -> int:

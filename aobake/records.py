@@ -257,7 +257,8 @@ class Merged:
     folds : extra name -> a fold that takes that extra of each part (``add(start, stop,
     part)``) and stands for it in the result (``result()``: an object numpy reads as the
     (n, ...) array, or a summary the method's record reads), instead of an (n, ...) array
-    of it: the method's say (``RaysMethod.folds``).  Rows land by index, so the split and
+    of it: the method's say (``RaysMethod.folds``); a fold named for several extras takes
+    each part once.  Rows land by index, so the split and
     the order the parts arrive in change nothing."""
 
     def __init__(self, n: int, folds: dict | None = None):
@@ -283,10 +284,10 @@ class Merged:
         for name, array in part.fields.items():
             self.fields[name][rows] = array
         for name, array in part.extras.items():
-            if name in self.folds:
-                self.folds[name].add(start, stop, part)
-            else:
+            if name not in self.folds:
                 self.extras[name][rows] = array
+        for fold in {id(f): f for f in self.folds.values()}.values():  # each fold once
+            fold.add(start, stop, part)
         if self.rays is not None:
             self.rays[rows] = part.rays
         self.ranges.append((int(start), int(stop)))

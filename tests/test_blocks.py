@@ -269,3 +269,47 @@ def test_a_set_split_over_workers_gives_the_whole_arrays_bits(tmp_path, monkeypa
         _same(result, whole)
     _same(adaptive, aobake.bake(path, threads=2, **tolerance))
     assert adaptive.report["tolerance"] == aobake.bake(path, **tolerance).report["tolerance"]
+
+
+@pytest.mark.slow
+def test_tolerance_a_block_at_a_time_gives_the_whole_arrays_bits(tmp_path, monkeypatch):
+    """--tolerance on a set: an instance's stages at a time (``adaptive.estimate_blocks``,
+    the final counts folded into ``adaptive.Tally``) give the values, rays and report of the
+    whole-array path, at 1 and 2 threads and any chunk size."""
+    import aobake
+    from aobake import adaptive
+
+    path = str(_set(tmp_path))
+    options = dict(rays=8, seed=6, tolerance=0.15, max_rays=256,
+                   quantities=("ao", "obscurance"))
+    calls = []
+    blocks = adaptive.estimate_blocks
+    monkeypatch.setattr(adaptive, "estimate_blocks",
+                        lambda *a, **k: calls.append(1) or blocks(*a, **k))
+    blocked = [aobake.bake(path, threads=t, chunk_rays=c, **options)
+               for t, c in ((1, 131072), (2, 40))]
+    assert len(calls) == 2
+    _whole_array_path(monkeypatch)
+    whole = aobake.bake(path, threads=2, **options)
+    assert whole.report["tolerance"]["points_met"] > 0
+    assert whole.report["tolerance"]["final_rays"]["max"] > whole.report["tolerance"][
+        "final_rays"]["min"]
+    for result in blocked:
+        _same(result, whole)
+        assert result.report["tolerance"] == whole.report["tolerance"]
+
+
+def test_tally_spread_is_numpys_min_median_max():
+    """``adaptive._spread`` from a histogram of counts: np.min's, np.median's and np.max's
+    values of the counts' array (shifted), for odd and even counts and ties."""
+    from aobake import adaptive
+
+    rng = np.random.default_rng(8)
+    for trial in range(200):
+        counts = rng.choice([8, 16, 24, 32, 64, 1000], int(rng.integers(1, 60)))
+        kinds, many = np.unique(counts, return_counts=True)
+        got = adaptive._spread(dict(zip(kinds.tolist(), many.tolist())), -8)
+        shifted = counts.astype(np.int64) - 8
+        assert got == {"min": int(shifted.min()), "median": float(np.median(shifted)),
+                       "max": int(shifted.max())}, trial
+    assert adaptive._spread({}) == {"min": 0, "median": 0.0, "max": 0}

@@ -37,6 +37,12 @@ class PoolError(AobakeError):
 #: leave the other workers idle at the end, few enough that each carries real tracing
 ITEMS_PER_WORKER = 4
 
+#: the most points an item carries when the split is not given: a set of many instances is
+#: cut into more items, not larger ones, so what the items in flight hold (their points
+#: sent, their results back: ~150 bytes a point) does not grow with the bake (65,536 points
+#: of 64 rays: ~1-2 s of one worker's tracing, against ~5 ms of pickling and round trip)
+MAX_ITEM_POINTS = 1 << 16
+
 #: items in flight per worker (submitted, not yet landed): each item is cut when submitted
 #: and its rows land in the result when it ends, so the parent holds this many items'
 #: points and results, not every item's (one queued behind the one running keeps every
@@ -49,7 +55,7 @@ class ProcessesExecutor:
     tracing single-threaded; the scene is sent to each worker once (a file the pool's
     initializer reads), which builds its occluders and method once and keeps them for all
     its items.  Work items are ``chunk_points`` points (default: the points split into
-    ITEMS_PER_WORKER items per worker)."""
+    ITEMS_PER_WORKER items per worker, at most MAX_ITEM_POINTS each)."""
 
     name = "processes"
 
@@ -59,7 +65,8 @@ class ProcessesExecutor:
     def estimate(self, job, method, plan, threads: int, chunk_rays: int, progress=None):
         n = len(plan.points)
         workers = max(1, self.workers or threads)
-        per_item = self.chunk_points or max(1, -(-n // (workers * ITEMS_PER_WORKER)))
+        per_item = self.chunk_points or max(1, min(-(-n // (workers * ITEMS_PER_WORKER)),
+                                                   MAX_ITEM_POINTS))
         work = items(job, plan, per_item)
         if not work:
             try:

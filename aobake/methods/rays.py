@@ -61,6 +61,10 @@ class RaysMethod:
         if self.config.tolerance is None:
             return self.tracer.estimate(points.points, points.normals, points.ids, threads,
                                         chunk_rays, progress, sizes=points.sizes)
+        if isinstance(points.sizes, BlockSizes) and len(points.points):
+            # a set's instances: an instance's stages at a time, nothing held for every point
+            return adaptive.estimate_blocks(self.tracer, points, threads, chunk_rays, progress,
+                                            self.folds(points))
         # (its stages index the sizes of the points each stage casts more rays for: the array)
         sizes = None if points.sizes is None else np.asarray(points.sizes, dtype=np.float64)
         return adaptive.estimate(self.tracer, points.points, points.normals, points.ids,
@@ -70,7 +74,8 @@ class RaysMethod:
         """The extras a split of ``plan`` (``SamplePoints``) folds as its parts land
         (``records.Merged``) rather than merging per point: where the plan's sizes are made a
         block at a time (``records.BlockSizes``: a set's instances), the ray offsets
-        (``offsets.OffsetFold``: made again for the report, as an unsplit bake's are)."""
+        (``offsets.OffsetFold``: made again for the report, as an unsplit bake's are) and
+        with --tolerance the final counts (``adaptive.Tally``: the report's counts)."""
         if not isinstance(plan.sizes, BlockSizes):
             return {}
         tracer = self.tracer
@@ -79,7 +84,11 @@ class RaysMethod:
             return PointOffsets(plan.points, plan.normals, plan.sizes, tracer.center,
                                 tracer.scale, self.config.ray_offset, counted)
 
-        return {"ray_offset": OffsetFold(offsets)}
+        folds = {"ray_offset": OffsetFold(offsets)}
+        if self.config.tolerance is not None:  # the final counts, into the report's tally
+            tally = adaptive.Tally(tracer)
+            folds.update(final_rays=tally, capped=tally)
+        return folds
 
     def record(self, estimates: Estimates) -> dict:
         """The report's ``parameters`` (and ``tolerance``) from the merged estimates."""
