@@ -122,6 +122,31 @@ def test_views_of_different_cameras_are_refused(views, tmp_path):
     assert "Traceback" not in res.output
 
 
+@pytest.mark.slow
+def test_views_of_the_same_rays_are_compared(views, tmp_path):
+    """A view whose record differs only where the rays do not (its target elsewhere on the
+    same line of sight, its eye moved by float noise: a camera written and read back) is the
+    same pixels; a turn of a hundredth of a pixel is not."""
+    truth, _, tmp = views
+    cam = truth.camera
+    eye, target = np.asarray(cam.eye), np.asarray(cam.target)
+    pixel = 2.0 * cam.tan_half_fov / cam.height
+    for name, look_from, look_at, same in (
+            ("farther", eye, target + 3.0 * (target - eye), True),
+            ("noise", eye + 7.5e-9, target, True),
+            ("turned", eye, target + 0.01 * pixel * np.linalg.norm(target - eye)
+             * np.asarray(cam.right), False)):
+        other = aobake.bake_view(STILL_LIFE, look={
+            "look_from": tuple(look_from), "look_at": tuple(look_at), "up": tuple(cam.up),
+            "fov": cam.fov_y}, size=SIZE, method="gtao", ssao_radius=RADIUS)
+        aobake.write(other, tmp_path / f"{name}.exr")
+        res = run_cli("compare", tmp / "truth.exr", tmp_path / f"{name}.exr")
+        if same:
+            assert res.exit_code == 0, (name, res.output)
+        else:
+            assert res.exit_code == 1 and "view direction moves the rays by" in res.output
+
+
 @pytest.mark.parametrize("record, problem", [
     ({"eye": [0, 0, 5]}, "no 'target'"),
     ({"eye": "far away", "target": [0, 0, 0], "up": [0, 1, 0], "fov_y_deg": 40, "width": 4,

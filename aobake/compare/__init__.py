@@ -65,12 +65,12 @@ from aobake.compare.settings import check_same_quantity
 from aobake.compare.values import IMAGE_KINDS, image_kind, kind
 from aobake.errors import InputError
 from aobake.outputs.image import TRANSFERS
-from aobake.outputs.values import (TEXEL_SUFFIXES, VERTEX_SUFFIXES, Values, file_path, read,
-                                   target_of)
+from aobake.outputs.values import (ALPHAS, TEXEL_SUFFIXES, VERTEX_SUFFIXES, Values, file_path,
+                                   read, target_of)
 from aobake.quantities import QUANTITIES
 
 __all__ = ["COMPARABLE", "CONVENTIONS", "POSITION_TOLERANCE", "TEXEL_SUFFIXES", "TRANSFERS",
-           "VERTEX_SUFFIXES", "Values", "compare", "diverging", "format_table", "main",
+           "VERTEX_SUFFIXES", "Values", "ALPHAS", "compare", "diverging", "format_table", "main",
            "match_vertices", "metrics", "position_tolerance", "read", "tie_features"]
 
 log = logging.getLogger(__name__)
@@ -89,7 +89,9 @@ CONVENTIONS = {
 def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_key: str | None = None,
             candidate_convention: str = "ao", heatmap=None,
             reference_key: str | None = None, candidate_transfer: str | None = None,
-            reference_transfer: str | None = None, candidate_stderr=None) -> dict:
+            reference_transfer: str | None = None, candidate_stderr=None,
+            candidate_alpha: str = "auto", candidate_alpha_key: str | None = None,
+            reference_alpha: str = "auto", reference_alpha_key: str | None = None) -> dict:
     """Compare ``candidate_path`` against ``reference_path`` for ``quantity`` ('ao' | 'obscurance').
 
     candidate_key : the candidate's array (NPZ), vertex property (PLY), attribute (GLB) or
@@ -105,7 +107,12 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
       are encoded (``TRANSFERS``; ``aobake.outputs.read``'s ``transfer``)
     candidate_stderr : a file holding the candidate's standard errors (its one channel or
       array, or the quantity's name), of the candidate's size and order: z and the excess
-      RMSE then use the combined error
+      RMSE then use the combined error (divided by the candidate's alpha where its values are)
+    candidate_alpha, reference_alpha : 'auto' | 'associated' | 'straight' (``ALPHAS``):
+      whether an image's values are multiplied by an alpha (a renderer's AO times its
+      coverage, OpenEXR's convention) and so divided by it (auto: where another tool's EXR
+      has an alpha channel beside the value); *_alpha_key names that channel (default: the
+      value's layer's A, Blender's <view layer>.Combined.A for a render pass, a lone A)
 
     Returns one record, always with the same keys (see the module docstring for the metrics;
     None where a value does not exist).  Raises ``InputError`` naming the file and the
@@ -133,11 +140,14 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
                              f"file's tags say), got {value!r}")
     if candidate_stderr is not None:
         candidate_stderr = file_path(candidate_stderr, "candidate's stderr file", "compare")
-    reference = read(reference_path, quantity, key=reference_key, transfer=reference_transfer)
+    reference = read(reference_path, quantity, key=reference_key, transfer=reference_transfer,
+                     alpha=reference_alpha, alpha_key=reference_alpha_key)
     candidate = read(candidate_path, quantity, key=candidate_key, role="candidate",
-                     transfer=candidate_transfer)
+                     transfer=candidate_transfer, alpha=candidate_alpha,
+                     alpha_key=candidate_alpha_key)
     if candidate_stderr is not None:
         _stderr_from_file(candidate, candidate_stderr, quantity)
+    _partly_covered_note(reference, candidate)
     if candidate.target != reference.target:
         raise InputError(f"{candidate_path}: holds {kind(candidate.target)}, but the reference "
                          f"{reference_path} holds {kind(reference.target)}")
@@ -186,7 +196,10 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
               "candidate": str(candidate_path), "reference_key": reference.key,
               "candidate_key": candidate.key, "candidate_convention": candidate_convention,
               "reference_transfer": reference.transfer, "candidate_transfer": candidate.transfer,
-              "candidate_stderr": None if candidate_stderr is None else str(candidate_stderr)}
+              "candidate_stderr": None if candidate_stderr is None else str(candidate_stderr),
+              # how the values relate to an alpha: divided by it (associated) or as read
+              "reference_alpha": "straight" if reference.alpha is None else "associated",
+              "candidate_alpha": "straight" if candidate.alpha is None else "associated"}
     try:
         result.update(metrics(ref, cand, ref_se, cand_se))
     except ValueError as exc:  # a ratio beyond float64: the reference's stderr is the cause
@@ -320,8 +333,32 @@ def _stderr_from_file(candidate: Values, path: Path, quantity: str) -> None:
                          "its order)")
     own = " (in place of the ones it holds)" if candidate.stderr is not None else ""
     candidate.stderr = values.value
+    if candidate.alpha is not None:  # the errors of associated values: divided as they are
+        seen = candidate.alpha > 0
+        candidate.stderr = np.where(seen, values.value / np.where(seen, candidate.alpha, 1.0),
+                                    0.0)
     candidate.notes.append(f"{path}: its {values.key!r} is read as the candidate's standard "
                            f"errors{own}")
+
+
+def _partly_covered_note(reference: Values, candidate: Values) -> None:
+    """A note when a view's partly covered pixels are compared with another tool's image
+    read as straight: a renderer's value there is usually its AO times its coverage."""
+    if not is_view(reference) or candidate.metadata or candidate.alpha is not None \
+            or reference.columns is None or "coverage" not in reference.columns:
+        return
+    coverage = np.asarray(reference.columns["coverage"])
+    if coverage.shape != candidate.value.shape:
+        return
+    partly = (coverage > 0) & (coverage < 1)
+    if candidate.mask is not None:
+        partly &= candidate.mask
+    if partly.any():
+        candidate.notes.append(
+            f"{candidate.path}: read as straight (not multiplied by coverage) at the "
+            f"{int(partly.sum())} pixels the reference covers partly; a renderer's AO there "
+            "is usually its AO times its coverage: give its alpha (--candidate-alpha-key "
+            "NAME) or compare the pixels every image covers fully")
 
 
 def _rms(values) -> float | None:
@@ -429,6 +466,21 @@ def format_table(result: dict) -> str:
                    "is refused). srgb: linearised by the sRGB curve.")
 @click.option("--reference-transfer", type=click.Choice(tuple(TRANSFERS)), default=None,
               help="The same for the reference.")
+@click.option("--candidate-alpha", type=click.Choice(tuple(ALPHAS)), default="auto",
+              show_default=True,
+              help="Whether the candidate image's values are multiplied by an alpha (a "
+                   "renderer's AO times its coverage: divided by it, pixels of alpha 0 not "
+                   "compared). auto: associated where another tool's EXR has an alpha beside "
+                   "the value (OpenEXR's convention; Blender's passes: the Combined pass's), "
+                   "else straight (aobake's files, PNG, TIFF).")
+@click.option("--candidate-alpha-key", metavar="NAME", default=None,
+              help="The candidate's alpha channel (default: the value's layer's A, "
+                   "<view layer>.Combined.A for a Blender pass, a lone A); naming one means "
+                   "associated.")
+@click.option("--reference-alpha", type=click.Choice(tuple(ALPHAS)), default="auto",
+              show_default=True, help="The same for the reference.")
+@click.option("--reference-alpha-key", metavar="NAME", default=None,
+              help="The same for the reference.")
 @click.option("--candidate-stderr", type=click.Path(path_type=Path), default=None,
               metavar="FILE",
               help="A file of the candidate's standard errors (one per value, in its order): "
@@ -438,7 +490,8 @@ def format_table(result: dict) -> str:
                    ".ply per vertex, .png per texel.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of the table.")
 def main(reference, candidate, quantity, candidate_key, reference_key, candidate_convention,
-         candidate_transfer, reference_transfer, candidate_stderr, heatmap, as_json):
+         candidate_transfer, reference_transfer, candidate_alpha, candidate_alpha_key,
+         reference_alpha, reference_alpha_key, candidate_stderr, heatmap, as_json):
     """Compare CANDIDATE against REFERENCE: RMSE, bias, max error, PSNR and how much of the
     difference the noise explains (the reference's, and the candidate's where it has a
     stderr).
@@ -460,7 +513,10 @@ def main(reference, candidate, quantity, candidate_key, reference_key, candidate
                          candidate_convention=candidate_convention, heatmap=heatmap,
                          reference_key=reference_key, candidate_transfer=candidate_transfer,
                          reference_transfer=reference_transfer,
-                         candidate_stderr=candidate_stderr)
+                         candidate_stderr=candidate_stderr, candidate_alpha=candidate_alpha,
+                         candidate_alpha_key=candidate_alpha_key,
+                         reference_alpha=reference_alpha,
+                         reference_alpha_key=reference_alpha_key)
         click.echo(json.dumps(result, allow_nan=False) if as_json else format_table(result))
 
     guarded(False, run)

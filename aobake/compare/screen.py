@@ -25,8 +25,10 @@ log = logging.getLogger(__name__)
 
 #: the view-space channels the depth edges are found from
 EDGE_CHANNELS = ("coverage", "depth", "Ng.X", "Ng.Y", "Ng.Z")
-#: camera record entries two views must share to be the same pixels
-SAME_VIEW = ("width", "height", "eye", "target", "up", "fov_y_deg")
+#: how far apart two views' rays may be and still be the same pixels, in pixels at the
+#: nearest content (float noise of a record written and read back, a target elsewhere on
+#: the same line of sight: the same rays)
+SAME_RAYS_PX = 1e-3
 
 
 def is_view(values: Values) -> bool:
@@ -52,13 +54,29 @@ def camera_of(values: Values):
 
 
 def _same_view(reference: Values, candidate: Values) -> None:
-    """InputError when two view files are not views of the same camera."""
-    a, b = reference.metadata["camera"], candidate.metadata["camera"]
-    for key in SAME_VIEW:
-        if a.get(key) != b.get(key):
+    """InputError when two view files are not views of the same camera: another image size,
+    or rays that differ by more than ``SAME_RAYS_PX`` pixels (the eye's shift seen at the
+    nearest content, the frame's turn, the field of view's change at the image's edge).  The
+    records' ``target`` need not agree: a point anywhere on the same line of sight."""
+    a, b = camera_of(reference), camera_of(candidate)
+    if (a.width, a.height) != (b.width, b.height):
+        raise InputError(f"{candidate.path}: is a {b.width}x{b.height} view, the reference "
+                         f"{reference.path} {a.width}x{a.height}: render both from one camera")
+    pixel = 2.0 * a.tan_half_fov / a.height  # a pixel's angle at the image's centre, rad
+    nears = [c.near for c in (a, b) if c.near]  # the nearest content (the clip plane)
+    near = min(nears) if nears else float(np.linalg.norm(a.target - a.eye))
+    shift = {
+        "eye": float(np.linalg.norm(np.subtract(a.eye, b.eye))) / near / pixel,
+        "view direction": float(np.linalg.norm(np.subtract(a.forward, b.forward))) / pixel,
+        "up": float(np.linalg.norm(np.subtract(a.up, b.up))) / pixel,
+        "field of view": abs(a.tan_half_fov - b.tan_half_fov) / a.tan_half_fov
+        * max(a.width, a.height) / 2.0,
+    }
+    for what, pixels in shift.items():
+        if not pixels <= SAME_RAYS_PX:
             raise InputError(f"{candidate.path}: is another view than the reference "
-                             f"{reference.path} (camera {key} {b.get(key)!r} against "
-                             f"{a.get(key)!r}): render both from one camera")
+                             f"{reference.path} (its {what} moves the rays by {pixels:.3g} "
+                             "pixels): render both from one camera")
 
 
 def edges_of(reference: Values, cam) -> tuple[np.ndarray | None, str | None]:

@@ -59,6 +59,8 @@ class Values:
       for other files
     transfer : how the stored values were turned into ``value``: 'linear' (as stored),
       'srgb', 'gamma 2.2', 'ICC curve' (``aobake.outputs.image.Transfer.name``)
+    alpha : (H, W) float64 the alpha channel ``value`` (and ``stderr``) were divided by, the
+      file's values being associated with it (multiplied by coverage), or None
     """
 
     path: Path
@@ -75,6 +77,8 @@ class Values:
     notes: list = field(default_factory=list)
     columns: dict | None = None
     transfer: str = "linear"
+    #: the alpha channel ``value`` was divided by (associated alpha), or None
+    alpha: np.ndarray | None = None
 
 
 def target_of(path: Path) -> str:
@@ -102,8 +106,19 @@ def file_path(path, role: str = "file", who: str = "read") -> Path:
                      f"{type(path).__name__}{hint}")
 
 
+#: how an image's values relate to its alpha (``read``'s ``alpha``)
+ALPHAS = {
+    "auto": "associated where another tool's EXR has an alpha channel for the value "
+            "(OpenEXR's convention: colour multiplied by alpha), else straight",
+    "associated": "the values are multiplied by the alpha (a renderer's AO times coverage): "
+                  "divided by it, pixels of alpha 0 not compared",
+    "straight": "the values are not multiplied by the alpha (aobake's own, PNG's convention)",
+}
+
+
 def read(path, quantity: str = "ao", *, key: str | None = None, role: str = "reference",
-         transfer: str | None = None) -> Values:
+         transfer: str | None = None, alpha: str = "auto",
+         alpha_key: str | None = None) -> Values:
     """Read ``quantity`` (and its stderr, positions, coverage where the file has them) from an
     NPZ, PLY, GLB, EXR, PNG or TIFF file.
 
@@ -113,10 +128,19 @@ def read(path, quantity: str = "ao", *, key: str | None = None, role: str = "ref
     vertex colours are read as the quantity when it has no column of that name);
     transfer : None (as the file's colour tags say; an untagged 8/16-bit PNG or TIFF is
     refused) | 'linear' | 'srgb' (how the values are encoded, whatever the tags say: a
-    warning when they say otherwise) (``aobake.outputs.image.TRANSFERS``).
+    warning when they say otherwise) (``aobake.outputs.image.TRANSFERS``);
+    alpha : ``ALPHAS``: whether an image's values are associated with (multiplied by) an
+    alpha channel, which ``alpha_key`` names (default: the value's layer's ``A``, Blender's
+    ``<view layer>.Combined.A`` for a render pass, or a lone ``A``); associated values are
+    divided by it (``Values.alpha``).
     Raises InputError('FILE: problem').
     """
     from aobake.outputs.image import TRANSFERS
+
+    if not isinstance(alpha, str) or alpha not in ALPHAS:
+        raise InputError(f"alpha must be one of {tuple(ALPHAS)}, got {alpha!r}")
+    if alpha_key is not None and not isinstance(alpha_key, str):
+        raise InputError(f"alpha_key must be a channel name (str), got {alpha_key!r}")
 
     if transfer is not None and (not isinstance(transfer, str) or transfer not in TRANSFERS):
         raise InputError(f"transfer must be one of {tuple(TRANSFERS)} or None (as the file's "
@@ -146,6 +170,7 @@ def read(path, quantity: str = "ao", *, key: str | None = None, role: str = "ref
     values = pick(path, table, quantity, key, role, target)
     values.warnings = [f"{path}: {text}" for text in table.warnings]
     linearise(values, table, role, transfer)
+    unassociate(values, table, role, alpha, alpha_key)
     for text in values.warnings:
         log.warning("%s", text)
     for text in values.notes:
@@ -242,8 +267,8 @@ def _image_channel(path: Path, table: Table, quantity: str, role: str, notes: li
     """The channel of an image without one named after the quantity: an aobake PNG/TIFF's R
     (its metadata says which map it is), else a layered channel ending in the quantity's
     name (``layer.ao``), else Blender's ambient occlusion pass (``ViewLayer.AO.R``, named
-    'AO' or 'Ambient Occlusion': when there is exactly one), else the only channel, else R
-    of a grey image."""
+    'AO' or 'Ambient Occlusion': when there is exactly one), else the only channel (an
+    alpha ``A`` beside it aside), else R of a grey image."""
     columns, meta = table.columns, table.metadata
     if "map" in meta:
         if meta["map"] != quantity:
@@ -265,7 +290,7 @@ def _image_channel(path: Path, table: Table, quantity: str, role: str, notes: li
             notes.append(f"{path}: has no {standard!r} channel: its ambient occlusion pass "
                          f"{passes[0]!r} is read as ao (channel {name!r})")
             return name
-    names = list(columns)
+    names = [name for name in columns if name != "A"]  # an alpha beside one value channel
     if len(names) == 1:
         return names[0]
     if {"R", "G", "B"} <= set(names) and np.array_equal(columns["R"], columns["G"]) \
@@ -323,6 +348,68 @@ def _listing(table: Table) -> str:
         return "; ".join(f"part {part!r}: {', '.join(names)}"
                          for part, names in table.parts.items())
     return ", ".join(sorted(table.columns)) or "nothing"
+
+
+def alpha_channel(columns, key: str) -> str | None:
+    """The alpha channel of the channel ``key``: its layer's ``A`` (``layer.R`` ->
+    ``layer.A``; ``R`` -> ``A``), else Blender's Combined pass's of its view layer
+    (``ViewLayer.AO.R`` -> ``ViewLayer.Combined.A``: a render pass has no alpha of its own,
+    the film's is the Combined pass's); None when the file has neither."""
+    parts = key.split(".")
+    names = [".".join(parts[:-1] + ["A"]) if len(parts) > 1 else "A"]
+    if len(parts) >= 2:
+        names.append(".".join(parts[:-2] + ["Combined", "A"]))
+    return next((name for name in names if name in columns and name != key), None)
+
+
+def unassociate(values: Values, table: Table, role: str, mode: str,
+                key: str | None) -> None:
+    """Divide an image's values associated with an alpha (multiplied by it: a renderer's AO
+    times its coverage) by that alpha, so they compare with aobake's unassociated ones (the
+    mean over the part of the pixel that sees the scene); pixels of alpha 0 are masked out.
+
+    ``mode`` 'auto': associated where another tool's EXR has an alpha for the value
+    (OpenEXR's convention), straight for aobake's files and PNG/TIFF (straight by their
+    convention; the image reader asks for unassociated alpha); a named ``key`` means
+    associated.  'associated' without an alpha channel, or for an aobake file, is refused.
+    """
+    flag = f"--{role}-alpha" if role in ("reference", "candidate") else "alpha="
+    if values.target != "texels" or mode == "straight":
+        return
+    path = values.path
+    if table.metadata:  # aobake's own: unassociated, whatever is asked
+        if mode == "associated" or key is not None:
+            raise InputError(f"{path}: is an aobake output, whose values are not multiplied "
+                             f"by its coverage; {flag} associated is for another tool's render")
+        return
+    columns = table.columns
+    name = key if key is not None else alpha_channel(columns, values.key)
+    if key is not None and key not in columns:
+        raise InputError(f"{path}: no alpha channel {key!r} (it has {_listing(table)})")
+    if mode == "auto" and key is None and (name is None or path.suffix.lower() != ".exr"):
+        return
+    if name is None:
+        raise InputError(f"{path}: no alpha channel beside {values.key!r} (it has "
+                         f"{_listing(table)}): name it with {flag}-key NAME")
+    alpha = np.asarray(columns[name], dtype=np.float64)
+    if alpha.shape != values.value.shape:
+        raise InputError(f"{path}: its alpha {name!r} is {alpha.shape}, {values.key!r} "
+                         f"{values.value.shape}")
+    bad = ~(np.isfinite(alpha) & (alpha >= 0.0) & (alpha <= 1.0 + 1e-6))
+    if bad.any():
+        raise InputError(f"{path}: {int(bad.sum())} values of its alpha {name!r} are not in "
+                         "[0, 1]")
+    seen = alpha > 0
+    safe = np.where(seen, alpha, 1.0)
+    values.value = np.where(seen, values.value / safe, 0.0)
+    if values.stderr is not None:
+        values.stderr = np.where(seen, values.stderr / safe, 0.0)
+    values.mask = seen if values.mask is None else values.mask & seen
+    values.alpha = alpha
+    values.notes.append(f"{path}: {values.key!r} is read as associated with the alpha "
+                        f"{name!r} (multiplied by coverage, OpenEXR's convention: {flag} "
+                        f"straight says not) and divided by it; {int((~seen).sum())} pixels "
+                        "of alpha 0 are not compared")
 
 
 def linearise(values: Values, table: Table, role: str, stated: str | None) -> None:
