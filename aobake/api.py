@@ -56,7 +56,7 @@ def run(
     threads: int | None = None,
     chunk_rays: int = DEFAULT_CHUNK_RAYS,
     progress: Callable[[int, int], None] | None = None,
-    method: str = "rays",
+    method: str | None = None,
     executor: str = "threads",
     workers: int | None = None,
     chunk_points: int | None = None,
@@ -73,10 +73,13 @@ def run(
     ``workers``, ``chunk_points`` and ``scheduler`` (dask: an existing scheduler's address)
     change the speed and memory, never the numbers.  ``given``: the names of the settings
     the caller gave one by one (``capabilities.check``).
-    ``method``: ``METHODS`` key.  ``progress(done, total)`` is called as points are
+    ``method``: ``METHODS`` key; None: the one the config implies (``file`` with
+    ``ao_from``, else ``rays``: ``capabilities.implied_method``; ``ao_from`` with another
+    method named is a UsageError, as on the command line).  ``progress(done, total)`` is called as points are
     estimated; if it has a ``phase(name)`` attribute, that is called as each stage starts
     ("loading", "unwrapping", "rasterising", "tracing", ...), so a long unwrap shows too.
     """
+    method = capabilities.implied_method(method, config)
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; choose from {', '.join(sorted(METHODS))}")
     # what the method and target declare they can do, checked before any file is read
@@ -373,7 +376,7 @@ def bake_view_truths(mesh, config: BakeConfig | None = None, *, camera=None, loo
     """
     options, run_kw = _split(options)
     config = _config(config, options)
-    method = run_kw.get("method", "rays")
+    method = capabilities.implied_method(run_kw.get("method"), config)
     if method != "rays":
         raise InputError(f"the truths are ray traced: they go with --method rays, not {method}")
     if tuple(config.quantities) != ("ao",):

@@ -121,6 +121,27 @@ _NEEDS = {"triangles": "a triangle under each point (a lightmap or a view)",
           "gbuffer": "a camera's G-buffer (aobake view)"}
 
 
+#: the method a request runs when it names none and reads no bake: the ray-traced reference
+DEFAULT_METHOD = "rays"
+
+
+def implied_method(method: str | None, config) -> str:
+    """The method a request runs: ``method`` as named, or (None: none named) ``file`` when
+    ``config`` (a BakeConfig or a dict of its fields) reads a bake (``ao_from``: --ao-from
+    FILE means --method file, at every door), else ``DEFAULT_METHOD``.
+
+    UsageError for ``ao_from`` with another method named: its values would never be read.
+    """
+    ao_from = config.get("ao_from") if isinstance(config, dict) \
+        else getattr(config, "ao_from", None)
+    if ao_from is None:
+        return DEFAULT_METHOD if method is None else method
+    if method is not None and method != "file":
+        raise UsageError(f"--ao-from reads a bake: it goes with --method file, not "
+                         f"--method {method}")
+    return "file"
+
+
 def serves(method: str, target: str) -> bool:
     """Whether ``target`` provides everything ``method`` needs."""
     return set(METHODS[method].needs) <= set(TARGETS[target].provides)

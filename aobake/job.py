@@ -97,13 +97,14 @@ class Job:
 
 
 def plan(mesh, out, config: BakeConfig | dict | None = None, *, target: str | None = None,
-         method: str = "rays", view: dict | None = None, truths: bool = False,
+         method: str | None = None, view: dict | None = None, truths: bool = False,
          mesh_out=None, report=None, half: bool = False, bit_depth: int = 8,
          r_only: bool = False, orm: bool = False, orm_from=None, given=None, **run) -> Job:
     """Check a request to bake ``mesh`` into ``out`` before any work; the :class:`Job`.
 
     config : BakeConfig or its fields as a dict; target : 'vertices' | 'texels' | None
-    (from ``out``'s extension); method : a ``METHODS`` name; view : camera keywords for a
+    (from ``out``'s extension); method : a ``METHODS`` name, or None: the one the config
+    implies (``file`` with ``ao_from``, else ``rays``: ``capabilities.implied_method``); view : camera keywords for a
     view (``camera``, ``look``, ``gltf``, ``size``, ``fov``: ``bake_view``'s) or None;
     truths : bake ``bake_view_truths``; mesh_out, report, half, bit_depth, r_only, orm,
     orm_from : ``aobake.write``'s; given : the names of the settings given one by one
@@ -119,6 +120,7 @@ def plan(mesh, out, config: BakeConfig | dict | None = None, *, target: str | No
         config = BakeConfig(**(config or {}))
     elif not isinstance(config, BakeConfig):
         raise InputError(f"config must be a BakeConfig or a dict, got {type(config).__name__}")
+    method = capabilities.implied_method(method, config)
     orm = orm or orm_from is not None
     reads = {flag: getattr(config, name) for name, flag in INPUT_FILES.items()
              if getattr(config, name) is not None}

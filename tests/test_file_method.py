@@ -79,3 +79,54 @@ def test_vertices_have_no_triangle_to_interpolate_on(plane, tmp_path):
     assert result.exit_code == 2
     assert "aobake: error:" in result.output and "a lightmap or a view" in result.output
     assert "per-vertex bake (vertices) has none" in result.output
+
+
+@pytest.mark.slow
+def test_ao_from_implies_the_file_method_in_the_library(plane, tmp_path):
+    """``ao_from`` given and no method named reads the bake (as ``--ao-from`` does), through
+    keywords, a BakeConfig and ``bake_file``; another method named with it is the CLI's usage
+    error, not a ray-traced view that ignores the file."""
+    path, bake = plane
+    for view in (aobake.bake_view(path, ao_from=str(bake), size=(8, 6)),
+                 aobake.bake_view(path, aobake.BakeConfig(ao_from=str(bake)), size=(8, 6))):
+        assert view.report["parameters"]["method"] == "file"
+        assert view.report["parameters"]["ao_from"] == str(bake)
+        assert "rays_cast" not in view.report
+    result, _ = aobake.bake_file(path, tmp_path / "look.exr", {"ao_from": str(bake)},
+                                 view={"size": (8, 6)})
+    assert result.report["parameters"]["method"] == "file"
+    with pytest.raises(aobake.UsageError, match="it goes with --method file, not --method rays"):
+        aobake.bake_view(path, ao_from=str(bake), method="rays", size=(8, 6))
+    with pytest.raises(aobake.UsageError, match="--method file, not --method rays"):
+        aobake.bake_file(path, tmp_path / "x.exr", {"ao_from": str(bake)}, method="rays",
+                         view={"size": (8, 6)})
+    # a per-vertex bake: the file method's own refusal, as on the command line
+    # (test_vertices_have_no_triangle_to_interpolate_on), not rays that ignore the file
+    with pytest.raises(aobake.UsageError, match="per-vertex bake \\(vertices\\) has none"):
+        aobake.bake(path, ao_from=str(bake))
+
+
+@pytest.mark.slow
+def test_a_manifest_row_with_ao_from_reads_the_bake(plane, tmp_path):
+    """A batch manifest's ``ao_from`` picks the file method as ``--ao-from`` does; with
+    ``--method rays`` named, that asset fails with the usage error (the others bake)."""
+    import json
+
+    from aobake import batch
+    from aobake.cli.batch import batch_command
+    from click.testing import CliRunner
+
+    path, bake = plane
+    manifest = tmp_path / "m.jsonl"
+    manifest.write_text(json.dumps({"mesh": str(path), "output": "look.exr",
+                                    "ao_from": str(bake)}) + "\n")
+    for named, status in (((), "ok"), (("--method", "rays"), "failed")):
+        out = tmp_path / f"out{len(named)}"
+        args = [str(manifest), "--out-dir", str(out), "--resolution", "8", *named]
+        result = CliRunner().invoke(batch_command(), args)
+        summary = json.loads((out / batch.SUMMARY_NAME).read_text())
+        record, = summary["assets"]
+        assert record["status"] == status, (result.output, record)
+    report = json.loads((tmp_path / "out0" / ("look.exr" + batch.REPORT_SUFFIX)).read_text())
+    assert report["parameters"]["method"] == "file"
+    assert "--method file, not --method rays" in record["error"]

@@ -20,7 +20,7 @@ import click
 from aobake.cli.common import guarded
 from aobake.cli.options import (BAKE_METHODS as METHODS, BAKE_TARGETS as TARGETS,
                                 PanelCommand, checked, given, in_panel, method_for,
-                                run_options, settings)
+                                named_method, run_options, settings)
 from aobake.outputs.registry import suffixes
 
 #: every output extension a batch can write, without its dot
@@ -79,7 +79,11 @@ def _batch(inputs, out_dir, fmt, target, threads, method, executor, workers, chu
         raise click.UsageError("give --resolution or --texel-density, not both")
     if scheduler is not None and executor != "dask":
         raise click.UsageError("--scheduler goes with --executor dask")
-    run = dict(threads=threads, method=method_for(method, config), executor=executor,
+    # the method named (or --ao-from's); None: each asset's settings imply it (a manifest
+    # row's ao_from reads a bake with the file method, as --ao-from does: job.plan)
+    method = method_for(method, config) if config.get("ao_from") is not None \
+        else named_method(method)
+    run = dict(threads=threads, method=method, executor=executor,
                workers=workers, chunk_points=chunk_points)
     write = dict(half=half, bit_depth=int(bit_depth), r_only=r_only)
     guarded(quiet, _run, inputs, out_dir, fmt, target, run, write, force,

@@ -20,7 +20,7 @@ import click
 from aobake import capabilities
 from aobake.cli.common import Command
 from aobake.settings import SPECS, parse_distance
-from aobake.errors import InputError
+from aobake.errors import InputError, UsageError
 from aobake.executors import EXECUTORS
 from aobake.settings.spec import from_text
 
@@ -178,15 +178,21 @@ def given(values: dict) -> dict:
     return out
 
 
+def named_method(method: str) -> str | None:
+    """``--method`` as given on the command line, or None when it was left at its default."""
+    source = click.get_current_context().get_parameter_source("method")
+    return method if source == click.core.ParameterSource.COMMANDLINE else None
+
+
 def method_for(method: str, config: dict) -> str:
-    """--ao-from FILE means --method file (the default method otherwise)."""
+    """--ao-from FILE means --method file (the default method otherwise): the library's rule
+    (``capabilities.implied_method``), its refusal a usage error here."""
     if config.get("ao_from") is None:
         return method
-    source = click.get_current_context().get_parameter_source("method")
-    if source == click.core.ParameterSource.COMMANDLINE and method != "file":
-        raise click.UsageError(f"--ao-from reads a bake: it goes with --method file, not "
-                               f"--method {method}")
-    return "file"
+    try:
+        return capabilities.implied_method(named_method(method), config)
+    except UsageError as exc:
+        raise click.UsageError(str(exc)) from None
 
 
 def _method_help(methods) -> str:
