@@ -438,3 +438,38 @@ def test_a_stated_transfer_applies_to_per_vertex_numbers_too(tmp_path):
     assert compare(tmp_path / "ref.npz", tmp_path / "cand.npz")["bias"] > 0.1
     m = compare(tmp_path / "ref.npz", tmp_path / "cand.npz", candidate_transfer="srgb")
     assert m["max_error"] <= 1e-12 and m["candidate_transfer"] == "srgb"
+
+
+@pytest.mark.parametrize("key, a, b", [
+    ("charts", 54, 30), ("atlas", "instance regions", "own UVs"), ("uv_set", 0, 1),
+    ("instances", {"regions": [[2, 2, 10, 10]]}, {"regions": [[2, 2, 10, 10], [14, 2, 6, 6]]}),
+])
+def test_lightmaps_of_other_layouts_are_refused(tmp_path, ao, key, a, b):
+    """Two aobake lightmaps whose texels are other surface points (another atlas, a set's
+    regions placed otherwise: a --bake subset's) are refused, not compared texel by texel;
+    the same layout with other settings is compared."""
+    files = []
+    for name, value in (("a", a), ("b", b), ("c", a)):
+        path = tmp_path / f"{name}.exr"
+        write_exr(path, {"ao": ao, "coverage": np.ones((H, W))},
+                  {"config": {"weighting": "cosine", "rays": 64 if name == "c" else 16},
+                   "texture": {key: value, "padding": 2 if name == "c" else 4}})
+        files.append(path)
+    with pytest.raises(InputError, match="is a lightmap of another layout"):
+        compare(files[0], files[1])
+    assert compare(files[0], files[2])["rmse"] == 0.0
+
+
+def test_the_kind_of_what_a_file_holds_is_named(tmp_path, ao, reference):
+    """A view, a lightmap and per-vertex values are named as what they are in a refusal."""
+    view = tmp_path / "view.exr"
+    write_exr(view, {"ao": ao, "coverage": np.ones((H, W))},
+              {"config": {"weighting": "cosine"}, "camera": {"width": W, "height": H}})
+    vertices = tmp_path / "v.npz"
+    np.savez(vertices, ao=np.ones(4), positions=np.zeros((4, 3)))
+    with pytest.raises(InputError, match=r"holds per-vertex values, but the reference "
+                                         r".*view\.exr holds a camera view \(per pixel\)"):
+        compare(view, vertices)
+    with pytest.raises(InputError, match=r"holds a camera view \(per pixel\), but the "
+                                         r"reference .*ref\.exr holds a lightmap"):
+        compare(reference, view)

@@ -520,3 +520,24 @@ def test_the_embree_scene_of_n_instances_does_not_grow_with_n():
     one, many = grown[1]["kib"], grown[200]["kib"]
     assert one > 5_000  # the mesh's own structure: megabytes
     assert many < one + 8_000, grown  # 199 instances: a few KiB each, not the mesh again
+
+
+def test_a_node_placed_by_trs_or_not_at_all_is_read_as_glTF_places_it():
+    """glTF 2.0: a node's transform is its matrix, else translation x rotation x scale, each
+    absent part the identity (a set's GLB leaves an instance placed at the origin without
+    one); the instanced reader places each node so."""
+    from aobake.outputs.glb import node_matrix
+
+    rng = np.random.default_rng(4)
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    t, s = rng.normal(size=3), rng.uniform(0.5, 2.0, size=3)
+    node = {"translation": t.tolist(), "rotation": q.tolist(), "scale": s.tolist()}
+    want = trimesh.transformations.compose_matrix(
+        scale=s, angles=trimesh.transformations.euler_from_quaternion([q[3], *q[:3]]),
+        translate=t)
+    np.testing.assert_allclose(node_matrix(node), want, atol=1e-12)
+    np.testing.assert_array_equal(node_matrix({}), np.eye(4))
+    matrix = rng.normal(size=(4, 4))
+    matrix[3] = [0, 0, 0, 1]
+    np.testing.assert_array_equal(node_matrix({"matrix": matrix.T.reshape(-1).tolist()}), matrix)

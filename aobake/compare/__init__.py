@@ -61,7 +61,7 @@ from aobake.compare.heatmap import check_path, diverging, write_heatmap
 from aobake.compare.matching import (POSITION_TOLERANCE, match_vertices, position_tolerance,
                                      tie_features)
 from aobake.compare.screen import format_screen, is_view, score_view
-from aobake.compare.settings import check_same_quantity
+from aobake.compare.settings import check_same_layout, check_same_quantity
 from aobake.compare.values import IMAGE_KINDS, image_kind, kind
 from aobake.errors import InputError
 from aobake.outputs.image import TRANSFERS
@@ -149,14 +149,16 @@ def compare(reference_path, candidate_path, quantity: str = "ao", *, candidate_k
         _stderr_from_file(candidate, candidate_stderr, quantity)
     _partly_covered_note(reference, candidate)
     if candidate.target != reference.target:
-        raise InputError(f"{candidate_path}: holds {kind(candidate.target)}, but the reference "
-                         f"{reference_path} holds {kind(reference.target)}")
+        raise InputError(f"{candidate_path}: holds {kind(candidate)}, but the reference "
+                         f"{reference_path} holds {kind(reference)}")
     if target == "texels":  # a view's pixels and a lightmap's texels are not the same points
         ref_kind, cand_kind = image_kind(reference), image_kind(candidate)
         if ref_kind and cand_kind and ref_kind != cand_kind:
             raise InputError(f"{candidate_path}: holds {IMAGE_KINDS[cand_kind]}, but the "
                              f"reference {reference_path} holds {IMAGE_KINDS[ref_kind]}: "
                              "their values are not of the same points")
+        if ref_kind == cand_kind == "lightmap":
+            check_same_layout(reference, candidate)
     warnings = reference.warnings + candidate.warnings
     warnings += check_same_quantity(reference, candidate, quantity)
     if candidate_convention == "occlusion":

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 
-from aobake.compare.values import kind
 from aobake.errors import OutputError
 from aobake.outputs.atomic import atomic_path
 from aobake.outputs.strictjson import metadata_json
@@ -23,7 +22,8 @@ def check_path(path: Path, target: str, inputs) -> None:
     directory, a directory, one of the ``inputs``.  Raises OutputError."""
     want = ".png" if target == "texels" else ".ply"
     if path.suffix.lower() != want:
-        raise OutputError(f"{path}: a heatmap of {kind(target)} is written as {want}")
+        what = "per-vertex values" if target == "vertices" else "an image (per texel or pixel)"
+        raise OutputError(f"{path}: a heatmap of {what} is written as {want}")
     if not path.parent.resolve().is_dir():
         raise OutputError(f"{path}: directory {path.parent} does not exist")
     if path.is_dir():

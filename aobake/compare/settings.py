@@ -43,6 +43,29 @@ def check_same_quantity(reference: Values, candidate: Values, quantity: str) -> 
     return warnings
 
 
+#: a lightmap's texture record entries that fix which surface point each texel is
+_LAYOUT = ("width", "height", "atlas", "uv_set", "charts", "instances")
+
+
+def check_same_layout(reference: Values, candidate: Values) -> None:
+    """Refuse two aobake lightmaps whose texels are not the same surface points: another
+    atlas (a new one against own UVs, another UV set, other charts) or a set's regions
+    placed otherwise (a ``--bake`` subset's atlas holds only its instances).  Only when both
+    files carry aobake's texture record."""
+    ref, cand = (v.metadata.get("texture") for v in (reference, candidate))
+    if not isinstance(ref, dict) or not isinstance(cand, dict):
+        return
+    for key in _LAYOUT:
+        a, b = ref.get(key), cand.get(key)
+        if a is not None and b is not None and a != b:
+            what = "its instances' regions differ" if key == "instances" else \
+                f"{key} {b!r} against {a!r}"
+            raise InputError(f"{candidate.path}: is a lightmap of another layout than the "
+                             f"reference {reference.path} ({what}): texel by texel they are "
+                             "not the same surface points; bake both with the same atlas (a "
+                             "set: the same --bake)")
+
+
 def _setting(metadata: dict, key: str):
     if key == "reach":  # how far a view's method sees: a screen method's radius, else the rays'
         parameters = metadata.get("parameters")

@@ -6,9 +6,12 @@ from __future__ import annotations
 from aobake.outputs.values import Values
 
 
-def kind(target: str) -> str:
-    """How a message names what a file of ``target`` holds."""
-    return "per-vertex values" if target == "vertices" else "a lightmap (per texel)"
+def kind(values: Values) -> str:
+    """How a message names what a file holds: per-vertex values, a lightmap, a camera view
+    (by its aobake metadata), or another tool's image."""
+    if values.target == "vertices":
+        return "per-vertex values"
+    return IMAGE_KINDS.get(image_kind(values), "an image (per texel or pixel)")
 
 
 def image_kind(values: Values) -> str | None:

@@ -701,6 +701,34 @@ def read(path) -> Table:
                  metadata if isinstance(metadata, dict) else {}, warnings)
 
 
+def node_matrix(node: dict) -> np.ndarray:
+    """(4, 4) float64 local transform of a glTF node: its ``matrix`` (column-major), else
+    translation x rotation (a unit quaternion x, y, z, w) x scale, each absent part the
+    identity (glTF 2.0's node transform: a node placed where its parent is has none).
+    Unreadable for a malformed one."""
+    matrix = node.get("matrix")
+    if matrix is not None:
+        if not isinstance(matrix, list) or len(matrix) != 16:
+            raise Unreadable(f"node {node.get('name')!r}: its matrix is not 16 numbers")
+        return np.asarray(matrix, dtype=np.float64).reshape(4, 4).T
+    parts = {}
+    for key, size, default in (("translation", 3, [0.0, 0.0, 0.0]),
+                               ("rotation", 4, [0.0, 0.0, 0.0, 1.0]),
+                               ("scale", 3, [1.0, 1.0, 1.0])):
+        value = node.get(key, default)
+        if not isinstance(value, list) or len(value) != size:
+            raise Unreadable(f"node {node.get('name')!r}: its {key} is not {size} numbers")
+        parts[key] = np.asarray(value, dtype=np.float64)
+    x, y, z, w = parts["rotation"]
+    rotation = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    out = np.eye(4)
+    out[:3, :3] = rotation * parts["scale"][None, :]
+    out[:3, 3] = parts["translation"]
+    return out
+
+
 def _read_instances(gltf: dict, accessor) -> Table | None:
     """An instanced GLB of aobake's (nodes with ``extras.aobake_instance``) as the flattened
     bake's table: each instance's stored positions placed by its node's matrix (float64),
@@ -718,11 +746,9 @@ def _read_instances(gltf: dict, accessor) -> Table | None:
     parts: dict = {}
     positions, normals, faces, base = [], [], [], 0
     for node in placed:
-        matrix = node.get("matrix")
-        if not isinstance(matrix, list) or len(matrix) != 16 or not isinstance(node.get("mesh"), int) \
-                or not 0 <= node["mesh"] < len(meshes):
-            raise Unreadable(f"instance node {node.get('name')!r} without a matrix and a mesh")
-        transform = np.asarray(matrix, dtype=np.float64).reshape(4, 4).T
+        if not isinstance(node.get("mesh"), int) or not 0 <= node["mesh"] < len(meshes):
+            raise Unreadable(f"instance node {node.get('name')!r} without a mesh")
+        transform = node_matrix(node)
         primitive = _list(meshes[node["mesh"]].get("primitives", []))[0]
         attributes = primitive["attributes"]
         stored = accessor(attributes["POSITION"]).astype(np.float64)
