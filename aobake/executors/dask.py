@@ -66,6 +66,12 @@ log = logging.getLogger(__name__)
 ITEM_SECONDS = 1.0
 #: the least tracing an item carries when the work is split finer for balance
 MIN_ITEM_SECONDS = 0.5
+#: the most points an item carries (the cost model's items of ITEM_SECONDS hold ~1M points
+#: at 4 rays a point): what the items in flight hold in the parent (their points sent, their
+#: results back, ~100 bytes a point) stays bounded whatever the rays; 131,072 points of 64
+#: rays are 1-3 s of one thread's tracing, of 4 rays ~0.1 s (then the round trip, 10-25 ms,
+#: is 10-20% of an item: few rays a point are cheap to trace anyway)
+MAX_ITEM_POINTS = 1 << 17
 #: items per worker when the work allows (a slow item does not leave the others idle)
 ITEMS_PER_WORKER = 2
 #: the parent's pilot: point-rays of its first block, and how long it traces (its
@@ -678,14 +684,15 @@ def _cut(whole, start: int, stop: int):
 def split(n: int, start: int, seconds_per_point: float, workers: int, threads: int) -> list:
     """The (start, stop) ranges of points start..n-1 from the cost model: items of about
     ITEM_SECONDS of one worker (``threads`` threads), at least ITEMS_PER_WORKER per worker
-    when each still carries MIN_ITEM_SECONDS.  seconds_per_point : one thread's."""
+    when each still carries MIN_ITEM_SECONDS, and at most MAX_ITEM_POINTS points.
+    seconds_per_point : one thread's."""
     rest = n - start
     if rest <= 0:
         return []
     per_second = threads / max(seconds_per_point, 1e-12)  # points one worker does per second
     balanced = rest / (max(1, workers) * ITEMS_PER_WORKER)
     size = max(min(ITEM_SECONDS * per_second, balanced), MIN_ITEM_SECONDS * per_second)
-    size = max(1, math.ceil(size))
+    size = min(max(1, math.ceil(size)), MAX_ITEM_POINTS)
     return [(a, min(n, a + size)) for a in range(start, n, size)]
 
 
@@ -762,13 +769,20 @@ def _run_items(session, job, whole, ranges, chunk_rays, progress, done, n, stats
     shipped = []
     todo, attempt = collections.deque(ranges), 0
     since = time.time()
+    # The LocalCluster started here runs its scheduler in this process: data scattered
+    # through it would be received here whole (a copy of the scene, growing with it) before
+    # it goes on to a worker, so it goes to a worker directly (then worker to worker as
+    # before).  A remote scheduler is left to forward it: its workers may not be reachable
+    # from here.
+    direct = session.cluster is not None or None
     try:
         while todo:
-            job_future = client.scatter(job, broadcast=True, hash=False)
+            job_future = client.scatter(job, broadcast=True, hash=False, direct=direct)
             shipped.append(job_future)
             image_future = None
             if image is not None:
-                image_future = client.scatter(image, broadcast=True, hash=False)
+                image_future = client.scatter(image, broadcast=True, hash=False,
+                                              direct=direct)
                 shipped.append(image_future)
             futures: dict = {}
             running = distributed.as_completed(loop=client.loop)
