@@ -944,7 +944,25 @@ def _load_with_trimesh(path: Path, uv_set: int = 0, bake: tuple = ()):
     """
     import trimesh
 
-    source, kind, every = str(path), None, None
+    def read(source, kind):
+        try:
+            # trimesh's parsers cast whatever a corrupt file holds (NaN, overflow) with numpy
+            # warnings; make_scene validates every value, so the warnings tell the user nothing.
+            with warnings.catch_warnings(), np.errstate(all="ignore"):
+                warnings.simplefilter("ignore")
+                if kind == "gltf":  # its buffers and images beside it
+                    from trimesh.resolvers import FilePathResolver
+
+                    return trimesh.load(source, file_type=kind, process=False,
+                                        resolver=FilePathResolver(str(path)))
+                if kind is not None:
+                    return trimesh.load(source, file_type=kind, process=False)
+                return trimesh.load(source, process=False)
+        except Exception as exc:  # trimesh raises many types for corrupt files
+            raise InputError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") \
+                from None
+
+    every = None
     if uv_set:
         from aobake import uvsets
 
@@ -952,22 +970,17 @@ def _load_with_trimesh(path: Path, uv_set: int = 0, bake: tuple = ()):
         if uv_set not in every:
             raise uvsets.missing_set_error(path, uv_set, every, uvsets.sets_of(
                 uvsets.read_json(path)[0])[1])
-    try:
-        # trimesh's parsers cast whatever a corrupt file holds (NaN, overflow) with numpy
-        # warnings; make_scene validates every value, so the warnings tell the user nothing.
-        with warnings.catch_warnings(), np.errstate(all="ignore"):
-            warnings.simplefilter("ignore")
-            if kind == "gltf":  # its buffers and images beside it
-                from trimesh.resolvers import FilePathResolver
+        loaded = read(source, kind)
+    else:
+        loaded = read(str(path), None)
+        if path.suffix.lower() in (".gltf", ".glb"):
+            from aobake import uvsets
 
-                loaded = trimesh.load(source, file_type=kind, process=False,
-                                      resolver=FilePathResolver(str(path)))
-            elif kind is not None:
-                loaded = trimesh.load(source, file_type=kind, process=False)
-            else:
-                loaded = trimesh.load(source, process=False)
-    except Exception as exc:  # trimesh raises many types for corrupt files
-        raise InputError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from None
+            # trimesh gives TEXCOORD_0 only to primitives with a material: where it dropped
+            # the file's UVs, they are read as --uv-set N's are (aliased), not lost
+            if uvsets.dropped_first_set(loaded, path):
+                loaded = read(*uvsets.aliased(path)[:2])
+                uvsets.keep_first_set(loaded)
     placed = None
     if bake and not (isinstance(loaded, trimesh.Scene) and path.suffix.lower() in (".gltf", ".glb")):
         raise InputError(f"{path}: --bake names glTF nodes or OBJ objects and groups; this "

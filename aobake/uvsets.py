@@ -6,6 +6,9 @@ trimesh with one alias per UV set, ``_AOBAKE_TEXCOORD_k`` -> the accessor of ``T
 added to every triangle primitive that has the set; each loaded mesh then carries its sets
 in ``mesh.vertex_attributes``, in the same vertex order as its positions (trimesh loads
 with ``process=False``: no vertex is merged or dropped).  Nothing else in the file changes.
+A plain load (set 0) whose meshes trimesh left without the ``TEXCOORD_0`` of a primitive with
+no material is read again this way, and those meshes get their set 0
+(:func:`dropped_first_set`, :func:`keep_first_set`).
 
 UVs are returned in the OBJ convention (v = 0 at the bottom of the image), as everywhere in
 aobake: glTF's (u, v) becomes (u, 1 - v).  Normalised integer UVs (KHR_mesh_quantization)
@@ -99,6 +102,50 @@ def mesh_uv(mesh, k: int) -> np.ndarray | None:
         uv = uv.astype(np.float64) / float(np.iinfo(uv.dtype).max)
     uv = uv.astype(np.float64)
     return np.column_stack([uv[:, 0], 1.0 - uv[:, 1]])
+
+
+def _triangle_meshes(loaded) -> list:
+    """The trimesh meshes with faces of a ``trimesh.load`` result (a Scene or a mesh)."""
+    geometry = getattr(loaded, "geometry", None)
+    meshes = list(geometry.values()) if geometry is not None else [loaded]
+    return [m for m in meshes if len(getattr(m, "faces", ())) and hasattr(m, "visual")]
+
+
+def _has_uv(mesh) -> bool:
+    uv = getattr(mesh.visual, "uv", None)
+    return uv is not None and len(uv) == len(mesh.vertices)
+
+
+def dropped_first_set(loaded, path: Path) -> bool:
+    """Whether trimesh left a mesh of ``loaded`` (read from glTF ``path`` as it is) without
+    the ``TEXCOORD_0`` every triangle primitive of the file has: trimesh reads it only for
+    primitives with a material.  The JSON is read only when some mesh has no UVs."""
+    if all(_has_uv(m) for m in _triangle_meshes(loaded)):
+        return False
+    try:
+        every, _ = sets_of(read_json(path)[0], path)
+    except InputError:  # JSON trimesh read but this reader refuses: trimesh's result stands
+        return False
+    return 0 in every
+
+
+def keep_first_set(loaded) -> None:
+    """Give every mesh of ``loaded`` (read from :func:`aliased` bytes) that trimesh left
+    without UVs its own ``TEXCOORD_0``, with glTF's default material (a primitive without
+    one is drawn with it: white, opaque): as if trimesh had read the set itself, so every
+    reader of ``mesh.visual.uv`` (the flattened and the instanced loaders) sees it.  The
+    material is named "default", as the OBJ loader names faces before any ``usemtl``: one
+    material for all of them, not one per unnamed copy."""
+    from trimesh.visual import TextureVisuals
+    from trimesh.visual.material import PBRMaterial
+
+    default = PBRMaterial(name="default")
+    for mesh in _triangle_meshes(loaded):
+        if _has_uv(mesh):
+            continue
+        uv = mesh_uv(mesh, 0)
+        if uv is not None:  # OBJ convention: trimesh's own (it flips v as mesh_uv does)
+            mesh.visual = TextureVisuals(uv=uv, material=default)
 
 
 def missing_set_error(path, n: int, every: list[int], some: list[int]) -> InputError:

@@ -215,3 +215,58 @@ def test_a_hand_edited_gltf_of_the_wrong_json_types_is_refused_naming_it(tmp_pat
     assert res.exit_code == 1, res.output
     assert f"aobake: error: {path}: " in res.output and problem in res.output
     assert "Traceback" not in res.output and not (tmp_path / "ao.exr").exists()
+
+
+@pytest.fixture
+def no_material(two_sets, tmp_path):
+    """``two_sets`` with its material taken away and its sets swapped: TEXCOORD_0 = SET1 (a
+    layout a lightmap bakes into as it is), TEXCOORD_1 = SET0, on a primitive with no
+    material, which trimesh loads without UVs."""
+    from aobake.outputs.gltf import read_gltf, write_glb
+
+    header, binary = read_gltf(two_sets)
+    for mesh in header["meshes"]:
+        for primitive in mesh["primitives"]:
+            primitive.pop("material", None)
+            names = primitive["attributes"]
+            names["TEXCOORD_0"], names["TEXCOORD_1"] = names["TEXCOORD_1"], names["TEXCOORD_0"]
+    for key in ("materials", "textures", "images", "samplers"):
+        header.pop(key, None)
+    path = tmp_path / "no_material.glb"
+    with open(path, "wb") as handle:
+        write_glb(handle, header, binary)
+    return path
+
+
+def test_a_glb_without_a_material_keeps_its_uvs(no_material):
+    """Set 0 is the file's, not dropped: its float32 values, v flipped in float64 (as every
+    set --uv-set N reads)."""
+    scene = aobake.load_scene(no_material)
+    assert scene.uv is not None
+    gltf, binary = read_glb(no_material)
+    stored = read_accessor(gltf, binary, gltf["meshes"][0]["primitives"][0]["attributes"][
+        "TEXCOORD_0"]).astype(np.float64)
+    np.testing.assert_array_equal(scene.uv, np.column_stack([stored[:, 0], 1.0 - stored[:, 1]]))
+    np.testing.assert_allclose(scene.uv, SET1, rtol=0, atol=2.0 ** -24)
+    assert [m["name"] for m in scene.materials] == ["default"]  # glTF's default material
+    again = aobake.load_scene(no_material, uv_set=1)  # --uv-set N read it already
+    np.testing.assert_array_equal(again.uv_sets[0], scene.uv)
+
+
+@pytest.mark.slow
+def test_a_glb_without_a_material_bakes_and_looks_up_its_own_uvs(no_material, tmp_path):
+    """Its lightmap is baked into its own UVs (no new atlas: --no-unwrap runs), and a view
+    looks that lightmap up through them, from the library and the command line."""
+    lightmap = aobake.bake_texels(no_material, resolution=16, rays=4)
+    assert lightmap.report["texture"]["atlas"] != "xatlas", lightmap.report["texture"]
+    assert lightmap.report["texture"]["uv_check"]["valid"]
+    out = tmp_path / "lm.exr"
+    result = run_cli(no_material, "--out", out, "--resolution", "16", "--rays", "4",
+                     "--no-unwrap")
+    assert result.exit_code == 0, result.output
+    look = run_cli("view", no_material, "--ao-from", out, "--out", tmp_path / "look.png",
+                   "--size", "16x12")
+    assert look.exit_code == 0, look.output
+    assert "no UVs" not in look.output
+    view = aobake.bake_view(no_material, ao_from=str(out), size=(16, 12))
+    assert view.covered.any() and view.report["parameters"]["method"] == "file"
