@@ -100,3 +100,49 @@ def test_depth_edges_and_the_band_split_interior_from_edges():
     assert (regions["interior"] | regions["edges"] == frame.covered).all()
     assert not (regions["interior"] & regions["edges"]).any()
     assert regions["edges"][7, 20] and not regions["edges"][5, 20]
+
+
+@pytest.mark.parametrize("shape", [(30, 40), (31, 41)])
+def test_depth_edges_of_a_view_with_empty_pixels_warn_of_nothing(shape):
+    """An empty pixel (depth inf) is not reconstructed: at odd sizes its centre ray has a
+    zero component, and inf * 0 was 'invalid value encountered in multiply' on every
+    ``aobake compare`` of such a view (an instanced set's, whose background is empty)."""
+    import warnings
+
+    from test_ssao import _synthetic
+
+    h, w = shape
+    depth = np.full((h, w), 2.0)
+    depth[:, w // 2 + 5:] = np.inf   # sky through the centre row
+    depth[h // 2 + 3:, :] = np.inf   # and through the centre column
+    normals = np.zeros((h, w, 3))
+    normals[..., 2] = 1.0
+    frame = _synthetic(depth, normals).frame()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        edges = score.depth_edges(frame)
+    covered = np.isfinite(depth)
+    # the wall's border with the sky, its covered side only; nothing inside the wall
+    border = covered & ~np.pad(covered, 1, constant_values=True)[2:, 1:-1] \
+        | covered & ~np.pad(covered, 1, constant_values=True)[1:-1, 2:]
+    np.testing.assert_array_equal(edges, border)
+
+
+@pytest.mark.slow
+def test_compare_of_views_with_empty_pixels_prints_no_numpy_warning(tmp_path):
+    """``aobake compare truth.exr look.exr`` of odd-sized views with sky through the centre
+    row and column: the scores, and no 'RuntimeWarning' line from the depth edges."""
+    import trimesh
+    from analytic import combine, quad
+    from conftest import run_cli
+
+    mesh = tmp_path / "pair.ply"
+    combine(quad([0, 0, 0], 1.0, 1.0), trimesh.creation.icosphere(2, 0.3)).export(mesh)
+    truth, look = tmp_path / "truth.exr", tmp_path / "look.exr"
+    for out, method in ((truth, "rays"), (look, "crytek")):
+        made = run_cli("view", mesh, "--method", method, "--out", out, "--size", "21x15",
+                       "--rays", "2")
+        assert made.exit_code == 0, made.output
+    result = run_cli("compare", truth, look)
+    assert result.exit_code == 0, result.output
+    assert "RuntimeWarning" not in result.output and "invalid value" not in result.output

@@ -94,8 +94,11 @@ def depth_edges(frame, tolerance: float = EDGE_TOLERANCE) -> np.ndarray:
     sizes off the pixel's tangent plane (or the pixel off the neighbour's)."""
     h, w = frame.height, frame.width
     covered = frame.covered
-    pixels = np.arange(h * w)
-    pos = np.where(covered.reshape(-1)[:, None], frame.positions(pixels), 0.0)
+    # positions of the covered pixels only: an empty pixel's depth is inf, and inf times the
+    # zero ray component of a centre row or column (odd sizes) is NaN with a RuntimeWarning
+    pos = np.zeros((h * w, 3))
+    seen = np.flatnonzero(covered)
+    pos[seen] = frame.positions(seen)
     pos = pos.reshape(h, w, 3)
     n = frame.normals
     size = np.where(covered, frame.pixel_size(np.where(covered, frame.depth, 0.0)), 0.0)
