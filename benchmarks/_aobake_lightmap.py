@@ -78,7 +78,7 @@ def bake(mesh: str, resolution: int, rays: int, texel_samples: int, seed: int, t
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("mesh")
     parser.add_argument("--out", required=True)
     parser.add_argument("--resolution", type=int, default=1024)

@@ -189,7 +189,7 @@ def bake(mesh: str, size: int, samples: int, seed: int, threads: int, distance: 
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("mesh", nargs="?")
     parser.add_argument("--out")
     parser.add_argument("--size", type=int, default=1024)

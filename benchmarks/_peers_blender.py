@@ -91,7 +91,7 @@ def bake(mesh: str, samples: int, threads: int) -> dict:
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("mesh", nargs="?")
     parser.add_argument("--samples", type=int)
     parser.add_argument("--threads", type=int, default=2)

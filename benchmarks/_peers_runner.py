@@ -221,7 +221,7 @@ KINDS = ("library", "bare", "libigl", "open3d")
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("kind", choices=KINDS)
     parser.add_argument("mesh", type=Path)
     parser.add_argument("--rays", type=int, required=True)

@@ -217,7 +217,7 @@ def plot(results: dict, out: Path) -> list:
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="smoke run: few points and rays")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--points", type=int, default=4000)

@@ -480,7 +480,7 @@ def views(path, threads, hemicube_ok):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--meshes", default="still_life,bunny")
     parser.add_argument("--points", type=int, default=0,
                         help="points per mesh (0: as many as its vertices)")

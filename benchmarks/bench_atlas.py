@@ -119,7 +119,7 @@ def measure(mesh: Path, resolution: str, padding: int, how: str, old: str = "-")
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--resolutions", default="1024",
                         help="comma-separated N or WxH (e.g. 256,512,1024,512x1024)")
     parser.add_argument("--paddings", default="8,2", help="comma-separated (8 was the default, 2 is)")

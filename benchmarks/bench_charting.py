@@ -52,7 +52,7 @@ def _charts(vertices, faces, library, placed):
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--meshes", default="spot,stanford-bunny,ogre")
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()

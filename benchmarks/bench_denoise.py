@@ -101,7 +101,7 @@ def figure(out: Path, name: str, rays: int, raw, denoised, reference, window) ->
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--resolution", type=int, default=512)
     parser.add_argument("--rays", type=int, nargs="+", default=[64, 256])
     parser.add_argument("--reference-rays", type=int, default=4096)

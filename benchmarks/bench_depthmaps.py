@@ -407,7 +407,7 @@ def plot(data, path):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--mesh", default="bunny", choices=sorted(MESHES))
     parser.add_argument("--points", type=int, default=0)
     parser.add_argument("--truth-rays", type=int, default=2048)

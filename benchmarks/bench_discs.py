@@ -350,7 +350,7 @@ def plot(path: Path, rows: dict) -> None:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true",
                         help="n up to 65536 (brute force 16384), truth 512 rays, no brute "
                         "force on the bunny")

@@ -224,7 +224,7 @@ def time_to_rmse(meshes, tracers, target, ref_rays, max_rays, threads, cache):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--meshes", nargs="+", default=["bunny", "ogre"], choices=list(MESHES))
     parser.add_argument("--tracers", nargs="+", default=list(TRACERS), choices=TRACERS)
     parser.add_argument("--rays", type=int, default=64)

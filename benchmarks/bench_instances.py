@@ -125,7 +125,7 @@ def write_set(path, vertices, faces, n, seed=0) -> str:
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--mesh", default=str(ROOT.parent / "shared" / "meshes" / "ogre.obj"))
     parser.add_argument("--instanced", type=int, nargs="*", default=[1, 100, 1000])
     parser.add_argument("--flattened", type=int, nargs="*", default=[1, 10, 50])

@@ -152,7 +152,7 @@ def print_phases(args) -> None:
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--resolution", type=int, default=1024)
     parser.add_argument("--rays", type=int, default=256)
     parser.add_argument("--texel-samples", type=int, default=4)

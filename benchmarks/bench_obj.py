@@ -61,7 +61,7 @@ def slow(path):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("meshes", nargs="*", type=Path, default=DEFAULT)
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()

@@ -90,7 +90,7 @@ def replay(module, handle, calls, width: int, threads: int):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--meshes", nargs="+", default=list(MESHES), choices=list(MESHES))
     parser.add_argument("--rays", type=int, default=128)
     parser.add_argument("--threads", type=int, default=2)

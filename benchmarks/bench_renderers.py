@@ -275,7 +275,7 @@ def time_to(rows, target, key="seconds"):
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--mesh", type=Path, default=ROOT / "assets" / "still_life.obj")
     parser.add_argument("--size", default="160x90")
     parser.add_argument("--budgets", type=int, nargs="+", default=[16, 64, 256, 1024])

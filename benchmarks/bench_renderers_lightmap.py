@@ -350,7 +350,7 @@ def fmt_time(t) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0],
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--mesh", type=Path, help="default: ../shared/meshes/stanford-bunny.obj"
                         ", else assets/still_life.obj")

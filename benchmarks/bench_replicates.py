@@ -34,7 +34,7 @@ SHARED = Path(__file__).resolve().parents[2] / "shared" / "meshes"
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--mesh", nargs="+", type=Path,
                         default=[SHARED / "stanford-bunny.obj", SHARED / "ogre.obj"])
     parser.add_argument("--rays", type=int, nargs="+", default=[64, 128, 256])

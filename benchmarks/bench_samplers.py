@@ -334,7 +334,7 @@ def headline(tables, meshes, ray_counts):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="smoke run (~1 minute)")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--old", type=Path, default=Path("/tmp/orig"),

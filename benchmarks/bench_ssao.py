@@ -257,7 +257,7 @@ def print_view(result):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="default settings only, 160x120")
     parser.add_argument("--size", default="320x240")
     parser.add_argument("--truth-rays", type=int, default=256)

@@ -171,7 +171,7 @@ def figures(out: Path, low, high, rows, result, threads: int):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--mesh", default=str(MESHES / "stanford-bunny.obj"))
     parser.add_argument("--triangles", type=int, default=2000)
     parser.add_argument("--resolution", type=int, default=1024)

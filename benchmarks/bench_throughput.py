@@ -90,7 +90,7 @@ def bare_loop(tracer, points, normals, ids, threads, chunk_rays, sizes=None):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--mesh", type=Path, default=DEFAULT_MESH)
     parser.add_argument("--rays", type=int, default=256)
     parser.add_argument("--threads", type=int, default=2)

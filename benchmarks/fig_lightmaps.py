@@ -272,7 +272,7 @@ def repair_figure(out: Path, threads: int) -> None:
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "img")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--only", nargs="+", default=None,

@@ -443,7 +443,7 @@ def gmean(x):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--trials", type=int, default=4096)
     ap.add_argument("--quick", action="store_true", help="256 trials (smoke test)")
     args = ap.parse_args()
