@@ -67,34 +67,36 @@ class PointRange:
         return (PointRange, (self.n,))
 
 
-class BlockSizes:
-    """(n,) float64 per-point sizes made a block of points at a time, never held whole: the
-    ``sizes`` of a plan whose points fall into blocks whose sizes each depend on that block
-    alone (a set's instances: a vertex's triangles are its instance's).
+class BlockRows:
+    """(n, ...) rows made a block of rows at a time, never held whole: a plan's per-point
+    array whose blocks each depend on that block alone (a set's instances).
 
-    bounds : (b + 1,) int64 increasing from 0 to n: block k is points bounds[k] ..
-    bounds[k + 1] - 1; make : k -> (bounds[k + 1] - bounds[k],) float64 that block's sizes.
-    The tracer reads it a block at a time (``block``); indexing gives the rows asked for
-    (a slice, an index array or a bool mask: the blocks they fall in are made), and numpy
-    reads the whole as the array (``__array__``), so it stands wherever the (n,) array
-    stood.  Pickled, it is that array (a worker gets values, not the scene)."""
+    bounds : (b + 1,) int64 increasing from 0 to n: block k is rows bounds[k] ..
+    bounds[k + 1] - 1; make : k -> that block's rows, (bounds[k + 1] - bounds[k],) + tail of
+    ``dtype``.  Readers take a block at a time (``block``); indexing gives the rows asked for
+    (a slice, an index array or a bool mask over the rows: the blocks they fall in are
+    made; a tuple indexes those rows further), and numpy reads the whole as the array
+    (``__array__``), so it stands wherever the array stood.  Pickled, it is that array (a
+    worker gets values, not the scene)."""
 
-    dtype = np.dtype(np.float64)
-    ndim = 1
-
-    def __init__(self, bounds, make):
+    def __init__(self, bounds, make, dtype=np.float64, tail: tuple = ()):
         self.bounds = np.asarray(bounds, dtype=np.int64)
         self.make = make
-        self.shape = (int(self.bounds[-1]),)
+        self.dtype = np.dtype(dtype)
+        self.tail = tuple(tail)
+        self.shape = (int(self.bounds[-1]),) + self.tail
+        self.ndim = len(self.shape)
 
     def __len__(self) -> int:
         return self.shape[0]
 
     def block(self, k: int) -> np.ndarray:
-        """(bounds[k + 1] - bounds[k],) float64 the sizes of block k's points."""
+        """The rows of block k."""
         return self.make(k)
 
     def __getitem__(self, key):
+        if isinstance(key, tuple):  # rows first, then the rest of the key on them
+            return self[key[0]][(slice(None),) + key[1:]]
         n = len(self)
         if isinstance(key, slice):
             start, stop, step = key.indices(n)
@@ -108,24 +110,25 @@ class BlockSizes:
                     break
                 if b1 > start:
                     pieces.append(self.block(k)[max(start, b0) - b0:min(stop, b1) - b0])
-            return np.concatenate(pieces) if pieces else np.zeros(0)
+            return (np.concatenate(pieces) if pieces
+                    else np.zeros((0,) + self.tail, dtype=self.dtype))
         key = np.asarray(key)
         if key.dtype == bool:
-            if key.shape != self.shape:
+            if key.shape != self.shape[:1]:
                 raise IndexError(f"boolean index of shape {key.shape} for ({n},)")
             key = np.flatnonzero(key)
         if key.dtype.kind not in "iu":
-            raise IndexError(f"only integers, slices and bool masks index sizes, got {key.dtype}")
+            raise IndexError(f"only integers, slices and bool masks index rows, got {key.dtype}")
         index = key.astype(np.int64).reshape(-1)
         if index.size and (index.min() < -n or index.max() >= n):
-            raise IndexError(f"index out of range for {n} points")
+            raise IndexError(f"index out of range for {n} rows")
         index = np.where(index < 0, index + n, index)
-        out = np.empty(len(index))
+        out = np.empty((len(index),) + self.tail, dtype=self.dtype)
         which = np.searchsorted(self.bounds, index, side="right") - 1
         for k in np.unique(which).tolist():
             here = which == k
             out[here] = self.block(k)[index[here] - self.bounds[k]]
-        return out.reshape(key.shape)
+        return out.reshape(key.shape + self.tail)
 
     def __array__(self, dtype=None, copy=None):
         whole = self[0:len(self)]
@@ -133,6 +136,24 @@ class BlockSizes:
 
     def __reduce__(self):
         return (np.asarray, (np.asarray(self),))
+
+
+class BlockSizes(BlockRows):
+    """(n,) float64 per-point sizes made a block of points at a time (:class:`BlockRows`):
+    the ``sizes`` of a plan whose points fall into blocks whose sizes each depend on that
+    block alone (a set's instances: a vertex's triangles are its instance's).  The tracer
+    reads it a block at a time, each block's points in their own order."""
+
+    def __init__(self, bounds, make):
+        super().__init__(bounds, make, np.float64)
+
+
+def block_rows(array, bounds, k: int):
+    """Rows bounds[k] .. bounds[k + 1] - 1 of ``array``: the block itself where the array
+    is made a block at a time with the same bounds (:class:`BlockRows`), else a slice."""
+    if isinstance(array, BlockRows) and np.array_equal(array.bounds, bounds):
+        return array.block(k)
+    return array[int(bounds[k]):int(bounds[k + 1])]
 
 
 @dataclass

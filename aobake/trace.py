@@ -27,7 +27,7 @@ from aobake.offsets import PointOffsets, point_offsets  # noqa: F401  (trace.poi
 from aobake.paths import STREAM_BOUNCE, path_values
 from aobake.rng import hash_key
 from aobake.samplers.base import inward_key, replicate_keys, sample_hashes
-from aobake.records import BlockSizes, Estimates
+from aobake.records import BlockRows, BlockSizes, Estimates, block_rows
 from aobake.quantities import QUANTITIES, Traced
 from aobake.rays import RayGenerator
 from aobake.samplers import sample_set
@@ -310,13 +310,14 @@ class Tracer:
         alone, so any split of the points gives the same rows.
         """
         n = len(points)
-        normals = np.asarray(normals, dtype=np.float64)
         streamed = self.samples.piece < self.samples.m
         if isinstance(sizes, BlockSizes):
             if not (streamed or self.config.keep_distances):
                 return self._estimate_blocks(points, normals, ids, sizes, threads, chunk_rays,
                                              progress)
-            sizes = np.asarray(sizes)  # (their pieces index single points: the array)
+            # (their pieces index single points: the arrays)
+            points, ids, sizes = np.asarray(points), np.asarray(ids), np.asarray(sizes)
+        normals = np.asarray(normals, dtype=np.float64)
         traced = defined(normals)
         every = bool(traced.all())  # the usual case: no copies of the points, no index
         valid = slice(None) if every else np.flatnonzero(traced)
@@ -400,15 +401,27 @@ class Tracer:
         bounds = sizes.bounds
         per_chunk = max(1, int(chunk_rays) // self.samples.rays)
         blocks = len(bounds) - 1
-        # each block's traced count, a block's normals at a time (no (n,) mask)
-        counts = np.array([count_defined(normals[bounds[k]:bounds[k + 1]])
-                           for k in range(blocks)], dtype=np.int64)
+        # each block's traced count, a block's normals at a time (no (n,) mask), and the
+        # no-information values of every point (a bent normal's is the normal), a block at
+        # a time where the normals are made so (records.BlockRows: a set sharing rows)
+        counts = np.zeros(blocks, dtype=np.int64)
+        out = None if isinstance(normals, BlockRows) else self.no_information(normals)
+        for k in range(blocks):
+            rows = block_rows(normals, bounds, k)
+            counts[k] = count_defined(rows)
+            if isinstance(normals, BlockRows):
+                if out is None:
+                    out = {name: np.empty((n,) + a.shape[1:], dtype=a.dtype)
+                           for name, a in self.no_information(rows[:0]).items()}
+                for name, array in self.no_information(rows).items():
+                    out[name][bounds[k]:bounds[k + 1]] = array
         first_chunk = np.concatenate([[0], np.cumsum(-(-counts // per_chunk))])
         total = int(counts.sum())
-        out = self.no_information(normals)
         rays = np.zeros(n, dtype=np.int32)
         counted = select.TopCounts()
-        held: dict = {}  # block -> [its traced points' order (t,) int64, its sizes, chunks left]
+        # block -> [its traced points' order (t,) int64, its sizes, chunks left, its points,
+        # normals and ids (views, or the rows made once for the block)]
+        held: dict = {}
         lock = threading.Lock()
 
         def block_of(i):
@@ -417,23 +430,24 @@ class Tracer:
         def context(k):
             with lock:  # the first chunk of a block makes its order and sizes, once
                 if k not in held:
-                    b0, b1 = int(bounds[k]), int(bounds[k + 1])
-                    valid = np.flatnonzero(defined(normals[b0:b1]))
-                    order = valid[morton_order(points[b0:b1][valid], self.kernels)]
+                    b0 = int(bounds[k])
+                    here = [block_rows(array, bounds, k) for array in (points, normals, ids)]
+                    valid = np.flatnonzero(defined(here[1]))
+                    order = valid[morton_order(here[0][valid], self.kernels)]
                     rays[b0 + valid] = self.samples.rays
                     held[k] = [order, sizes.block(k),
-                               int(first_chunk[k + 1] - first_chunk[k])]
+                               int(first_chunk[k + 1] - first_chunk[k]), *here]
                 return held[k]
 
         def work(i):
             k = block_of(i)
-            order, block_sizes, _ = context(k)
+            order, block_sizes, _, block_points, block_normals, block_ids = context(k)
             j = i - int(first_chunk[k])
             local = order[j * per_chunk:(j + 1) * per_chunk]
             sel = local + int(bounds[k])
             used = np.empty(len(sel))
-            traced = self.traced(points[sel], normals[sel], ids[sel], block_sizes[local],
-                                 offsets_out=used)
+            traced = self.traced(block_points[local], block_normals[local], block_ids[local],
+                                 block_sizes[local], offsets_out=used)
             used /= self.scale  # scene units (a power of two: exact)
             return k, sel, self.estimate_traced(traced), used
 

@@ -34,7 +34,8 @@ shared).
   flat too: ``chunk`` (the threads executor with ``--chunk-points`` 100,000: a split run
   here), ``processes`` (``--executor processes``, ``--threads`` workers), ``dask`` (a
   LocalCluster of ``--threads`` workers, 1 thread each), ``tolerance`` (``--tolerance
-  0.05``, ``--max-rays 64``).  Its row also gives the workers' peak (``children_peak``:
+  0.05``, ``--max-rays 64``), ``alike`` (nodes placed two by two alike: every vertex row
+  shared by two instances, so sampled once).  Its row also gives the workers' peak (``children_peak``:
   the largest ``VmHWM`` of any process under the case's, read every 50 ms: a worker's growth
   in its last 50 ms may be missed).
 * ``floor``: trimesh's load of the 2M PLY plus a bare Embree scene of it (embreex,
@@ -76,7 +77,8 @@ LEVELS = {"2m": 2, "8m": 3}
 INSTANCES = 1000
 #: ``instances-all-N:VARIANT``: the bake's options for each way of running it
 VARIANTS = {"": {}, "chunk": {"chunk_points": 100_000}, "processes": {"executor": "processes"},
-            "dask": {"executor": "dask"}, "tolerance": {"tolerance": 0.05, "max_rays": 64}}
+            "dask": {"executor": "dask"}, "tolerance": {"tolerance": 0.05, "max_rays": 64},
+            "alike": {}}
 
 
 # ---------------------------------------------------------------- meshes (written once)
@@ -97,9 +99,10 @@ def mesh_path(folder: Path, size: str) -> Path:
     return path
 
 
-def instanced_path(folder: Path, count: int = INSTANCES) -> Path:
-    """``count`` nodes on a grid sharing the ogre's one mesh, as .glb (made once)."""
-    path = folder / f"ogre_x{count}.glb"
+def instanced_path(folder: Path, count: int = INSTANCES, alike: bool = False) -> Path:
+    """``count`` nodes on a grid sharing the ogre's one mesh, as .glb (made once); ``alike``:
+    nodes 2j and 2j + 1 placed alike (every vertex row shared by two instances)."""
+    path = folder / (f"ogre_x{count}_alike.glb" if alike else f"ogre_x{count}.glb")
     if path.exists():
         return path
     import numpy as np
@@ -110,8 +113,9 @@ def instanced_path(folder: Path, count: int = INSTANCES) -> Path:
     faces = np.ascontiguousarray(mesh.faces, dtype=np.uint32)
     step = 1.2 * float((vertices.max(0) - vertices.min(0)).max())
     side = int(np.ceil(count ** 0.5))
+    spot = [i // 2 if alike else i for i in range(count)]
     nodes = [{"name": f"n{i}", "mesh": 0,
-              "translation": [step * (i % side), 0.0, step * (i // side)]}
+              "translation": [step * (spot[i] % side), 0.0, step * (spot[i] // side)]}
              for i in range(count)]
     blob = vertices.tobytes() + faces.tobytes()
     document = {
@@ -208,8 +212,8 @@ def child(case: str, args) -> dict:
             options["workers"] = args.threads
         watch = _Descendants() if variant in ("processes", "dask") else None
         try:
-            result = aobake.bake(str(instanced_path(meshes, count)), rays=args.instance_rays,
-                                 threads=args.threads, **options)
+            result = aobake.bake(str(instanced_path(meshes, count, variant == "alike")),
+                                 rays=args.instance_rays, threads=args.threads, **options)
         finally:
             if watch is not None:
                 out["children_peak"] = watch.stop()
@@ -586,7 +590,8 @@ def main(argv=None) -> int:
         if case == "instances":
             instanced_path(meshes)
         if case.startswith("instances-all-"):
-            instanced_path(meshes, int(case.partition(":")[0].rsplit("-", 1)[1]))
+            instanced_path(meshes, int(case.partition(":")[0].rsplit("-", 1)[1]),
+                           case.partition(":")[2] == "alike")
     trees = [ROOT] + ([args.before.resolve()] if args.before else [])
     print(f"load average {os.getloadavg()[0]:.1f}", flush=True)
     rows = []

@@ -313,3 +313,45 @@ def test_tally_spread_is_numpys_min_median_max():
         assert got == {"min": int(shifted.min()), "median": float(np.median(shifted)),
                        "max": int(shifted.max())}, trial
     assert adaptive._spread({}) == {"min": 0, "median": 0.0, "max": 0}
+
+
+@pytest.mark.slow
+def test_a_set_sharing_rows_is_planned_an_instance_at_a_time(tmp_path, monkeypatch):
+    """Two instances placed alike share rows: the plan's points are the whole search's
+    ``first`` rows made an instance at a time (``records.BlockRows``) and its state the
+    whole search's inverse held as the repeated rows (``vertices.SharedRows``); the bake
+    gives the whole-array path's values, rays and report at 1 and 2 threads, any chunk,
+    split into items, on processes, and with --tolerance."""
+    import aobake
+    from aobake.records import BlockRows
+    from aobake.scene import load_scene
+    from aobake.settings import BakeConfig
+    from aobake.targets import vertices
+
+    path = str(_set(tmp_path, overlap=True))
+    scene = load_scene(path)
+    plan = vertices.VertexTarget().sample(scene, BakeConfig(rays=8), None, 1, {}, [])
+    first, inverse = vertices.distinct_rows(scene.vertices, scene.vertex_normals)
+    assert isinstance(plan.points, BlockRows) and isinstance(plan.state, vertices.SharedRows)
+    assert np.array_equal(np.asarray(plan.ids), first)
+    assert np.array_equal(np.asarray(plan.points), scene.vertices[first])
+    assert np.array_equal(plan.normals[5:400], scene.vertex_normals[first][5:400])
+    assert np.array_equal(np.asarray(plan.sizes), vertices.vertex_sizes(scene)[first])
+    assert np.array_equal(np.asarray(plan.state), inverse)
+    values = np.random.default_rng(0).random((len(first), 3))
+    assert np.array_equal(plan.state.gather(values), values[inverse])
+
+    options = dict(rays=8, quantities=("ao", "bent_normal"), seed=3)
+    tolerance = dict(rays=8, seed=6, tolerance=0.15, max_rays=256)
+    got = [aobake.bake(path, threads=t, chunk_rays=c, **options)
+           for t, c in ((1, 131072), (2, 40))]
+    got.append(aobake.bake(path, threads=2, chunk_points=500, **options))
+    got.append(aobake.bake(path, threads=2, executor="processes", workers=2, **options))
+    adaptive = aobake.bake(path, threads=2, **tolerance)
+    _whole_array_path(monkeypatch)
+    whole = aobake.bake(path, threads=2, **options)
+    for result in got:
+        _same(result, whole)
+    whole_adaptive = aobake.bake(path, threads=2, **tolerance)
+    _same(adaptive, whole_adaptive)
+    assert adaptive.report["tolerance"] == whole_adaptive.report["tolerance"]

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from aobake import _native
-from aobake.records import BakeResult, BlockSizes, Finished, PointRange, SamplePoints
+from aobake.records import (BakeResult, BlockRows, BlockSizes, Finished, PointRange,
+                            SamplePoints)
 from aobake.vectors import count_defined
 
 #: faces whose corner areas are summed at a time by :func:`vertex_sizes` (bounds its
@@ -117,23 +118,104 @@ def distinct_by_part(positions, normals, vertex_offsets, kernels=None) -> bool:
     distinct bit for bit (:func:`distinct_rows` would return (None, None)), found part by
     part: rows of parts whose boxes do not overlap differ in position, so only the rows of
     parts whose boxes overlap are searched together (memory: the largest such group's)."""
+    return shared_by_part(positions, normals, vertex_offsets, kernels) is None
+
+
+def shared_by_part(positions, normals, vertex_offsets, kernels=None):
+    """The rows of (v, 3) float64 ``positions`` and ``normals`` that repeat an earlier row
+    bit for bit, found part by part as :func:`distinct_by_part` does: (repeated (r,) int64
+    increasing, owner (r,) int64 the first row of each one's value), or None where every
+    row is distinct.  The same groups as :func:`distinct_rows` of the whole (its ``first``
+    is every row not repeated), holding 16 bytes a repeated row, not a row."""
     bounds = [(int(vertex_offsets[j]), int(vertex_offsets[j + 1]))
               for j in range(len(vertex_offsets) - 1)]
     lo = np.array([positions[a:b].min(axis=0) if b > a else np.full(3, np.inf)
                    for a, b in bounds]).reshape(-1, 3)
     hi = np.array([positions[a:b].max(axis=0) if b > a else np.full(3, -np.inf)
                    for a, b in bounds]).reshape(-1, 3)
+    repeated, owner = [], []
     for group in _overlapping(lo, hi):
-        rows = [np.arange(*bounds[j]) for j in group] if len(group) > 1 else None
-        if rows is None:
-            a, b = bounds[group[0]]
-            first, _ = distinct_rows(positions[a:b], normals[a:b], kernels)
-        else:
-            index = np.concatenate(rows)
-            first, _ = distinct_rows(positions[index], normals[index], kernels)
-        if first is not None:
-            return False
-    return True
+        # the group's rows in file order (its parts ascending: ``_overlapping`` lists them
+        # so), so each value's first row here is its first row in the whole
+        index = np.concatenate([np.arange(*bounds[j]) for j in sorted(group)])
+        first, inverse = distinct_rows(positions[index], normals[index], kernels)
+        if first is None:
+            continue
+        again = np.flatnonzero(first[inverse] != np.arange(len(index)))
+        repeated.append(index[again])
+        owner.append(index[first[inverse[again]]])
+    if not repeated:
+        return None
+    repeated, owner = np.concatenate(repeated), np.concatenate(owner)
+    order = np.argsort(repeated, kind="stable")
+    return repeated[order], owner[order]
+
+
+class SharedRows:
+    """The (v,) int64 ``inverse`` of a plan whose points are a set's distinct vertex rows
+    (``state``: the point of each vertex), held as its repeated rows only: ``repeated``
+    (r,) int64 increasing and ``owner_point`` (r,) int64 the point each repeats; every other
+    vertex w is point w - (repeated rows before w).  :meth:`gather` makes the per-vertex
+    arrays a block of vertices at a time; numpy reads the whole as the array."""
+
+    dtype = np.dtype(np.int64)
+    ndim = 1
+
+    def __init__(self, n: int, repeated: np.ndarray, owner_point: np.ndarray):
+        self.n, self.repeated, self.owner_point = int(n), repeated, owner_point
+        self.shape = (self.n,)
+
+    def __len__(self) -> int:
+        return self.n
+
+    def rows(self, start: int, stop: int) -> np.ndarray:
+        """(stop - start,) int64 the points of vertices start..stop-1."""
+        w = np.arange(start, stop, dtype=np.int64)
+        out = w - np.searchsorted(self.repeated, w)
+        a, b = np.searchsorted(self.repeated, [start, stop])
+        out[self.repeated[a:b] - start] = self.owner_point[a:b]
+        return out
+
+    def gather(self, array: np.ndarray) -> np.ndarray:
+        """(v, ...) ``array`` (p, ...) of the points read at each vertex's point:
+        ``array[inverse]`` a block of vertices at a time."""
+        out = np.empty((self.n,) + array.shape[1:], dtype=array.dtype)
+        for start in range(0, self.n, SIZE_BLOCK):
+            stop = min(self.n, start + SIZE_BLOCK)
+            out[start:stop] = array[self.rows(start, stop)]
+        return out
+
+    def __array__(self, dtype=None, copy=None):
+        whole = self.rows(0, self.n)
+        return whole if dtype is None else whole.astype(dtype)
+
+
+def shared_plan(scene, parts, repeated, owner) -> SamplePoints:
+    """The plan of a set's instances some of whose vertex rows repeat others (``repeated``,
+    ``owner``: :func:`shared_by_part`): its points the rows not repeated, in file order (the
+    whole search's ``first``), made an instance at a time (``records.BlockRows``: points,
+    normals, ids, and sizes as ``records.BlockSizes``), its state a :class:`SharedRows`:
+    nothing held for every vertex besides the outputs and 16 bytes a repeated row."""
+    vertex_offsets = parts[0]
+    n = len(scene.vertices)
+    cut = np.searchsorted(repeated, vertex_offsets)  # repeated rows before each part
+    point_bounds = vertex_offsets - cut
+
+    def local(k):  # (p_k,) int64 the rows of part k not repeated, from its first vertex
+        v0, v1 = int(vertex_offsets[k]), int(vertex_offsets[k + 1])
+        keep = np.ones(v1 - v0, dtype=bool)
+        keep[repeated[cut[k]:cut[k + 1]] - v0] = False
+        return np.flatnonzero(keep)
+
+    def rows(array):
+        return BlockRows(point_bounds, lambda k: array[int(vertex_offsets[k]) + local(k)],
+                         array.dtype, array.shape[1:])
+
+    ids = BlockRows(point_bounds, lambda k: int(vertex_offsets[k]) + local(k), np.int64)
+    sizes = BlockSizes(point_bounds, lambda k: part_sizes(scene, parts, k)[local(k)])
+    owner_point = owner - np.searchsorted(repeated, owner)
+    return SamplePoints(rows(scene.vertices), rows(scene.vertex_normals), ids, sizes=sizes,
+                        state=SharedRows(n, repeated, owner_point))
 
 
 def _row_hash(columns, n: int) -> np.ndarray:
@@ -232,8 +314,11 @@ class VertexTarget:
                                 first.astype(np.int64), sizes=vertex_sizes(scene)[first],
                                 state=inverse.reshape(-1))
         parts = vertex_parts(scene)
-        if parts is not None and distinct_by_part(scene.vertices, scene.vertex_normals,
-                                                  parts[0], _native.kernels()):
+        if parts is not None:
+            shared = shared_by_part(scene.vertices, scene.vertex_normals, parts[0],
+                                    _native.kernels())
+            if shared is not None:  # instances placed alike, seams with one normal
+                return shared_plan(scene, parts, *shared)
             # A set's instances, every vertex its own point: its ids and inverse one 0..v-1
             # (PointRange), its sizes made an instance at a time where the tracer reaches
             # them (BlockSizes): nothing held for every vertex besides the outputs.
@@ -257,7 +342,8 @@ class VertexTarget:
         inverse = plan.state
         # every vertex its own point, in order: the estimates are the result as they are
         same = len(inverse) == len(plan.points) and _identity(inverse)
-        values = {name: array if same else array[inverse]
+        gather = inverse.gather if isinstance(inverse, SharedRows) else (lambda a: a[inverse])
+        values = {name: array if same else gather(array)
                   for name, array in estimates.fields.items()}
         unsampled = len(scene.vertex_normals) - count_defined(scene.vertex_normals)
         if unsampled:
@@ -270,6 +356,6 @@ class VertexTarget:
             return Finished(result, values, None, len(scene.vertices))
         # rays traced before copying to vertices that share samples
         traced = int(np.sum(estimates.rays, dtype=np.int64))  # (no int64 copy of the rays)
-        rays = estimates.rays if same else estimates.rays[inverse]
+        rays = estimates.rays if same else gather(estimates.rays)
         result = BakeResult(scene.vertices, scene.faces, scene.vertex_normals, rays, values)
         return Finished(result, values, rays, len(scene.vertices), cast=traced)
