@@ -75,9 +75,10 @@ def run(
     the caller gave one by one (``capabilities.check``).
     ``method``: ``METHODS`` key; None: the one the config implies (``file`` with
     ``ao_from``, else ``rays``: ``capabilities.implied_method``; ``ao_from`` with another
-    method named is a UsageError, as on the command line).  ``progress(done, total)`` is called as points are
-    estimated; if it has a ``phase(name)`` attribute, that is called as each stage starts
-    ("loading", "unwrapping", "rasterising", "tracing", ...), so a long unwrap shows too.
+    method named is a UsageError, as on the command line).  ``progress(done, total)`` is
+    called as points are estimated; if it has a ``phase(name)`` attribute, that is called
+    as each stage starts ("loading", "unwrapping", "rasterising", "tracing", ...), so a
+    long unwrap shows too.
     """
     method = capabilities.implied_method(method, config)
     if method not in METHODS:

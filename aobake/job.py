@@ -104,8 +104,9 @@ def plan(mesh, out, config: BakeConfig | dict | None = None, *, target: str | No
 
     config : BakeConfig or its fields as a dict; target : 'vertices' | 'texels' | None
     (from ``out``'s extension); method : a ``METHODS`` name, or None: the one the config
-    implies (``file`` with ``ao_from``, else ``rays``: ``capabilities.implied_method``); view : camera keywords for a
-    view (``camera``, ``look``, ``gltf``, ``size``, ``fov``: ``bake_view``'s) or None;
+    implies (``file`` with ``ao_from``, else ``rays``: ``capabilities.implied_method``);
+    view : camera keywords for a view (``camera``, ``look``, ``gltf``, ``size``, ``fov``:
+    ``bake_view``'s) or None;
     truths : bake ``bake_view_truths``; mesh_out, report, half, bit_depth, r_only, orm,
     orm_from : ``aobake.write``'s; given : the names of the settings given one by one
     (default: a dict config's keys; ``capabilities.check``); run : ``aobake.run``'s

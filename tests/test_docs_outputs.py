@@ -24,8 +24,8 @@ def _commands(text: str) -> list[list[str]]:
 
 
 def _written(words: list[str]) -> set[str]:
-    """The files a command writes: --out, a lightmap image's atlas mesh beside it (``aobake.outputs``;
-    a set's is a GLB), --mesh-out, a view's camera."""
+    """The files a command writes: --out, a lightmap image's atlas mesh beside it
+    (``aobake.outputs``; a set's is a GLB), --mesh-out, a view's camera."""
     if "--out" not in words:
         return set()
     out = Path(words[words.index("--out") + 1])
