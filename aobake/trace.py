@@ -311,11 +311,14 @@ class Tracer:
         """
         n = len(points)
         streamed = self.samples.piece < self.samples.m
-        if isinstance(sizes, BlockSizes):
+        if isinstance(sizes, BlockSizes) and n:
             if not (streamed or self.config.keep_distances):
                 return self._estimate_blocks(points, normals, ids, sizes, threads, chunk_rays,
                                              progress)
-            # (their pieces index single points: the arrays)
+            if not self.config.keep_distances:
+                return self._stream_blocks(points, normals, ids, sizes, threads, chunk_rays,
+                                           progress)
+            # (kept distances: the arrays)
             points, ids, sizes = np.asarray(points), np.asarray(ids), np.asarray(sizes)
         normals = np.asarray(normals, dtype=np.float64)
         traced = defined(normals)
@@ -474,6 +477,36 @@ class Tracer:
         offsets = PointOffsets(points, normals, sizes, self.center, self.scale,
                                self.config.ray_offset, counted)
         return Estimates(out, rays, {"ray_offset": offsets}, self.dof)
+
+    def _stream_blocks(self, points, normals, ids, sizes, threads, chunk_rays,
+                       progress) -> Estimates:
+        """:meth:`estimate` of points whose rays exceed one piece (streamed) where the sizes
+        are made a block of points at a time (``records.BlockSizes``): each block's points
+        streamed on their own (:meth:`estimate` of the block's rows), their rows landing in
+        the result as it ends (``records.Merged``) and their ray offsets counted for the
+        report and let go (``offsets.OffsetFold``), so nothing is held for every point
+        besides the results.  Every point's values depend on that point alone: the same
+        rows as one call on all of them."""
+        from aobake.offsets import OffsetFold
+        from aobake.records import Merged
+
+        n, bounds = len(points), sizes.bounds
+
+        def remade(counted):
+            return PointOffsets(points, normals, sizes, self.center, self.scale,
+                                self.config.ray_offset, counted)
+
+        result = Merged(n, {"ray_offset": OffsetFold(remade)})
+        for k in range(len(bounds) - 1):
+            b0, b1 = int(bounds[k]), int(bounds[k + 1])
+            if b1 == b0:
+                continue
+            step = None if progress is None else (lambda done, count, b0=b0:
+                                                  progress(b0 + done, n))
+            rows = [np.asarray(block_rows(array, bounds, k)) for array in (points, normals, ids)]
+            result.add(b0, b1, self.estimate(*rows, threads, chunk_rays, step,
+                                             sizes=sizes.block(k)))
+        return result.result()
 
     def _stream(self, points, normals, ids, sizes, order, out, distances, threads,
                 progress) -> None:

@@ -355,3 +355,31 @@ def test_a_set_sharing_rows_is_planned_an_instance_at_a_time(tmp_path, monkeypat
     whole_adaptive = aobake.bake(path, threads=2, **tolerance)
     _same(adaptive, whole_adaptive)
     assert adaptive.report["tolerance"] == whole_adaptive.report["tolerance"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("overlap", [False, True])
+def test_streamed_rays_a_block_at_a_time_give_the_whole_arrays_bits(tmp_path, monkeypatch,
+                                                                    overlap):
+    """More rays a point than one piece (streamed, ``PIECE_RAYS`` made 64 here): a set's
+    instances streamed a block at a time (``Tracer._stream_blocks``) give the whole-array
+    path's values, rays and report, at 1 and 2 threads and split into items, also where
+    rows are shared."""
+    import aobake
+    from aobake.samplers import base
+    from aobake.trace import Tracer
+
+    monkeypatch.setattr(base, "PIECE_RAYS", 64)
+    path = str(_set(tmp_path, overlap=overlap))
+    options = dict(rays=256, quantities=("ao", "bent_normal"), seed=2)
+    calls = []
+    blocks = Tracer._stream_blocks
+    monkeypatch.setattr(Tracer, "_stream_blocks",
+                        lambda *a, **k: calls.append(1) or blocks(*a, **k))
+    got = [aobake.bake(path, threads=t, **options) for t in (1, 2)]
+    got.append(aobake.bake(path, threads=2, chunk_points=600, **options))
+    assert len(calls) == 2
+    _whole_array_path(monkeypatch)
+    whole = aobake.bake(path, threads=2, **options)
+    for result in got:
+        _same(result, whole)
