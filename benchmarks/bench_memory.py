@@ -552,7 +552,7 @@ def print_breakdown(record: dict) -> None:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--cases", default="imports,floor,vertices-2m,vertices-8m,lightmap-2m",
                         help=f"some of {','.join(CASES)}")
     parser.add_argument("--rays", type=int, default=64)

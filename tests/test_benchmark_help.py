@@ -12,9 +12,6 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPTS = sorted((ROOT / "benchmarks").glob("*.py"))
-#: scripts whose description is still their first line: bench_memory.py was being edited by
-#: another change when the others were fixed (strict: drop the name once it is fixed too)
-PENDING = {"bench_memory.py"}
 
 
 def _words(text: str) -> list[str]:
@@ -36,9 +33,7 @@ def _descriptions(path: Path):
     return doc, found
 
 
-@pytest.mark.parametrize("path", [
-    pytest.param(p, marks=pytest.mark.xfail(strict=True, reason="first line only, for now"))
-    if p.name in PENDING else p for p in SCRIPTS], ids=lambda p: p.name)
+@pytest.mark.parametrize("path", SCRIPTS, ids=lambda p: p.name)
 def test_description_is_the_docstrings_first_paragraph(path):
     doc, descriptions = _descriptions(path)
     first = _words(doc.split("\n\n")[0])
