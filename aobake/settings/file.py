@@ -21,8 +21,8 @@ class FileOptions:
     """The ``file`` method's settings."""
 
     ao_from: str | None = setting(
-        None, "parsed", "--method file: read the values (ao, and obscurance with -q "
-        "obscurance) from this per-vertex bake of the same mesh (.npz, .ply, .glb: "
+        None, "parsed", "Read the values (--method file, which it implies; ao, and "
+        "obscurance with -q obscurance) from this per-vertex bake of the same mesh (.npz, .ply, .glb: "
         "interpolated on the triangles) or this lightmap of it (.exr, .png, .tif: looked up "
         "bilinearly at the mesh's UVs, --uv-set), at every pixel or texel, e.g. to look at a "
         "bake with 'aobake view MESH --ao-from ao.ply --out look.png'.", section="file",
