@@ -134,6 +134,11 @@ class BlockRows:
         whole = self[0:len(self)]
         return whole if dtype is None else whole.astype(dtype)
 
+    def copy(self) -> np.ndarray:
+        """The whole as an array of its own (``ndarray.copy``: a stage that edits the rows,
+        ``--occluder-only`` zeroing normals, gets them made whole)."""
+        return np.asarray(self)
+
     def __reduce__(self):
         return (np.asarray, (np.asarray(self),))
 

@@ -383,3 +383,17 @@ def test_streamed_rays_a_block_at_a_time_give_the_whole_arrays_bits(tmp_path, mo
     whole = aobake.bake(path, threads=2, **options)
     for result in got:
         _same(result, whole)
+
+
+@pytest.mark.slow
+def test_roles_by_name_on_a_set_sharing_rows_give_the_whole_arrays_bits(tmp_path, monkeypatch):
+    """--exclude, --occluder-only (which zeroes the plan's normals: ``BlockRows.copy``) and
+    --receive-only by node name on a set whose rows repeat: the whole-array path's bits."""
+    import aobake
+
+    path = str(_set(tmp_path, overlap=True))
+    roles = (dict(exclude=("c",)), dict(occluder_only=("b",)), dict(receive_only=("d",)))
+    got = [aobake.bake(path, rays=8, seed=1, **role) for role in roles]
+    _whole_array_path(monkeypatch)
+    for role, result in zip(roles, got):
+        _same(result, aobake.bake(path, rays=8, seed=1, **role))
