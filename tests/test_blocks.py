@@ -340,6 +340,8 @@ def test_a_set_sharing_rows_is_planned_an_instance_at_a_time(tmp_path, monkeypat
     assert np.array_equal(np.asarray(plan.state), inverse)
     values = np.random.default_rng(0).random((len(first), 3))
     assert np.array_equal(plan.state.gather(values), values[inverse])
+    assert np.array_equal(np.asarray(plan.state.firsts(values[inverse])), values)
+    assert np.array_equal(plan.state.firsts(values[inverse])[100:70000:7], values[100:70000:7])
 
     options = dict(rays=8, quantities=("ao", "bent_normal"), seed=3)
     tolerance = dict(rays=8, seed=6, tolerance=0.15, max_rays=256)

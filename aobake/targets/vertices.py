@@ -185,6 +185,39 @@ class SharedRows:
             out[start:stop] = array[self.rows(start, stop)]
         return out
 
+    def firsts(self, values: np.ndarray) -> BlockRows:
+        """(p, ...) the points' rows of per-vertex ``values`` (v, ...) (each point's first
+        vertex: the rows not repeated), read a block of vertices at a time, not held."""
+        starts = np.arange(0, self.n + SIZE_BLOCK, SIZE_BLOCK).clip(max=self.n)
+        starts = np.unique(starts)
+        bounds = starts - np.searchsorted(self.repeated, starts)
+
+        def make(j):
+            a, b = int(starts[j]), int(starts[j + 1])
+            keep = np.ones(b - a, dtype=bool)
+            lo, hi = np.searchsorted(self.repeated, [a, b])
+            keep[self.repeated[lo:hi] - a] = False
+            return values[a:b][keep]
+
+        return BlockRows(bounds, make, values.dtype, values.shape[1:])
+
+    def land(self, estimates) -> tuple:
+        """(values name -> (v, ...), rays (v,) int32 | None) of the points' ``estimates``
+        gathered to every vertex, each of the estimates' per-point arrays given up as it is
+        gathered (replaced by :meth:`firsts` of what it became: the same rows, read where
+        the record and warnings read them), the largest first: what is held beyond the
+        per-vertex arrays is at most the last, smallest one."""
+        values = {}
+        names = sorted(estimates.fields, key=lambda name: -estimates.fields[name].nbytes)
+        for name in names:
+            values[name] = self.gather(estimates.fields[name])
+            estimates.fields[name] = self.firsts(values[name])
+        rays = None
+        if estimates.rays is not None:
+            rays = self.gather(estimates.rays)
+            estimates.rays = self.firsts(rays)
+        return {name: values[name] for name in estimates.fields}, rays
+
     def __array__(self, dtype=None, copy=None):
         whole = self.rows(0, self.n)
         return whole if dtype is None else whole.astype(dtype)
@@ -342,9 +375,15 @@ class VertexTarget:
         inverse = plan.state
         # every vertex its own point, in order: the estimates are the result as they are
         same = len(inverse) == len(plan.points) and _identity(inverse)
-        gather = inverse.gather if isinstance(inverse, SharedRows) else (lambda a: a[inverse])
-        values = {name: array if same else gather(array)
-                  for name, array in estimates.fields.items()}
+        traced = None if estimates.rays is None else int(np.sum(estimates.rays, dtype=np.int64))
+        if isinstance(inverse, SharedRows):
+            # a set whose rows repeat: each per-point array given up as it is gathered
+            values, rays = inverse.land(estimates)
+        else:
+            values = {name: array if same else array[inverse]
+                      for name, array in estimates.fields.items()}
+            rays = None if estimates.rays is None else (
+                estimates.rays if same else estimates.rays[inverse])
         unsampled = len(scene.vertex_normals) - count_defined(scene.vertex_normals)
         if unsampled:
             why = ("unreferenced, only on zero-area faces, or only on faces --exclude left "
@@ -354,8 +393,7 @@ class VertexTarget:
         if estimates.rays is None:  # a method that casts no rays (an approximation, a file)
             result = BakeResult(scene.vertices, scene.faces, scene.vertex_normals, None, values)
             return Finished(result, values, None, len(scene.vertices))
-        # rays traced before copying to vertices that share samples
-        traced = int(np.sum(estimates.rays, dtype=np.int64))  # (no int64 copy of the rays)
-        rays = estimates.rays if same else gather(estimates.rays)
+        # (traced: the rays summed before copying to vertices that share samples, without
+        # an int64 copy of them)
         result = BakeResult(scene.vertices, scene.faces, scene.vertex_normals, rays, values)
         return Finished(result, values, rays, len(scene.vertices), cast=traced)
