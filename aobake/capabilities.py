@@ -234,6 +234,17 @@ def check(method: str, target: str, config, given=()) -> None:
     if getattr(config, "pixel_filter", "center") == "box" and "gbuffer" in can.needs:
         raise UsageError(f"--method {method} reads one G-buffer sample per pixel centre: not "
                          "with --pixel-filter box (which averages over the pixel's area)")
+    if getattr(config, "lightmap_filter", "bilinear") != "bilinear":
+        flag = f"--lightmap-filter {config.lightmap_filter}"
+        if method != "file":
+            raise UsageError(f"{flag} is how --method file looks a lightmap up: not with "
+                             f"--method {method}")
+        if target != "view":
+            raise UsageError(f"{flag} picks a mip level by a camera pixel's footprint: "
+                             f"{where.what} ({target}) has no pixels (aobake view has)")
+        if getattr(config, "pixel_filter", "center") == "box":
+            raise UsageError(f"{flag}: --pixel-filter box averages 16 lookups over each pixel, "
+                             "which is what a mip level stands in for: one or the other")
     if method == "file" and config.ao_from is None:
         raise UsageError("--method file needs --ao-from FILE (a per-vertex bake of the mesh)")
     check_settings(target, config, given)

@@ -131,12 +131,15 @@ def scene(tmp_path_factory):
     big.export(cage)
     bake = root / "bake.npz"
     aobake.write(aobake.bake(str(mesh), rays=4), bake)
+    lightmap = root / "map.exr"  # with its new atlas beside it: map.obj
+    run_cli(mesh, "--out", lightmap, "--resolution", "32", "--rays", "4", "--quiet")
     nodes = root / "scene.glb"
     glb = trimesh.Scene()
     glb.add_geometry(floor, node_name="floor", geom_name="floor")
     glb.add_geometry(box, node_name="box_a", geom_name="box")
     glb.export(nodes)
     return {"mesh": mesh, "low": low, "high": high, "cage": cage, "bake": bake,
+            "lightmap": lightmap, "atlas": root / "map.obj",
             "mask": root / "mask.png", "root": root, "nodes": nodes}
 
 
@@ -195,6 +198,10 @@ def _context(command: str, name: str, files) -> tuple:
     if method == "file" and name != "ao_from":
         extra += ["--ao-from", str(files["bake"])]
         request["ao_from"] = str(files["bake"])
+    if name == "lightmap_filter":  # how a view looks a lightmap up: the map's own mesh
+        mesh, method = files["atlas"], "file"
+        extra += ["--ao-from", str(files["lightmap"])]
+        request["ao_from"] = str(files["lightmap"])
     if method != "rays":
         extra += ["--method", method]
     return mesh, out, extra, method, request

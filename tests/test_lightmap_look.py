@@ -22,6 +22,8 @@ from aobake.outputs.image import write_exr
 
 from conftest import run_cli
 
+#: the repository's own assets (tests/../assets)
+ASSETS = __import__("pathlib").Path(__file__).resolve().parents[1] / "assets"
 W, H = 8, 6
 #: an affine map value = A + B u + C v, sampled at the texel centres
 A, B, C = 0.2, 0.5, 0.25
@@ -238,3 +240,102 @@ def test_a_baked_lightmap_seen_from_a_camera_scores_against_the_views_truth(tmp_
     # measured: rmse 0.031, bias -0.002, 3.0 times the truth's noise
     assert scored["rmse"] < 0.06 and abs(scored["bias"]) < 0.015
     assert scored["rmse_in_reference_se"] > 1.5
+
+
+# --- --lightmap-filter trilinear: a mip chain read at the pixel's footprint -------------------
+
+def test_the_mip_chain_keeps_texel_centres_so_a_linear_ramp_reads_the_same_at_every_level():
+    """Each level averages 2 x 2 texels and keeps u = (c + 0.5) / W_k at its centres: a map
+    linear in u and v reads back u + v at any level and any blend (away from the clamped
+    border), to float64 rounding; odd sizes take their last row and column twice."""
+    from aobake.methods.file import bilinear, mip_chain, trilinear
+
+    size = 64
+    c = (np.arange(size) + 0.5) / size
+    ramp = c[None, :] + (1.0 - c)[:, None]  # u + v, row 0 the top (v = 1)
+    levels = mip_chain(ramp)
+    assert [level.shape for level in levels] == [(2 ** k, 2 ** k) for k in range(6, -1, -1)]
+    rng = np.random.default_rng(0)
+    uv = rng.uniform(0.25, 0.75, size=(500, 2))
+    for level in (np.zeros(500), rng.uniform(0.0, 3.0, 500)):
+        got = trilinear(levels, uv, level, "clamp")
+        np.testing.assert_allclose(got, uv.sum(axis=1), rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(trilinear(levels, uv, np.zeros(500), "clamp"),
+                                  bilinear(ramp, uv, "clamp"))
+    odd = mip_chain(np.arange(15.0).reshape(3, 5))
+    assert [level.shape for level in odd] == [(3, 5), (2, 3), (1, 2), (1, 1)]
+    np.testing.assert_array_equal(odd[1], [[3.0, 5.0, 6.5], [10.5, 12.5, 14.0]])
+
+
+def test_the_footprint_of_a_pixel_on_a_plane_facing_the_camera_is_its_width_in_texels():
+    """A square of side S at distance D straight ahead, its UVs spanning it, a map of W
+    texels: a pixel's edge there is D 2 tan(fov / 2) / H scene units, so lambda = log2 of
+    that times W / S (the centre pixel's two edges are equal)."""
+    from aobake import camera as cameras
+    from aobake.methods.file import footprint_levels
+
+    distance, side, texels = 3.0, 2.0, 512
+    cam = cameras.look_at([0, 0, distance], [0, 0, 0], [0, 1, 0], 40.0, size=(64, 48))
+    pixel = cam.width * 24 + 32  # the pixel right of and below the image's centre point
+    d = cam.directions_through(np.array([[32.5, 24.5]]))[0]
+    point = cam.eye + distance / -d[2] * d
+    triangle = np.array([[[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0]]])
+    uvs = np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]])
+    level = footprint_levels(cam, np.array([pixel]), point[None], np.array([[0.0, 0.0, 1.0]]),
+                             triangle, uvs, (texels, texels))
+    edge = distance * 2.0 * cam.tan_half_fov / cam.height * texels / side
+    assert level[0] == pytest.approx(np.log2(edge), rel=1e-9)
+    # a plane seen edge-on (holding the eye, the centre ray and the next pixel's): inf
+    right = cam.directions_through(np.array([[33.5, 24.5]]))[0]
+    edge_on = np.cross(d, right)
+    edge_on /= np.linalg.norm(edge_on)
+    grazing = footprint_levels(cam, np.array([pixel]), point[None], edge_on[None],
+                               triangle, uvs, (texels, texels))
+    assert np.isinf(grazing[0])
+
+
+def test_trilinear_looks_through_every_door_and_is_refused_where_it_means_nothing(tmp_path):
+    """The CLI and the library give the same look; its report says trilinear and the mean
+    level; a box-filtered view, a per-vertex bake, another method and a lightmap target
+    are refused before any work."""
+    import json
+
+    from aobake.errors import UsageError
+
+    mesh = ASSETS / "torus_uv.obj"
+    lightmap = tmp_path / "lm.exr"
+    res = run_cli(mesh, "--out", lightmap, "--resolution", "128", "--rays", "4", "--quiet")
+    assert res.exit_code == 0, res.output
+    look = tmp_path / "look.exr"
+    res = run_cli("view", mesh, "--ao-from", lightmap, "--lightmap-filter", "trilinear",
+                  "--size", "48x27", "--out", look, "--report", tmp_path / "r.json")
+    assert res.exit_code == 0, res.output
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["config"]["lightmap_filter"] == "trilinear"
+    assert report["parameters"]["lightmap_filter"] == "trilinear"
+    assert report["parameters"]["mip"]["mean_level"] > 0
+    result = aobake.bake_view(str(mesh), ao_from=str(lightmap), lightmap_filter="trilinear",
+                              size=(48, 27))
+    from aobake.outputs import read
+
+    assert np.array_equal(read(look).value, np.asarray(result.channels["ao"], np.float64))
+    plain = aobake.bake_view(str(mesh), ao_from=str(lightmap), size=(48, 27))
+    assert not np.array_equal(result.channels["ao"], plain.channels["ao"])
+    vertex_bake = tmp_path / "v.npz"
+    aobake.write(aobake.bake(str(mesh), rays=4), vertex_bake)
+    for args, words in (
+            (["view", mesh, "--ao-from", lightmap, "--pixel-filter", "box"], "--pixel-filter box"),
+            (["view", mesh, "--ao-from", vertex_bake], "is a per-vertex bake"),
+            (["view", mesh], "not with --method rays"),
+            ([mesh, "--method", "file", "--ao-from", lightmap], "No such option")):
+        out = tmp_path / "x.exr"
+        res = run_cli(*args, "--lightmap-filter", "trilinear", "--out", out)
+        assert res.exit_code in (1, 2) and res.output.startswith("aobake: error: ") \
+            and words in res.output, (args, res.output)
+        assert not out.exists()
+    with pytest.raises(UsageError, match="--pixel-filter box"):
+        aobake.bake_view(str(mesh), ao_from=str(lightmap), lightmap_filter="trilinear",
+                         pixel_filter="box")
+    with pytest.raises(UsageError, match="has no pixels"):
+        aobake.bake_texels(str(mesh), ao_from=str(lightmap), lightmap_filter="trilinear",
+                           resolution=32)

@@ -79,6 +79,7 @@ def test_config_round_trips_through_a_report_with_every_field_changed():
                          crytek_range="depth", gtao_slices=2, gtao_steps=8,
                          gtao_multiplier=1.0, gtao_falloff=0.5, heightfield_thickness=0.1,
                          pixel_filter="box", pixel_samples=8, box_sampling="positions",
+                         lightmap_filter="trilinear",
                          source="high.obj", cage_offset=0.25, low_occludes=True, alpha_cutout=True,
                          exclude=("a*",),
                          receive_only=("b",), occluder_only=("c",), instances="flatten")

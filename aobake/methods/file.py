@@ -13,9 +13,11 @@ their format):
   mesh, interpolated with the same barycentrics) as an engine samples a texture: bilinear,
   texel (r, c) centred at u = (c + 0.5) / W, v = 1 - (r + 0.5) / H (docs/conventions.md,
   "Lightmaps"), wrapping as the map's metadata says (``texture.wrap``: clamp to the edge
-  or repeat; clamp for an image without aobake's metadata).  One level: no mip maps (a
+  or repeat; clamp for an image without aobake's metadata).  One level by default (a
   lookup reads the four texels around its UV whatever the pixel's footprint; a
-  box-filtered view, ``--pixel-filter box``, averages lookups over the pixel instead).
+  box-filtered view, ``--pixel-filter box``, averages lookups over the pixel instead); with
+  ``--lightmap-filter trilinear`` a centre view reads a mip chain as an engine does
+  (:func:`mip_chain`, :func:`footprint_levels`, :func:`trilinear`).
   The mesh must be the one the map was baked on (a new atlas is written beside the map:
   ``<out>.obj``); the report's ``parameters.lookups_in_charts`` says how many lookups read
   a texel the map covers, and a warning says when few do.
@@ -62,6 +64,8 @@ class Lightmap:
     wrap: str
     corners: np.ndarray
     uv_set: int
+    #: quantity -> the mip chain of its image (``mip_chain``), for trilinear lookups; None
+    levels: dict | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -101,6 +105,84 @@ def bilinear(image: np.ndarray, uv: np.ndarray, wrap: str = "clamp") -> np.ndarr
             + fy * ((1.0 - fx) * image[r1, c0] + fx * image[r1, c1]))
 
 
+def mip_chain(image: np.ndarray) -> list:
+    """The mip levels of ``image`` (H, W) float64: level 0 the image, each next one the
+    means of 2 x 2 texels of the one before (an odd width or height first padded with its
+    last column or row, so a level is ceil(half) wide), down to 1 x 1.  A level's texel (r,
+    c) covers the same part of [0, 1]^2 as the 2 x 2 it averages, so texel centres stay at
+    u = (c + 0.5) / W_k, v = 1 - (r + 0.5) / H_k in every level (``bilinear``'s)."""
+    levels = [np.asarray(image, dtype=np.float64)]
+    while levels[-1].shape != (1, 1):
+        a = levels[-1]
+        h, w = a.shape
+        if h % 2 and h > 1:
+            a = np.concatenate([a, a[-1:]], axis=0)
+        if w % 2 and w > 1:
+            a = np.concatenate([a, a[:, -1:]], axis=1)
+        h, w = a.shape
+        rows = a.reshape(h // 2, 2, w) if h > 1 else a[None]
+        rows = rows.mean(axis=1) if h > 1 else rows[0]
+        levels.append(rows.reshape(rows.shape[0], w // 2, 2).mean(axis=2) if w > 1 else rows)
+    return levels
+
+
+def footprint_levels(cam, pixels: np.ndarray, points: np.ndarray, normals: np.ndarray,
+                     triangles: np.ndarray, corner_uvs: np.ndarray, size) -> np.ndarray:
+    """(n,) float64 mip level lambda = log2(rho) of each pixel's lookup, OpenGL's rho: the
+    longer of the pixel's two edges in texels.  The rays through the next pixel to the right
+    and down meet the hit's plane (point ``points`` (n, 3), unit normal ``normals`` (n, 3));
+    the offsets to those meeting points, in the hit triangle's UV map (``triangles`` (n, 3,
+    3) its corners, ``corner_uvs`` (n, 3, 2) theirs), times the map's ``size`` (W, H) are
+    the pixel's edges in texels (a GPU's derivatives, on the plane, not from the next
+    pixel's hit).  ``pixels`` (n,) int64 r W + c.  inf where a ray grazes the plane, 0 on a
+    triangle without area in UV or space (no footprint to measure: the finest level)."""
+    row, column = np.divmod(np.asarray(pixels, dtype=np.int64), cam.width)
+    eye = np.asarray(cam.eye, dtype=np.float64)
+    e1, e2 = triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]
+    g11, g12, g22 = (np.einsum("ij,ij->i", a, b) for a, b in ((e1, e1), (e1, e2), (e2, e2)))
+    det = g11 * g22 - g12 * g12
+    flat = ~(det > 1e-30 * np.maximum(g11 * g22, 1e-300))
+    du1, du2 = corner_uvs[:, 1] - corner_uvs[:, 0], corner_uvs[:, 2] - corner_uvs[:, 0]
+    scale = np.asarray(size, dtype=np.float64)
+    lengths = []
+    for dx, dy in ((1.0, 0.0), (0.0, 1.0)):
+        d = cam.directions_through(np.stack([column + 0.5 + dx, row + 0.5 + dy], axis=1))
+        along = np.einsum("ij,ij->i", normals, d)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.einsum("ij,ij->i", normals, points - eye) / along
+        delta = eye + t[:, None] * d - points
+        r1, r2 = np.einsum("ij,ij->i", delta, e1), np.einsum("ij,ij->i", delta, e2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a = (g22 * r1 - g12 * r2) / det
+            b = (g11 * r2 - g12 * r1) / det
+        duv = (a[:, None] * du1 + b[:, None] * du2) * scale
+        length = np.hypot(duv[:, 0], duv[:, 1])
+        length = np.where(np.isfinite(length) & (np.abs(along) > 1e-12), length, np.inf)
+        lengths.append(length)
+    rho = np.maximum(lengths[0], lengths[1])
+    with np.errstate(divide="ignore"):
+        level = np.log2(rho)
+    return np.where(flat, 0.0, np.maximum(level, 0.0))
+
+
+def trilinear(levels: list, uv: np.ndarray, level: np.ndarray, wrap: str) -> np.ndarray:
+    """(n,) float64: ``bilinear`` reads of the mip chain ``levels`` at ``uv`` (n, 2) in the
+    two levels around each ``level`` (n,) float64 >= 0 (inf: the coarsest), blended
+    linearly by its fraction (GL_LINEAR_MIPMAP_LINEAR)."""
+    top = len(levels) - 1
+    level = np.minimum(level, top)
+    low = np.floor(level).astype(np.int64)
+    frac = level - low
+    out = np.zeros(len(uv))
+    for k in np.unique(low):
+        at = low == k
+        value = bilinear(levels[k], uv[at], wrap)
+        if k < top:
+            value = (1.0 - frac[at]) * value + frac[at] * bilinear(levels[k + 1], uv[at], wrap)
+        out[at] = value
+    return out
+
+
 def _texels_read(covered: np.ndarray, uv: np.ndarray, wrap: str) -> np.ndarray:
     """(n,) bool: the texel nearest each lookup ``uv`` (n, 2) is one the map covers."""
     height, width = covered.shape
@@ -121,11 +203,14 @@ class FileMethod:
     casts_rays = False
 
     def __init__(self, path: Path, values: dict, faces: np.ndarray,
-                 lightmap: Lightmap | None = None):
+                 lightmap: Lightmap | None = None, vertices: np.ndarray | None = None):
         """path : the bake file, values : quantity -> (v,) float64 per vertex ({} for a
         lightmap), faces : (f, 3) int64 the scene's triangles, lightmap : the map and the
-        mesh's UVs, or None for a per-vertex bake."""
+        mesh's UVs, or None for a per-vertex bake; vertices : (v, 3) float64 the scene's,
+        for a trilinear lookup's footprints (the lightmap then carries its mip chains)."""
         self.path, self.values, self._faces, self.lightmap = path, values, faces, lightmap
+        self._vertices = vertices
+        self.levels_used = None  # the mean mip level of a trilinear look (the record's)
 
     @classmethod
     def prepare(cls, scene, config, occluders, rays_per_point: int,
@@ -142,8 +227,19 @@ class FileMethod:
                              f"{', '.join(config.quantities)}")
         read_values = {quantity: read(path, quantity, role="reference") for quantity in wanted}
         first = read_values[wanted[0]]
+        trilinear_asked = getattr(config, "lightmap_filter", "bilinear") == "trilinear"
         if first.target == "texels":
-            return cls(path, {}, scene.faces, _lightmap(path, read_values, scene, config))
+            lightmap = _lightmap(path, read_values, scene, config)
+            if trilinear_asked:
+                import dataclasses
+
+                lightmap = dataclasses.replace(lightmap, levels={
+                    name: mip_chain(image) for name, image in lightmap.images.items()})
+            return cls(path, {}, scene.faces, lightmap,
+                       np.asarray(scene.vertices, dtype=np.float64))
+        if trilinear_asked:
+            raise InputError(f"{path}: is a per-vertex bake: --lightmap-filter trilinear reads "
+                             "a lightmap's mip levels (give a lightmap, or drop it)")
         values = {}
         for quantity, read_value in read_values.items():
             value = np.asarray(read_value.value, dtype=np.float64)
@@ -170,22 +266,44 @@ class FileMethod:
         if points.faces is None or points.bary is None:
             raise InputError(f"{self.path}: --method file interpolates on triangles; this "
                              "target gives no triangle per point (use a view or a lightmap)")
-        return self.interpolate(points.faces, points.bary, points.normals)
+        level = None
+        if self.lightmap is not None and self.lightmap.levels is not None:
+            image = getattr(points, "image", None)
+            cam = getattr(image, "camera", None)
+            if cam is None:
+                raise InputError(f"{self.path}: --lightmap-filter trilinear picks a mip level by "
+                                 "a camera pixel's footprint: these points are no view's pixels")
+            faces = np.maximum(points.faces, 0)
+            level = footprint_levels(
+                cam, points.ids, np.asarray(points.points, dtype=np.float64),
+                np.asarray(points.normals, dtype=np.float64),
+                self._vertices[self._faces[faces]], self.lightmap.corners[faces],
+                self.lightmap.size)
+        return self.interpolate(points.faces, points.bary, points.normals, level)
 
-    def interpolate(self, faces: np.ndarray, bary: np.ndarray, normals: np.ndarray) -> Estimates:
+    def interpolate(self, faces: np.ndarray, bary: np.ndarray, normals: np.ndarray,
+                    level: np.ndarray | None = None) -> Estimates:
         """The values at barycentric ``bary`` (n, 3) of triangles ``faces`` (n,) of the
         scene; 0 where the normal is zero (no point there) or the face is -1 (no triangle:
         the ground plane holds no file values).  A lightmap's estimates carry the extra
-        ``in_charts`` (n,) bool: the texel nearest the lookup is one the map covers."""
+        ``in_charts`` (n,) bool: the texel nearest the lookup is one the map covers.
+        ``level`` (n,) float64: each lookup's mip level (trilinear), or None (bilinear)."""
         fields = {}
         ok = defined(normals) & (faces >= 0)  # -1: a point on no triangle (the ground plane)
         if self.lightmap is not None:
             lightmap = self.lightmap
             uv = np.einsum("nc,ncd->nd", bary, lightmap.corners[np.maximum(faces, 0)])
             for name, image in lightmap.images.items():
-                fields[name] = np.where(ok, bilinear(image, uv, lightmap.wrap), 0.0)
+                if level is None:
+                    value = bilinear(image, uv, lightmap.wrap)
+                else:
+                    value = trilinear(lightmap.levels[name], uv, level, lightmap.wrap)
+                fields[name] = np.where(ok, value, 0.0)
             read = _texels_read(lightmap.covered, uv, lightmap.wrap) & ok
-            return Estimates(fields, None, {"in_charts": read, "looked_up": ok})
+            extras = {"in_charts": read, "looked_up": ok}
+            if level is not None:
+                extras["mip_level"] = np.where(ok, level, np.nan)
+            return Estimates(fields, None, extras)
         corners = self._faces[np.maximum(faces, 0)]
         for name, value in self.values.items():
             out = np.einsum("nc,nc->n", bary, value[corners])
@@ -208,13 +326,25 @@ class FileMethod:
                         "beside the map: <out>.obj), with --uv-set %d?", self.path,
                         looked - inside, looked, 100 * (1 - fraction), lightmap.uv_set)
         width, height = lightmap.size
+        levels = estimates.extras.get("mip_level")
+        filtering = "one level, no mip maps (--lightmap-filter bilinear)"
+        mip = None
+        if levels is not None:
+            seen = levels[np.isfinite(levels)]
+            filtering = ("trilinear: a mip chain of 2x2 means, level log2 of the pixel's "
+                         "footprint in texels (OpenGL's rho, on the hit's plane), bilinear in "
+                         "the two levels around it, blended")
+            mip = {"levels": len(next(iter(lightmap.levels.values()))),
+                   "mean_level": float(seen.mean()) if len(seen) else None,
+                   "above_level_1": float(np.mean(seen >= 1.0)) if len(seen) else None}
         return {"parameters": {
             "method": self.name, "ao_from": str(self.path),
             "quantities": sorted(lightmap.images),
             "interpolation": "the lightmap looked up at each point's UV (its triangle's UVs "
                              "interpolated barycentrically): bilinear, texel (r, c) centred "
-                             "at u = (c + 0.5) / W, v = 1 - (r + 0.5) / H; one level, no mip "
-                             "maps",
+                             f"at u = (c + 0.5) / W, v = 1 - (r + 0.5) / H; {filtering}",
+            "lightmap_filter": "bilinear" if levels is None else "trilinear",
+            "mip": mip,
             "lightmap": {"width": width, "height": height, "wrap": lightmap.wrap,
                          "uv_set": lightmap.uv_set},
             "lookups_in_charts": fraction}}

@@ -22,8 +22,9 @@ class FileOptions:
 
     ao_from: str | None = setting(
         None, "parsed", "Read the values (--method file, which it implies; ao, and "
-        "obscurance with -q obscurance) from this per-vertex bake of the same mesh (.npz, .ply, .glb: "
-        "interpolated on the triangles) or this lightmap of it (.exr, .png, .tif: looked up "
-        "bilinearly at the mesh's UVs, --uv-set), at every pixel or texel, e.g. to look at a "
-        "bake with 'aobake view MESH --ao-from ao.ply --out look.png'.", section="file",
+        "obscurance with -q obscurance) from this per-vertex bake of the same mesh (.npz, "
+        ".ply, .glb: interpolated on the triangles) or this lightmap of it (.exr, .png, .tif: "
+        "looked up at the mesh's UVs, --uv-set, --lightmap-filter), at every pixel or texel, "
+        "e.g. to look at a bake with 'aobake view MESH --ao-from ao.ply --out look.png'.",
+        section="file",
         optional=True, parse=_path, show_default=False)

@@ -51,3 +51,10 @@ class ViewOptions:
         "--replicates groups; i.i.d. with --sampler random), each casting ceil(rays / "
         "pixel-samples) rays.", section="view", low=1, high=MAX_PIXEL_SAMPLES,
         panel="camera")
+    lightmap_filter: str = setting(
+        "bilinear", "choice", "How a view looks a lightmap up (--ao-from a lightmap): "
+        "bilinear (the 4 texels around the UV, whatever the pixel's footprint) or trilinear "
+        "(a mip chain of 2x2 means, the level log2 of the pixel's footprint in texels, "
+        "OpenGL's rho, read bilinearly in the two levels around it and blended: what an "
+        "engine samples at a distance). Views with --pixel-filter center only.",
+        section="view", choices=("bilinear", "trilinear"))
