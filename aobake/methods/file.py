@@ -114,15 +114,15 @@ def mip_chain(image: np.ndarray) -> list:
     levels = [np.asarray(image, dtype=np.float64)]
     while levels[-1].shape != (1, 1):
         a = levels[-1]
-        h, w = a.shape
-        if h % 2 and h > 1:
-            a = np.concatenate([a, a[-1:]], axis=0)
-        if w % 2 and w > 1:
-            a = np.concatenate([a, a[:, -1:]], axis=1)
-        h, w = a.shape
-        rows = a.reshape(h // 2, 2, w) if h > 1 else a[None]
-        rows = rows.mean(axis=1) if h > 1 else rows[0]
-        levels.append(rows.reshape(rows.shape[0], w // 2, 2).mean(axis=2) if w > 1 else rows)
+        for axis in (0, 1):  # the means of pairs along each axis: of 2 x 2 texels
+            n = a.shape[axis]
+            if n == 1:
+                continue
+            if n % 2:  # the last row or column twice
+                a = np.concatenate([a, a.take([n - 1], axis=axis)], axis=axis)
+                n += 1
+            a = 0.5 * (a.take(range(0, n, 2), axis=axis) + a.take(range(1, n, 2), axis=axis))
+        levels.append(a)
     return levels
 
 
@@ -210,7 +210,6 @@ class FileMethod:
         for a trilinear lookup's footprints (the lightmap then carries its mip chains)."""
         self.path, self.values, self._faces, self.lightmap = path, values, faces, lightmap
         self._vertices = vertices
-        self.levels_used = None  # the mean mip level of a trilinear look (the record's)
 
     @classmethod
     def prepare(cls, scene, config, occluders, rays_per_point: int,
