@@ -65,8 +65,8 @@ from aobake.compare.settings import check_same_layout, check_same_quantity
 from aobake.compare.values import IMAGE_KINDS, image_kind, kind
 from aobake.errors import InputError
 from aobake.outputs.image import TRANSFERS
-from aobake.outputs.values import (ALPHAS, TEXEL_SUFFIXES, VERTEX_SUFFIXES, Values, file_path,
-                                   read, target_of)
+from aobake.outputs.values import (ALPHAS, TEXEL_SUFFIXES, VERTEX_SUFFIXES, Values,
+                                   divided_by_alpha, file_path, read, target_of)
 from aobake.quantities import QUANTITIES
 
 __all__ = ["COMPARABLE", "CONVENTIONS", "POSITION_TOLERANCE", "TEXEL_SUFFIXES", "TRANSFERS",
@@ -336,9 +336,7 @@ def _stderr_from_file(candidate: Values, path: Path, quantity: str) -> None:
     own = " (in place of the ones it holds)" if candidate.stderr is not None else ""
     candidate.stderr = values.value
     if candidate.alpha is not None:  # the errors of associated values: divided as they are
-        seen = candidate.alpha > 0
-        candidate.stderr = np.where(seen, values.value / np.where(seen, candidate.alpha, 1.0),
-                                    0.0)
+        candidate.stderr = divided_by_alpha(values.value, candidate.alpha)
     candidate.notes.append(f"{path}: its {values.key!r} is read as the candidate's standard "
                            f"errors{own}")
 

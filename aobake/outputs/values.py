@@ -362,6 +362,13 @@ def alpha_channel(columns, key: str) -> str | None:
     return next((name for name in names if name in columns and name != key), None)
 
 
+def divided_by_alpha(array: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """(H, W) float64 ``array`` divided by ``alpha`` (H, W) where alpha > 0, 0 elsewhere
+    (pixels no sample saw: not compared)."""
+    seen = alpha > 0
+    return np.where(seen, array / np.where(seen, alpha, 1.0), 0.0)
+
+
 def unassociate(values: Values, table: Table, role: str, mode: str,
                 key: str | None) -> None:
     """Divide an image's values associated with an alpha (multiplied by it: a renderer's AO
@@ -400,10 +407,9 @@ def unassociate(values: Values, table: Table, role: str, mode: str,
         raise InputError(f"{path}: {int(bad.sum())} values of its alpha {name!r} are not in "
                          "[0, 1]")
     seen = alpha > 0
-    safe = np.where(seen, alpha, 1.0)
-    values.value = np.where(seen, values.value / safe, 0.0)
+    values.value = divided_by_alpha(values.value, alpha)
     if values.stderr is not None:
-        values.stderr = np.where(seen, values.stderr / safe, 0.0)
+        values.stderr = divided_by_alpha(values.stderr, alpha)
     values.mask = seen if values.mask is None else values.mask & seen
     values.alpha = alpha
     values.notes.append(f"{path}: {values.key!r} is read as associated with the alpha "
